@@ -1,0 +1,18 @@
+//! oavm: a ray-tracing acceleration structure that lives in a file.
+//!
+//! The crate follows the three layers of the OAVM paper (Yuan et al., Acta Optica Sinica 2017):
+//!
+//! - [`physical`]: the bytes on disk, specified in `format-spec.md`: records, writing, mapping
+//!   the file, validation and verification;
+//! - [`mapping`]: `(level, Morton code) -> record index` without per-node pointers, and the
+//!   parent, child and neighbour queries on Morton codes;
+//! - [`logical`]: the octree with merged empty volumes as the tracer sees it, and the tracer.
+//!
+//! Beside them: [`mesh`] reads meshes, [`build`] turns a mesh into the physical bytes, [`geom`]
+//! holds the geometry kernels every part shares.
+
+pub mod geom;
+pub mod mesh;
+
+pub use geom::{Hit, Ray};
+pub use mesh::Mesh;
