@@ -11,8 +11,19 @@
 //! Beside them: [`mesh`] reads meshes, [`build`] turns a mesh into the physical bytes, [`geom`]
 //! holds the geometry kernels every part shares.
 
+pub mod build;
+pub mod cli;
+pub mod error;
 pub mod geom;
+pub mod logical;
+pub mod mapping;
 pub mod mesh;
+pub mod physical;
+pub mod rays;
+pub mod render;
 
+pub use build::{BuildOptions, BuildStats};
+pub use error::{Error, FormatError};
 pub use geom::{Hit, Ray};
+pub use logical::{Counters, Scene};
 pub use mesh::Mesh;

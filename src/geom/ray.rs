@@ -21,7 +21,12 @@ const _: () = assert!(std::mem::size_of::<Ray>() == 32);
 
 impl Ray {
     pub fn new(origin: [f32; 3], dir: [f32; 3], tmin: f32, tmax: f32) -> Ray {
-        Ray { origin, tmin, dir, tmax }
+        Ray {
+            origin,
+            tmin,
+            dir,
+            tmax,
+        }
     }
 
     /// A ray that can hit something: finite origin and direction, a non-zero direction and
@@ -51,7 +56,10 @@ pub struct Hit {
 const _: () = assert!(std::mem::size_of::<Hit>() == 8);
 
 impl Hit {
-    pub const MISS: Hit = Hit { t: f32::INFINITY, prim: u32::MAX };
+    pub const MISS: Hit = Hit {
+        t: f32::INFINITY,
+        prim: u32::MAX,
+    };
 
     pub fn is_hit(&self) -> bool {
         self.prim != u32::MAX

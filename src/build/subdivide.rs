@@ -1,0 +1,198 @@
+//! Octree subdivision (OAVM paper §2.1): the root cube is split into 8 children while a node
+//! holds more than `K` triangles and is shallower than `D`; a triangle goes to every child it
+//! really overlaps, decided by the exact triangle–box test, not to every child its bounding box
+//! touches.
+//!
+//! The tree is built one level at a time: the children of a level's internal nodes, taken in
+//! order and 8 at a time in octant order, *are* the next level in Morton order (format-spec
+//! §4), so no sorting is needed and the result does not depend on how rayon splits the work.
+
+use rayon::prelude::*;
+
+use crate::geom::tribox::triangle_overlaps_box;
+use crate::mapping::morton::{MAX_LEVEL, cell_size};
+
+/// Every cell is enlarged by this many lattice units (of the `2^21` lattice; `2^-20` of the
+/// root's edge) on each side when triangles are assigned to it. A triangle lying on, or within
+/// floating-point error of, a face between two cells is thereby referenced by both, so a ray
+/// whose traversal rounds onto the other side of that face still meets it: no ray slips through
+/// the crack between cells. It is far above the f64 error of traversal (about `2^-31` units) and
+/// of the f32 triangle test relative to the root (about `2^-2` units).
+pub const CELL_MARGIN: f64 = 2.0;
+
+/// A triangle in lattice coordinates, with its bounding box.
+pub struct LatticeTri {
+    pub v: [[f64; 3]; 3],
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+}
+
+impl LatticeTri {
+    pub fn new(v: [[f64; 3]; 3]) -> LatticeTri {
+        let lo = std::array::from_fn(|k| v[0][k].min(v[1][k]).min(v[2][k]));
+        let hi = std::array::from_fn(|k| v[0][k].max(v[1][k]).max(v[2][k]));
+        LatticeTri { v, lo, hi }
+    }
+}
+
+/// A node of the tree being built.
+pub enum BuildNode {
+    Internal,
+    /// A leaf and the triangles (indices into the build's triangle list) it references; empty
+    /// for an empty leaf.
+    Leaf(Vec<u32>),
+}
+
+/// One level of the tree: nodes in Morton order, each with its code.
+pub struct BuildLevel {
+    pub codes: Vec<u64>,
+    pub nodes: Vec<BuildNode>,
+}
+
+struct Pending {
+    code: u64,
+    tris: Vec<u32>,
+    /// Triangle counts of the parent and grandparent (`u32::MAX` above the root).
+    parent_count: u32,
+    grand_count: u32,
+}
+
+/// Parameters of subdivision.
+#[derive(Clone, Copy, Debug)]
+pub struct SubdivideParams {
+    pub max_depth: u32,
+    pub leaf_size: u32,
+}
+
+/// Builds the levels of the octree over `tris`. `on_level` is told each finished level's node
+/// count (for progress reporting).
+pub fn subdivide(
+    tris: &[LatticeTri],
+    params: SubdivideParams,
+    on_level: &(dyn Fn(u32, usize) + Sync),
+) -> Vec<BuildLevel> {
+    let max_depth = params.max_depth.min(MAX_LEVEL);
+    let mut levels = Vec::new();
+    let mut current = vec![Pending {
+        code: 0,
+        tris: (0..tris.len() as u32).collect(),
+        parent_count: u32::MAX,
+        grand_count: u32::MAX,
+    }];
+    for level in 0..=max_depth {
+        let split: Vec<Result<[Pending; 8], (u64, Vec<u32>)>> = current
+            .into_par_iter()
+            .map(|p| {
+                let count = p.tris.len() as u32;
+                // Stop where the leaf is small enough, at the depth limit, or where two
+                // subdivisions in a row separated nothing (triangles that all meet in one
+                // point or line, or duplicates): further splits would only multiply references.
+                let stuck = count == p.parent_count && count == p.grand_count;
+                if count <= params.leaf_size || level == max_depth || stuck {
+                    Err((p.code, p.tris))
+                } else {
+                    Ok(split_node(tris, &p, level))
+                }
+            })
+            .collect();
+        let mut codes = Vec::with_capacity(split.len());
+        let mut nodes = Vec::with_capacity(split.len());
+        let mut next = Vec::new();
+        for s in split {
+            match s {
+                Ok(children) => {
+                    codes.push(children[0].code >> 3);
+                    nodes.push(BuildNode::Internal);
+                    next.extend(children);
+                }
+                Err((code, t)) => {
+                    codes.push(code);
+                    nodes.push(BuildNode::Leaf(t));
+                }
+            }
+        }
+        on_level(level, nodes.len());
+        levels.push(BuildLevel { codes, nodes });
+        if next.is_empty() {
+            break;
+        }
+        current = next;
+    }
+    levels
+}
+
+/// Splits node `p` of `level` into its 8 children.
+fn split_node(tris: &[LatticeTri], p: &Pending, level: u32) -> [Pending; 8] {
+    let half = cell_size(level + 1) as f64;
+    let origin = crate::mapping::morton::cell_origin(p.code, level).map(|c| c as f64);
+    let mid: [f64; 3] = std::array::from_fn(|k| origin[k] + half);
+
+    // Large nodes are split in parallel chunks, concatenated in chunk order (deterministic).
+    const CHUNK: usize = 16 * 1024;
+    let lists: [Vec<u32>; 8] = if p.tris.len() > 2 * CHUNK {
+        let parts: Vec<[Vec<u32>; 8]> = p
+            .tris
+            .par_chunks(CHUNK)
+            .map(|chunk| assign(tris, chunk, origin, mid, half))
+            .collect();
+        std::array::from_fn(|o| {
+            let mut v = Vec::with_capacity(parts.iter().map(|p| p[o].len()).sum());
+            for part in &parts {
+                v.extend_from_slice(&part[o]);
+            }
+            v
+        })
+    } else {
+        assign(tris, &p.tris, origin, mid, half)
+    };
+    let count = p.tris.len() as u32;
+    let mut lists = lists.into_iter();
+    std::array::from_fn(|o| Pending {
+        code: p.code << 3 | o as u64,
+        tris: lists.next().unwrap_or_default(),
+        parent_count: count,
+        grand_count: p.parent_count,
+    })
+}
+
+/// Distributes `ids` over the 8 children of the cell with lowest corner `origin`, centre `mid`
+/// and child edge `half`.
+fn assign(
+    tris: &[LatticeTri],
+    ids: &[u32],
+    origin: [f64; 3],
+    mid: [f64; 3],
+    half: f64,
+) -> [Vec<u32>; 8] {
+    let mut out: [Vec<u32>; 8] = Default::default();
+    for &id in ids {
+        let t = &tris[id as usize];
+        // Per axis: may the triangle reach the lower child (side 0), the upper child (side 1)?
+        // A triangle on one side only is certain to overlap the child there, given it overlaps
+        // the parent; only triangles straddling a mid-plane need the exact test.
+        let mut sides = [[false; 2]; 3];
+        let mut straddles = false;
+        for k in 0..3 {
+            sides[k] = [
+                t.lo[k] <= mid[k] + CELL_MARGIN,
+                t.hi[k] >= mid[k] - CELL_MARGIN,
+            ];
+            straddles |= sides[k][0] && sides[k][1];
+        }
+        for (o, list) in out.iter_mut().enumerate() {
+            let bit = |k: usize| (o >> k) & 1;
+            if !(0..3).all(|k| sides[k][bit(k)]) {
+                continue;
+            }
+            if straddles {
+                let c: [f64; 3] = std::array::from_fn(|k| origin[k] + half * (bit(k) as f64 + 0.5));
+                let h = [half * 0.5 + CELL_MARGIN; 3];
+                if !triangle_overlaps_box(&t.v, c, h) {
+                    continue;
+                }
+            }
+            list.push(id);
+        }
+    }
+    out
+}

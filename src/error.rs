@@ -1,0 +1,81 @@
+//! Error types. Every error names what it is about (the file, and the place inside it) and, where
+//! there is one, says how to fix it.
+
+use std::path::PathBuf;
+
+/// A defect in the bytes of an `.oavm` file: found at open (header, section table, level table),
+/// by `verify`, or by the tracer's bounds checks while it walks the tree.
+#[derive(Debug, thiserror::Error)]
+pub enum FormatError {
+    #[error(
+        "the file is {len} bytes, shorter than a {need}-byte header: not an .oavm file, or truncated"
+    )]
+    TooShort { len: u64, need: u64 },
+    #[error("bad magic bytes {found:02x?}: not an .oavm file")]
+    BadMagic { found: [u8; 8] },
+    #[error(
+        "format version {found} is not supported: this oavm reads version {expected}; \
+         repack the mesh with this version's oavm-pack"
+    )]
+    Version { expected: u32, found: u32 },
+    #[error("this oavm reads .oavm files on little-endian machines only")]
+    BigEndianHost,
+    #[error("header: {0}")]
+    Header(String),
+    #[error("section table: {0}")]
+    SectionTable(String),
+    #[error("{section} section: {what}")]
+    Section { section: &'static str, what: String },
+    #[error(
+        "{section}: checksum mismatch (stored {stored:#018x}, computed {computed:#018x}): \
+         the file is corrupt"
+    )]
+    Checksum {
+        section: &'static str,
+        stored: u64,
+        computed: u64,
+    },
+    #[error("corrupt {0}")]
+    Corrupt(String),
+}
+
+/// Everything that can go wrong in the library, with the file it concerns.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error(transparent)]
+    Mesh(#[from] crate::mesh::MeshError),
+    #[error("{}: {source}", path.display())]
+    Format {
+        path: PathBuf,
+        #[source]
+        source: FormatError,
+    },
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{0}")]
+    Build(String),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+impl Error {
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Error {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    pub fn format(path: impl Into<PathBuf>, source: FormatError) -> Error {
+        Error::Format {
+            path: path.into(),
+            source,
+        }
+    }
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;

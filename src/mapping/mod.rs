@@ -1,0 +1,282 @@
+//! The mapping layer: `(level L, Morton code M) -> record index`, with no per-node pointers
+//! (OAVM paper §2.2, "pointer reduction"; format-spec §4).
+//!
+//! **Method.** Each level stores its nodes in Morton order, and every internal node has exactly
+//! 8 children. The children of a level's internal nodes are therefore the next level, in the same
+//! order, 8 per internal node: the children of the internal node of *rank* `r` (the `r`-th
+//! internal node of its level, counting from 0) are records `8 r .. 8 r + 8` of the next level,
+//! in octant order. The rank is read from the rank directory (spec §4.3): one [`RankWord`] per 64
+//! nodes holds a bitmap of which nodes are internal and the count of internal nodes before it, so
+//!
+//! ```text
+//!   rank(idx)      = word.rank + popcount(word.internal & ((1 << (idx % 64)) - 1)),  word = ranks[idx / 64]
+//!   child(idx, o)  = 8 * rank(idx) + o
+//! ```
+//!
+//! **Cost.** A child step reads one 16-byte rank word and one popcount: O(1). Finding `(L, M)`
+//! from the root takes `L` child steps; the tracer keeps the indices of the current leaf's
+//! ancestors and descends from the lowest common ancestor of two consecutive leaves, which
+//! [`morton::common_level`] finds from the coordinates alone, so a step to a neighbour costs one
+//! child step per level between that ancestor and the new leaf. A parent query needs the inverse
+//! (select): a binary search over the level's rank words, `O(log n)`, used by tools and tests,
+//! never by the tracer. The directory costs 2 bits per node, against a pointer octree's 8 child
+//! pointers per internal node.
+
+pub mod morton;
+
+use crate::physical::format::{LevelEntry, NodeKind, NodeRecord, RankWord};
+
+/// What went wrong where, when a walk meets bytes that break the format's invariants. Small and
+/// `Copy` so the tracer's hot path can return it cheaply; turned into a
+/// [`crate::error::FormatError`] at the edge.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Corruption {
+    pub what: &'static str,
+    pub level: u32,
+    pub index: u64,
+}
+
+impl std::fmt::Display for Corruption {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} (level {}, node {})",
+            self.what, self.level, self.index
+        )
+    }
+}
+
+impl From<Corruption> for crate::error::FormatError {
+    fn from(c: Corruption) -> Self {
+        crate::error::FormatError::Corrupt(c.to_string())
+    }
+}
+
+/// The node records and rank directory of a tree, addressed by `(level, index in level)`.
+#[derive(Clone, Copy)]
+pub struct TreeMap<'a> {
+    levels: &'a [LevelEntry],
+    nodes: &'a [NodeRecord],
+    ranks: &'a [RankWord],
+}
+
+impl<'a> TreeMap<'a> {
+    pub fn new(levels: &'a [LevelEntry], nodes: &'a [NodeRecord], ranks: &'a [RankWord]) -> Self {
+        TreeMap {
+            levels,
+            nodes,
+            ranks,
+        }
+    }
+
+    pub fn level_count(&self) -> u32 {
+        self.levels.len() as u32
+    }
+
+    pub fn levels(&self) -> &'a [LevelEntry] {
+        self.levels
+    }
+
+    /// The record of node `idx` of `level`.
+    #[inline]
+    pub fn node(&self, level: u32, idx: u64) -> Result<NodeRecord, Corruption> {
+        let bad = Corruption {
+            what: "node index out of range",
+            level,
+            index: idx,
+        };
+        let lv = self.levels.get(level as usize).ok_or(bad)?;
+        if idx >= lv.node_count {
+            return Err(bad);
+        }
+        self.nodes
+            .get((lv.node_start + idx) as usize)
+            .copied()
+            .ok_or(bad)
+    }
+
+    /// Index at `level + 1` of child `octant` of the internal node `idx` of `level`.
+    #[inline]
+    pub fn child(&self, level: u32, idx: u64, octant: u32) -> Result<u64, Corruption> {
+        let bad = |what| Corruption {
+            what,
+            level,
+            index: idx,
+        };
+        let lv = self
+            .levels
+            .get(level as usize)
+            .ok_or(bad("level out of range"))?;
+        let word = self
+            .ranks
+            .get((lv.rank_start + idx / 64) as usize)
+            .ok_or(bad("rank word out of range"))?;
+        let bit = idx % 64;
+        if (word.internal >> bit) & 1 == 0 {
+            return Err(bad("internal node not marked in the rank directory"));
+        }
+        let rank = word.rank + (word.internal & ((1u64 << bit) - 1)).count_ones() as u64;
+        let child = rank * 8 + octant as u64;
+        let next = self
+            .levels
+            .get(level as usize + 1)
+            .ok_or(bad("internal node on the deepest level"))?;
+        if child >= next.node_count {
+            return Err(bad("rank directory points past the next level"));
+        }
+        Ok(child)
+    }
+
+    /// Index at `level - 1` of the parent of node `idx` of `level` (`level >= 1`): the internal
+    /// node of rank `idx / 8`, found by binary search over the rank words (select).
+    pub fn parent(&self, level: u32, idx: u64) -> Result<u64, Corruption> {
+        let bad = |what| Corruption {
+            what,
+            level,
+            index: idx,
+        };
+        if level == 0 {
+            return Err(bad("the root has no parent"));
+        }
+        let pl = level - 1;
+        let lv = self
+            .levels
+            .get(pl as usize)
+            .ok_or(bad("level out of range"))?;
+        let words = self
+            .ranks
+            .get(lv.rank_start as usize..(lv.rank_start + lv.node_count.div_ceil(64)) as usize)
+            .ok_or(bad("rank words out of range"))?;
+        let rank = idx / 8;
+        // The last word whose count of earlier internal nodes is <= rank holds the parent.
+        let w = words.partition_point(|w| w.rank <= rank);
+        let word = w
+            .checked_sub(1)
+            .and_then(|w| words.get(w))
+            .ok_or(bad("no parent for rank"))?;
+        let mut left = rank - word.rank; // internal nodes to skip inside the word
+        let mut bits = word.internal;
+        while bits != 0 {
+            let b = bits.trailing_zeros() as u64;
+            if left == 0 {
+                return Ok((w as u64 - 1) * 64 + b);
+            }
+            left -= 1;
+            bits &= bits - 1;
+        }
+        Err(bad("no parent for rank"))
+    }
+
+    /// Index of node `(level, code)`, or `None` if an ancestor of it is a leaf (the node does not
+    /// exist). `L` child steps from the root.
+    pub fn index_of(&self, level: u32, code: u64) -> Result<Option<u64>, Corruption> {
+        let mut idx = 0;
+        for l in 0..level {
+            match self.node(l, idx)?.kind() {
+                Some(NodeKind::Internal) => {
+                    let octant = ((code >> (3 * (level - l - 1))) & 7) as u32;
+                    idx = self.child(l, idx, octant)?;
+                }
+                Some(_) => return Ok(None),
+                None => {
+                    return Err(Corruption {
+                        what: "invalid node record",
+                        level: l,
+                        index: idx,
+                    });
+                }
+            }
+        }
+        Ok(Some(idx))
+    }
+
+    /// The leaf containing lattice point `q`: its level, index and record.
+    pub fn leaf_at(&self, q: [u32; 3]) -> Result<(u32, u64, NodeRecord), Corruption> {
+        let (mut level, mut idx) = (0u32, 0u64);
+        loop {
+            let rec = self.node(level, idx)?;
+            match rec.kind() {
+                Some(NodeKind::Internal) => {
+                    idx = self.child(level, idx, morton::octant_of_point(q, level + 1))?;
+                    level += 1;
+                }
+                Some(_) => return Ok((level, idx, rec)),
+                None => {
+                    return Err(Corruption {
+                        what: "invalid node record",
+                        level,
+                        index: idx,
+                    });
+                }
+            }
+        }
+    }
+
+    /// The leaves adjacent to face `(axis, positive)` of node `(level, code)`: the neighbour at
+    /// the same level if it exists, else the leaf that contains it (a coarser neighbour), else
+    /// all the leaves of the neighbour's subtree that touch the shared face (finer neighbours).
+    /// Empty for a face on the root's boundary.
+    pub fn face_neighbours(
+        &self,
+        level: u32,
+        code: u64,
+        axis: u32,
+        positive: bool,
+    ) -> Result<Vec<(u32, u64)>, Corruption> {
+        let Some(ncode) = morton::neighbour(code, level, axis, positive) else {
+            return Ok(Vec::new());
+        };
+        // Walk down towards (level, ncode); stop early at a coarser leaf.
+        let (mut l, mut idx) = (0u32, 0u64);
+        while l < level {
+            match self.node(l, idx)?.kind() {
+                Some(NodeKind::Internal) => {
+                    let octant = ((ncode >> (3 * (level - l - 1))) & 7) as u32;
+                    idx = self.child(l, idx, octant)?;
+                    l += 1;
+                }
+                Some(_) => return Ok(vec![(l, idx)]),
+                None => {
+                    return Err(Corruption {
+                        what: "invalid node record",
+                        level: l,
+                        index: idx,
+                    });
+                }
+            }
+        }
+        // At the same level: collect the leaves of its subtree on the face towards us, i.e. the
+        // children whose `axis` bit is 0 if we step in the positive direction, else 1.
+        // Corrupt rank words could send several parents to the same children: bound the walk by
+        // the number of nodes, which a well-formed tree never exceeds.
+        let mut out = Vec::new();
+        let mut stack = vec![(l, idx)];
+        let mut budget = self.nodes.len();
+        while let Some((l, idx)) = stack.pop() {
+            budget = budget.checked_sub(1).ok_or(Corruption {
+                what: "subtree walk visits more nodes than the tree has",
+                level: l,
+                index: idx,
+            })?;
+            match self.node(l, idx)?.kind() {
+                Some(NodeKind::Internal) => {
+                    for octant in 0..8u32 {
+                        if ((octant >> axis) & 1 == 1) != positive {
+                            stack.push((l + 1, self.child(l, idx, octant)?));
+                        }
+                    }
+                }
+                Some(_) => out.push((l, idx)),
+                None => {
+                    return Err(Corruption {
+                        what: "invalid node record",
+                        level: l,
+                        index: idx,
+                    });
+                }
+            }
+        }
+        out.sort_unstable();
+        Ok(out)
+    }
+}

@@ -1,0 +1,371 @@
+//! Reading an `.oavm` file: O(1) checks at open, typed zero-copy views of the sections after.
+//!
+//! [`OavmFile`] is generic over its bytes (`D: AsRef<[u8]>`): tests run it on an
+//! [`AlignedBytes`] buffer, production on a [`super::mmap::MappedFile`], through the same code.
+//! Opening checks the header, the section table and the level table (at most 22 entries), so its
+//! cost does not depend on the size of the file; the contents of the other sections are checked
+//! by [`super::verify`] on demand and bounds-checked by every reader as it goes.
+
+use std::ops::Range;
+
+use bytemuck::{Pod, Zeroable};
+
+use super::format::*;
+use crate::error::FormatError;
+use crate::mapping::morton::{LATTICE_BITS, MAX_LEVEL};
+
+/// An opened `.oavm` file whose header, section table and level table have been validated.
+pub struct OavmFile<D> {
+    data: D,
+    header: Header,
+    /// Section entries indexed by `SectionKind as usize - 1`.
+    sections: [SectionEntry; SectionKind::ALL.len()],
+    levels: Vec<LevelEntry>,
+}
+
+impl<D: AsRef<[u8]>> OavmFile<D> {
+    /// Opens `data` as an `.oavm` file, checking only what the size of the file does not scale:
+    /// header, section table and level table (spec §2–§4.1).
+    pub fn open(data: D) -> Result<OavmFile<D>, FormatError> {
+        if cfg!(target_endian = "big") {
+            return Err(FormatError::BigEndianHost);
+        }
+        let bytes = data.as_ref();
+        let header = read_header(bytes)?;
+        let sections = read_section_table(bytes, &header)?;
+        let levels = read_levels(bytes, &header, &sections)?;
+        Ok(OavmFile {
+            data,
+            header,
+            sections,
+            levels,
+        })
+    }
+
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    pub fn levels(&self) -> &[LevelEntry] {
+        &self.levels
+    }
+
+    pub fn section(&self, kind: SectionKind) -> &SectionEntry {
+        &self.sections[kind as usize - 1]
+    }
+
+    pub fn bytes(&self) -> &[u8] {
+        self.data.as_ref()
+    }
+
+    /// The raw bytes of a section (its range was validated at open).
+    pub fn section_bytes(&self, kind: SectionKind) -> &[u8] {
+        let s = self.section(kind);
+        self.data
+            .as_ref()
+            .get(s.offset as usize..(s.offset + s.length) as usize)
+            .unwrap_or(&[])
+    }
+
+    /// A section's records, cast in place. Open checked the section's length, alignment in the
+    /// file and record size; the buffer's own alignment is checked here, and a misaligned buffer
+    /// (not a map, not an [`AlignedBytes`]) yields an empty slice, which every reader treats as
+    /// out-of-bounds, never as a panic.
+    pub fn records<T: Pod>(&self, kind: SectionKind) -> &[T] {
+        bytemuck::try_cast_slice(self.section_bytes(kind)).unwrap_or(&[])
+    }
+
+    /// Whether the buffer holding the file is aligned well enough to cast records in place.
+    pub fn is_aligned(&self) -> bool {
+        (self.data.as_ref().as_ptr() as usize).is_multiple_of(std::mem::align_of::<u64>())
+    }
+
+    pub fn into_inner(self) -> D {
+        self.data
+    }
+}
+
+fn header_err(what: impl Into<String>) -> FormatError {
+    FormatError::Header(what.into())
+}
+
+fn table_err(what: impl Into<String>) -> FormatError {
+    FormatError::SectionTable(what.into())
+}
+
+fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
+    let need = std::mem::size_of::<Header>();
+    if bytes.len() < need {
+        if bytes.len() >= MAGIC.len() && bytes[..MAGIC.len()] != MAGIC {
+            return Err(FormatError::BadMagic {
+                found: bytes[..8].try_into().unwrap_or([0; 8]),
+            });
+        }
+        return Err(FormatError::TooShort {
+            len: bytes.len() as u64,
+            need: need as u64,
+        });
+    }
+    let header: Header = bytemuck::pod_read_unaligned(&bytes[..need]);
+    if header.magic != MAGIC {
+        return Err(FormatError::BadMagic {
+            found: header.magic,
+        });
+    }
+    // The version is checked before anything else a later version might have changed.
+    if header.version != VERSION {
+        return Err(FormatError::Version {
+            expected: VERSION,
+            found: header.version,
+        });
+    }
+    if header.header_size as usize != need {
+        return Err(header_err(format!(
+            "header_size is {}, version {VERSION} headers are {need} bytes",
+            header.header_size
+        )));
+    }
+    if header.file_size != bytes.len() as u64 {
+        return Err(header_err(format!(
+            "the header records a file of {} bytes but the file has {} bytes (truncated or \
+             extended)",
+            header.file_size,
+            bytes.len()
+        )));
+    }
+    if header.flags & !KNOWN_FLAGS != 0 {
+        return Err(header_err(format!(
+            "unknown flags {:#x}",
+            header.flags & !KNOWN_FLAGS
+        )));
+    }
+    if header.section_count as usize != SectionKind::ALL.len() {
+        return Err(header_err(format!(
+            "{} sections, version {VERSION} files have {}",
+            header.section_count,
+            SectionKind::ALL.len()
+        )));
+    }
+    if header.section_table_offset != need as u64 {
+        return Err(header_err(format!(
+            "section table at offset {}, expected {need}",
+            header.section_table_offset
+        )));
+    }
+    let table_end = need + SectionKind::ALL.len() * std::mem::size_of::<SectionEntry>();
+    if bytes.len() < table_end {
+        return Err(header_err(format!(
+            "the file ends inside the section table ({table_end} bytes needed)"
+        )));
+    }
+    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+    hasher.update(&bytes[..HEADER_CHECKED_LEN]);
+    hasher.update(&bytes[need..table_end]);
+    let computed = hasher.digest();
+    if computed != header.checksum {
+        return Err(FormatError::Checksum {
+            section: "header and section table",
+            stored: header.checksum,
+            computed,
+        });
+    }
+    if header.reserved.iter().any(|&r| r != 0) {
+        return Err(header_err("reserved fields are not zero"));
+    }
+    if header.lattice_bits != LATTICE_BITS {
+        return Err(header_err(format!(
+            "lattice_bits is {}, this version uses {LATTICE_BITS}",
+            header.lattice_bits
+        )));
+    }
+    if header.level_count == 0 || header.level_count > MAX_LEVEL + 1 {
+        return Err(header_err(format!(
+            "level_count is {}, must be 1..={}",
+            header.level_count,
+            MAX_LEVEL + 1
+        )));
+    }
+    if header.max_depth > MAX_LEVEL || header.level_count > header.max_depth + 1 {
+        return Err(header_err(format!(
+            "max_depth {} is above {MAX_LEVEL} or below the tree's depth {}",
+            header.max_depth,
+            header.level_count - 1
+        )));
+    }
+    if !header.root_min.iter().all(|c| c.is_finite())
+        || !(header.root_size.is_finite() && header.root_size > 0.0)
+    {
+        return Err(header_err(format!(
+            "root cube (min {:?}, size {}) is not finite and positive",
+            header.root_min, header.root_size
+        )));
+    }
+    let mesh_ok = (0..3).all(|k| {
+        header.mesh_min[k].is_finite()
+            && header.mesh_max[k].is_finite()
+            && header.mesh_min[k] <= header.mesh_max[k]
+    });
+    if !mesh_ok {
+        return Err(header_err("mesh bounds are not finite or min > max"));
+    }
+    Ok(header)
+}
+
+fn read_section_table(
+    bytes: &[u8],
+    header: &Header,
+) -> Result<[SectionEntry; SectionKind::ALL.len()], FormatError> {
+    let start = header.section_table_offset as usize;
+    let entry = std::mem::size_of::<SectionEntry>();
+    let mut sections = [SectionEntry::zeroed(); SectionKind::ALL.len()];
+    let table_end = start + SectionKind::ALL.len() * entry;
+    let mut prev_end = table_end as u64;
+    for (i, kind) in SectionKind::ALL.into_iter().enumerate() {
+        let at = start + i * entry;
+        let s: SectionEntry = bytemuck::pod_read_unaligned(&bytes[at..at + entry]);
+        let name = kind.name();
+        if s.kind != kind as u32 {
+            return Err(table_err(format!(
+                "entry {i} has kind {}, expected {} ({name}): sections are stored in a fixed order",
+                s.kind, kind as u32
+            )));
+        }
+        if s.codec != 0 || s.block_directory != 0 {
+            return Err(table_err(format!(
+                "{name}: codec {} / block directory {} are reserved and must be 0 in version {VERSION}",
+                s.codec, s.block_directory
+            )));
+        }
+        if !s.offset.is_multiple_of(SECTION_ALIGN) || s.offset < prev_end {
+            return Err(table_err(format!(
+                "{name}: offset {} is not {SECTION_ALIGN}-aligned or overlaps what precedes it (ends at {prev_end})",
+                s.offset
+            )));
+        }
+        let end = s
+            .offset
+            .checked_add(s.length)
+            .filter(|&e| e <= header.file_size);
+        let Some(end) = end else {
+            return Err(table_err(format!(
+                "{name}: {} bytes at offset {} run past the end of the {}-byte file",
+                s.length, s.offset, header.file_size
+            )));
+        };
+        if s.count.checked_mul(kind.record_size()) != Some(s.length) {
+            return Err(table_err(format!(
+                "{name}: {} records of {} bytes do not make {} bytes",
+                s.count,
+                kind.record_size(),
+                s.length
+            )));
+        }
+        prev_end = end;
+        sections[i] = s;
+    }
+    if prev_end != header.file_size {
+        return Err(table_err(format!(
+            "the last section ends at {prev_end}, the file at {}",
+            header.file_size
+        )));
+    }
+    Ok(sections)
+}
+
+/// Checks the level table against itself and the section sizes (spec §4.1 invariants).
+fn read_levels(
+    bytes: &[u8],
+    header: &Header,
+    sections: &[SectionEntry; SectionKind::ALL.len()],
+) -> Result<Vec<LevelEntry>, FormatError> {
+    let err = |what: String| FormatError::Section {
+        section: "levels",
+        what,
+    };
+    let s = &sections[SectionKind::Levels as usize - 1];
+    if s.count != header.level_count as u64 {
+        return Err(err(format!(
+            "{} entries for {} levels",
+            s.count, header.level_count
+        )));
+    }
+    let range: Range<usize> = s.offset as usize..(s.offset + s.length) as usize;
+    let levels: Vec<LevelEntry> = bytes[range]
+        .chunks_exact(std::mem::size_of::<LevelEntry>())
+        .map(bytemuck::pod_read_unaligned)
+        .collect();
+    let mut node_start = 0u64;
+    let mut rank_start = 0u64;
+    let mut expected_nodes = 1u64;
+    for (l, e) in levels.iter().enumerate() {
+        if e.node_count != expected_nodes {
+            return Err(err(format!(
+                "level {l} has {} nodes, expected {expected_nodes} (8 per internal node above)",
+                e.node_count
+            )));
+        }
+        if e.internal_count > e.node_count {
+            return Err(err(format!(
+                "level {l} has {} internal nodes among {} nodes",
+                e.internal_count, e.node_count
+            )));
+        }
+        if e.node_start != node_start || e.rank_start != rank_start {
+            return Err(err(format!(
+                "level {l} starts at node {} and rank word {}, expected {node_start} and {rank_start}",
+                e.node_start, e.rank_start
+            )));
+        }
+        // Counts are bounded by the section sizes checked below, so these cannot overflow.
+        node_start = node_start.saturating_add(e.node_count);
+        rank_start = rank_start.saturating_add(e.node_count.div_ceil(64));
+        expected_nodes = e.internal_count.saturating_mul(8);
+        if node_start > sections[SectionKind::Nodes as usize - 1].count {
+            return Err(err(format!("level {l} runs past the nodes section")));
+        }
+    }
+    if expected_nodes != 0 {
+        return Err(err("the deepest level has internal nodes".to_string()));
+    }
+    let nodes = sections[SectionKind::Nodes as usize - 1].count;
+    let ranks = sections[SectionKind::Ranks as usize - 1].count;
+    if node_start != nodes || rank_start != ranks {
+        return Err(err(format!(
+            "levels hold {node_start} nodes and {rank_start} rank words, the sections {nodes} and {ranks}"
+        )));
+    }
+    Ok(levels)
+}
+
+/// A byte buffer aligned for casting records in place (backed by `u64`s), for files held in
+/// memory: tests, and files produced by the builder before they are written.
+#[derive(Clone, Default)]
+pub struct AlignedBytes {
+    words: Vec<u64>,
+    len: usize,
+}
+
+impl AlignedBytes {
+    pub fn from_slice(bytes: &[u8]) -> AlignedBytes {
+        let mut words = vec![0u64; bytes.len().div_ceil(8)];
+        bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);
+        AlignedBytes {
+            words,
+            len: bytes.len(),
+        }
+    }
+
+    pub fn as_mut_slice(&mut self) -> &mut [u8] {
+        &mut bytemuck::cast_slice_mut::<u64, u8>(&mut self.words)[..self.len]
+    }
+
+    pub fn truncate(&mut self, len: usize) {
+        self.len = self.len.min(len);
+    }
+}
+
+impl AsRef<[u8]> for AlignedBytes {
+    fn as_ref(&self) -> &[u8] {
+        &bytemuck::cast_slice::<u64, u8>(&self.words)[..self.len]
+    }
+}
