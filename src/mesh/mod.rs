@@ -1,9 +1,23 @@
 //! Mesh input: PLY (ascii, binary little- and big-endian) and OBJ (through `tobj`).
 //!
-//! Everything read here is untrusted. Primitive ids follow `../shared/RAYS.md`: triangle `i` of
-//! [`Mesh::triangles`] is the `i`-th triangle of the file after fan triangulation, in file order.
+//! Everything read here is untrusted: any bytes give a [`Mesh`] or a [`MeshError`] naming the
+//! file and the place, never a panic, and no count read from a file makes us allocate more than
+//! the file's own size can back. The parsers work on `&[u8]`, so they run the same over a `Vec`
+//! and over a memory-mapped file.
+//!
+//! Primitive ids follow `../shared/RAYS.md`: triangle `i` of [`Mesh::triangles`] is the `i`-th
+//! triangle of the file after fan triangulation, in file order. `positions[i]` is the file's
+//! vertex `i` (PLY vertex record `i`, OBJ `v` line `i + 1`), used or not.
+
+mod error;
+mod obj;
+mod ply;
 
 use std::path::Path;
+
+pub use error::{MeshError, Place};
+pub use obj::parse_obj;
+pub use ply::parse_ply;
 
 /// A triangle mesh as read from a file. `triangles[i]` has primitive id `i`.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -24,11 +38,77 @@ impl Mesh {
     }
 }
 
-/// Placeholder until the mesh readers land.
-#[derive(Debug, thiserror::Error)]
-#[error("mesh readers are being written")]
-pub struct MeshError;
+/// Reads the mesh in `path`. The format is PLY if the file starts with the PLY magic line,
+/// else OBJ if the extension is `.obj` or the first statements are OBJ statements.
+pub fn load(path: &Path) -> Result<Mesh, MeshError> {
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    let name = path.display().to_string();
+    let extension = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    if ply::has_magic(&bytes) {
+        return parse_ply(&bytes, &name);
+    }
+    if extension.as_deref() == Some("obj") || obj::looks_like_obj(&bytes) {
+        return parse_obj(&bytes, &name);
+    }
+    let detail = if extension.as_deref() == Some("ply") {
+        "the file is named .ply but does not start with the PLY magic line `ply`".to_owned()
+    } else {
+        "it starts with neither the PLY magic line `ply` nor OBJ statements".to_owned()
+    };
+    Err(MeshError::UnknownFormat { file: name, detail })
+}
 
-pub fn load(_path: &Path) -> Result<Mesh, MeshError> {
-    Err(MeshError)
+/// Fan triangulation, fed one polygon corner at a time (RAYS.md, "Primitive ids"): the polygon
+/// `v0 v1 ... vk` becomes `(v0, v1, v2), (v0, v2, v3), ...`; fewer than three corners give no
+/// triangle; degenerate triangles are kept. Streaming it means a polygon's declared length never
+/// sizes an allocation.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Fan {
+    first: u32,
+    prev: u32,
+    corners: u32,
+}
+
+impl Fan {
+    #[inline]
+    pub(crate) fn push(&mut self, corner: u32, out: &mut Vec<[u32; 3]>) {
+        match self.corners {
+            0 => self.first = corner,
+            1 => {}
+            _ => out.push([self.first, self.prev, corner]),
+        }
+        self.prev = corner;
+        self.corners = self.corners.saturating_add(1);
+    }
+}
+
+/// Checks what both formats promise on success: some triangles, and few enough of them, and of
+/// vertices, for `u32` ids (`0xFFFFFFFF` stays free: RAYS.md uses it for a miss).
+fn check_sizes(mesh: &Mesh, file: &str) -> Result<(), MeshError> {
+    if mesh.triangles.is_empty() {
+        return Err(MeshError::Empty {
+            file: file.to_owned(),
+        });
+    }
+    if mesh.positions.len() > u32::MAX as usize + 1 {
+        return Err(MeshError::TooLarge {
+            file: file.to_owned(),
+            detail: format!("{} vertices; vertex indices are u32", mesh.positions.len()),
+        });
+    }
+    if mesh.triangles.len() >= u32::MAX as usize {
+        return Err(MeshError::TooLarge {
+            file: file.to_owned(),
+            detail: format!(
+                "{} triangles; primitive ids are u32 below 0xFFFFFFFF",
+                mesh.triangles.len()
+            ),
+        });
+    }
+    Ok(())
 }
