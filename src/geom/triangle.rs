@@ -139,7 +139,9 @@ mod tests {
         for i in 1..100 {
             let s = i as f32 / 100.0;
             for d in [[0.0, 0.0, -1.0], [0.3, 0.1, -1.0], [-0.2, 0.7, -0.5]] {
-                let o = [s - d[0] * 2.0, s - d[1] * 2.0, 2.0];
+                // Start at height 2 above the diagonal point (s, s, 0): t = 2 / -d.z there.
+                let t = 2.0 / -d[2];
+                let o = [s - d[0] * t, s - d[1] * t, 2.0];
                 let r = Ray::new(o, d, 0.0, f32::INFINITY);
                 let h1 = intersect_triangle(&r, &t1);
                 let h2 = intersect_triangle(&r, &t2);

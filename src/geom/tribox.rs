@@ -106,10 +106,10 @@ mod tests {
         assert!(!triangle_overlaps_box(&t, C, H));
         let t = [[2.9, 0.0, 0.0], [0.0, 2.9, 0.0], [0.0, 0.0, 2.9]];
         assert!(triangle_overlaps_box(&t, C, H));
-        // A sliver passing a box edge diagonally: only an edge-cross-product axis separates it.
-        let t = [[-3.0, 2.1, 0.0], [2.1, -3.0, 0.0], [2.1, -3.0, 0.01]];
+        // A sliver on the plane x + y = 2.1, passing the box edge at x = y = 1 (sum 2).
+        let t = [[-3.0, 5.1, 0.0], [5.1, -3.0, 0.0], [5.1, -3.0, 0.01]];
         assert!(!triangle_overlaps_box(&t, C, H));
-        let t = [[-3.0, 1.9, 0.0], [1.9, -3.0, 0.0], [1.9, -3.0, 0.01]];
+        let t = [[-3.0, 4.9, 0.0], [4.9, -3.0, 0.0], [4.9, -3.0, 0.01]];
         assert!(triangle_overlaps_box(&t, C, H));
     }
 
