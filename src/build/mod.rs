@@ -20,7 +20,7 @@ use crate::error::Error;
 use crate::mapping::morton::{LATTICE_SIZE, MAX_LEVEL};
 use crate::mesh::Mesh;
 use crate::physical::format::{
-    LevelEntry, MAX_LEAF_REFS, NodeRecord, RankWord, TriRecord, VolumeRecord,
+    LeafBounds, LevelEntry, MAX_INLINE_REFS, NodeRecord, RankWord, TriRecord, VolumeRecord,
 };
 use crate::physical::writer::TreeParts;
 use subdivide::{BuildLevel, BuildNode, LatticeTri, SubdivideParams};
@@ -135,7 +135,6 @@ pub fn build(
     let levels = subdivide::subdivide(&lattice, params, &|level, n| {
         progress(&format!("subdividing: level {level}, {n} nodes"))
     });
-    drop(lattice);
     let build_seconds = t0.elapsed().as_secs_f64();
 
     progress("merging empty volumes");
@@ -145,7 +144,7 @@ pub fn build(
 
     progress("laying out");
     let t2 = Instant::now();
-    let mut parts = layout(&levels, &boxes, &records)?;
+    let mut parts = layout(&levels, &boxes, &records, &lattice)?;
     parts.root_min = root_min;
     parts.root_size = root_size;
     parts.mesh_min = mesh_min;
@@ -281,6 +280,7 @@ fn layout(
     levels: &[BuildLevel],
     boxes: &merge::LeafBoxes,
     records: &[TriRecord],
+    lattice: &[LatticeTri],
 ) -> Result<TreeParts, Error> {
     // All leaves, ordered by the Morton code of their lowest lattice corner: depth-first order,
     // so the leaves (and with them references and triangles) of a subtree are contiguous.
@@ -299,6 +299,22 @@ fn layout(
         })
         .collect();
     leaves.par_sort_unstable();
+
+    // Tight bounds of every solid leaf (spec §4.2), in parallel.
+    let bounds: Vec<Vec<LeafBounds>> = levels
+        .par_iter()
+        .enumerate()
+        .map(|(l, lv)| {
+            lv.nodes
+                .par_iter()
+                .zip(&lv.codes)
+                .map(|(n, &code)| match n {
+                    BuildNode::Leaf(t) if !t.is_empty() => leaf_bounds(lattice, t, code, l as u32),
+                    _ => LeafBounds::FULL,
+                })
+                .collect()
+        })
+        .collect();
 
     let too_many = |what: &str, n: usize| {
         Error::Build(format!(
@@ -330,13 +346,13 @@ fn layout(
             }
             payload[l][i] = v;
         } else {
-            if tris.len() > MAX_LEAF_REFS as usize {
-                return Err(too_many("references in one leaf", tris.len()));
-            }
-            if refs.len() + tris.len() > u32::MAX as usize {
+            if refs.len() + tris.len() + 1 > u32::MAX as usize {
                 return Err(too_many("triangle references", refs.len() + tris.len()));
             }
             payload[l][i] = refs.len() as u32;
+            if tris.len() > MAX_INLINE_REFS as usize {
+                refs.push(tris.len() as u32); // escaped count (spec §4.2)
+            }
             let start = refs.len();
             for &t in tris {
                 let slot = &mut new_index[t as usize];
@@ -382,7 +398,7 @@ fn layout(
                     }
                     BuildNode::Leaf(t) => {
                         solid_leaves += 1;
-                        NodeRecord::solid(payload[l][i], t.len() as u32)
+                        NodeRecord::solid(payload[l][i], t.len() as u32, bounds[l][i])
                     }
                 });
             }
@@ -405,6 +421,44 @@ fn layout(
         triangles,
         ..TreeParts::default()
     })
+}
+
+/// The tight bounds of a solid leaf: the box of the parts of its triangles inside its cell
+/// (enlarged by the cell margin, like the cell the triangles were assigned to), in sixteenths of
+/// the cell, rounded outward.
+fn leaf_bounds(lattice: &[LatticeTri], tris: &[u32], code: u64, level: u32) -> LeafBounds {
+    use crate::mapping::morton::{cell_origin, cell_size};
+    let size = cell_size(level) as f64;
+    let origin = cell_origin(code, level).map(|c| c as f64);
+    let m = subdivide::CELL_MARGIN;
+    let lo: [f64; 3] = std::array::from_fn(|k| origin[k] - m);
+    let hi: [f64; 3] = std::array::from_fn(|k| origin[k] + size + m);
+    let mut blo = [f64::INFINITY; 3];
+    let mut bhi = [f64::NEG_INFINITY; 3];
+    for &t in tris {
+        let tri = &lattice[t as usize];
+        // The exact clip; if rounding leaves nothing of a triangle the exact test kept, fall back
+        // to its bounding box (still conservative).
+        let (a, b) = crate::geom::tribox::clipped_bounds(&tri.v, lo, hi).unwrap_or((
+            std::array::from_fn(|k| tri.lo[k].max(lo[k])),
+            std::array::from_fn(|k| tri.hi[k].min(hi[k])),
+        ));
+        for k in 0..3 {
+            blo[k] = blo[k].min(a[k]);
+            bhi[k] = bhi[k].max(b[k]);
+        }
+    }
+    let q = 16.0 / size;
+    let mut b = LeafBounds::FULL;
+    for k in 0..3 {
+        let l = ((blo[k] - origin[k]) * q).floor().clamp(0.0, 15.0);
+        let h = ((bhi[k] - origin[k]) * q).ceil().clamp(1.0, 16.0) - 1.0;
+        if l <= h {
+            b.lo[k] = l as u8;
+            b.hi[k] = h as u8;
+        }
+    }
+    b
 }
 
 fn stats_of(

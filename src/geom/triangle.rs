@@ -60,6 +60,9 @@ impl RayShear {
     pub fn intersect(&self, v: &[[f32; 3]; 3], tmin: f32, tmax: f32) -> Option<f32> {
         let o = self.origin;
         let (kx, ky, kz) = (self.kx, self.ky, self.kz);
+        if kx > 2 || ky > 2 || kz > 2 {
+            return None; // never: lets the compiler drop the bounds checks below
+        }
         // Vertices relative to the origin, then sheared so the ray runs along +z.
         let rel = |p: &[f32; 3]| [p[kx] - o[kx], p[ky] - o[ky], p[kz] - o[kz]];
         let (a, b, c) = (rel(&v[0]), rel(&v[1]), rel(&v[2]));

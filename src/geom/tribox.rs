@@ -51,6 +51,62 @@ pub fn triangle_overlaps_box(tri: &[[f64; 3]; 3], c: [f64; 3], h: [f64; 3]) -> b
     true
 }
 
+/// Bounding box of the part of triangle `tri` inside the closed box `[lo, hi]`: the triangle is
+/// clipped against the box's six planes (Sutherland–Hodgman) and the box of what remains is
+/// returned; `None` if nothing remains. Used for the tight bounds of solid leaves.
+pub fn clipped_bounds(
+    tri: &[[f64; 3]; 3],
+    lo: [f64; 3],
+    hi: [f64; 3],
+) -> Option<([f64; 3], [f64; 3])> {
+    // A triangle clipped by 6 planes has at most 9 corners.
+    let mut poly = [[0.0f64; 3]; 9];
+    let mut n = 3;
+    poly[..3].copy_from_slice(tri);
+    let mut next = [[0.0f64; 3]; 9];
+    for k in 0..3 {
+        for (bound, keep_below) in [(lo[k], false), (hi[k], true)] {
+            let inside = |p: &[f64; 3]| {
+                if keep_below {
+                    p[k] <= bound
+                } else {
+                    p[k] >= bound
+                }
+            };
+            let mut m = 0;
+            for i in 0..n {
+                let (a, b) = (poly[i], poly[(i + 1) % n]);
+                let (ia, ib) = (inside(&a), inside(&b));
+                if ia && m < 9 {
+                    next[m] = a;
+                    m += 1;
+                }
+                if ia != ib && m < 9 {
+                    let t = (bound - a[k]) / (b[k] - a[k]);
+                    let mut p: [f64; 3] = std::array::from_fn(|j| a[j] + t * (b[j] - a[j]));
+                    p[k] = bound;
+                    next[m] = p;
+                    m += 1;
+                }
+            }
+            n = m;
+            poly[..n].copy_from_slice(&next[..n]);
+            if n == 0 {
+                return None;
+            }
+        }
+    }
+    let mut blo = [f64::INFINITY; 3];
+    let mut bhi = [f64::NEG_INFINITY; 3];
+    for p in &poly[..n] {
+        for k in 0..3 {
+            blo[k] = blo[k].min(p[k].max(lo[k]));
+            bhi[k] = bhi[k].max(p[k].min(hi[k]));
+        }
+    }
+    Some((blo, bhi))
+}
+
 /// Whether `axis` separates the triangle `v` from the origin-centred box with half-extents `h`.
 #[inline]
 fn separated(v: &[[f64; 3]; 3], axis: [f64; 3], h: [f64; 3]) -> bool {
@@ -128,6 +184,20 @@ mod tests {
         assert!(triangle_overlaps_box(&seg_in, C, H));
         let point_out = [[1.5, 0.0, 0.0]; 3];
         assert!(!triangle_overlaps_box(&point_out, C, H));
+    }
+
+    #[test]
+    fn clipping_gives_the_box_of_the_inside_part() {
+        // A big triangle in the plane z = 0.5 covering the unit box's cross-section.
+        let t = [[-5.0, -5.0, 0.5], [5.0, -5.0, 0.5], [0.0, 5.0, 0.5]];
+        let (lo, hi) = clipped_bounds(&t, [0.0; 3], [1.0; 3]).unwrap();
+        assert_eq!((lo, hi), ([0.0, 0.0, 0.5], [1.0, 1.0, 0.5]));
+        // A diagonal sliver through one corner region only.
+        let t = [[0.0, 0.0, 0.1], [0.2, 0.0, 0.1], [0.0, 0.2, 0.1]];
+        let (lo, hi) = clipped_bounds(&t, [0.0; 3], [1.0; 3]).unwrap();
+        assert_eq!((lo, hi), ([0.0, 0.0, 0.1], [0.2, 0.2, 0.1]));
+        let far = [[5.0, 5.0, 5.0], [6.0, 5.0, 5.0], [5.0, 6.0, 5.0]];
+        assert!(clipped_bounds(&far, [0.0; 3], [1.0; 3]).is_none());
     }
 
     /// Sampled check against a dense point-sampling of the triangle: a sample inside the box

@@ -29,12 +29,13 @@
 
 use serde::Serialize;
 
+use crate::build::subdivide::CELL_MARGIN;
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
-use crate::mapping::{Corruption, TreeMap};
+use crate::mapping::{Corruption, Step, TreeMap};
 use crate::physical::file::OavmFile;
-use crate::physical::format::{NodeKind, SectionKind, TriRecord, VolumeRecord};
+use crate::physical::format::{NodeKind, SectionKind, TriRecord, VolumeRecord, leaf_refs};
 
 /// Work counters of a batch of rays (summed over its rays).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -46,6 +47,8 @@ pub struct Counters {
     pub leaves_visited: u64,
     /// Merged empty volumes clipped and jumped past.
     pub volumes_crossed: u64,
+    /// Solid leaves whose tight bounds the ray missed: their triangles were not tested.
+    pub leaves_culled: u64,
     /// Ray–triangle tests.
     pub triangles_tested: u64,
 }
@@ -56,6 +59,7 @@ impl std::ops::AddAssign for Counters {
         self.nodes_visited += o.nodes_visited;
         self.leaves_visited += o.leaves_visited;
         self.volumes_crossed += o.volumes_crossed;
+        self.leaves_culled += o.leaves_culled;
         self.triangles_tested += o.triangles_tested;
     }
 }
@@ -166,11 +170,22 @@ impl<'a> Tree<'a> {
             std::array::from_fn(|k| clamp_floor(o[k] + t0 * d[k], 0, LATTICE_SIZE - 1));
 
         let shear = RayShear::new(ray);
+        // Per axis: does the ray move forward (+1), backward (-1) or not at all? The exit face
+        // of a box is its `hi` face forward, its `lo` face backward; an axis the ray does not
+        // move along never exits, which `exit_o = -inf` encodes: (face - (-inf)) * 1 = +inf.
+        let fwd: [bool; 3] = std::array::from_fn(|k| d[k] > 0.0);
+        let moves: [bool; 3] = std::array::from_fn(|k| d[k] != 0.0);
+        let exit_o: [f64; 3] =
+            std::array::from_fn(|k| if moves[k] { o[k] } else { f64::NEG_INFINITY });
+        let exit_inv: [f64; 3] = std::array::from_fn(|k| if moves[k] { inv[k] } else { 1.0 });
+
         let mut best: Option<HitInfo> = None;
         let mut t_best = ray.tmax;
-        let mut path = [0u64; MAX_LEVEL as usize + 1];
+        let mut t_stop = t1.min(t_best as f64);
+        // Indices of the current leaf's ancestors by level; 32 entries so `level & 31` indexes it
+        // without a bounds check.
+        let mut path = [0u64; 32];
         let mut level = 0u32;
-        let deepest = self.map.level_count().saturating_sub(1);
         let mut steps = 0u64;
         loop {
             steps += 1;
@@ -183,25 +198,23 @@ impl<'a> Tree<'a> {
             }
             // 1. Locate the leaf containing q, from the common ancestor down.
             let kind = loop {
-                let idx = path[level as usize];
-                let rec = self.map.node(level, idx)?;
+                let idx = path[(level & 31) as usize];
                 c.nodes_visited += 1;
-                match rec.kind() {
-                    Some(NodeKind::Internal) if level < deepest => {
-                        let child =
-                            self.map
-                                .child(level, idx, morton::octant_of_point(q, level + 1))?;
+                match self.map.step(level, idx, q)? {
+                    Step::Child(child) => {
                         level += 1;
-                        path[level as usize] = child;
+                        path[(level & 31) as usize] = child;
                     }
-                    Some(NodeKind::Internal) | None => {
-                        return Err(Corruption {
-                            what: "invalid node record",
-                            level,
-                            index: idx,
-                        });
-                    }
-                    Some(leaf) => break leaf,
+                    Step::Leaf(rec) => match rec.kind() {
+                        Some(NodeKind::Internal) | None => {
+                            return Err(Corruption {
+                                what: "invalid leaf record",
+                                level,
+                                index: idx,
+                            });
+                        }
+                        Some(leaf) => break leaf,
+                    },
                 }
             };
             c.leaves_visited += 1;
@@ -215,7 +228,7 @@ impl<'a> Tree<'a> {
                     let bad = Corruption {
                         what: "merged volume missing or not containing its leaf",
                         level,
-                        index: path[level as usize],
+                        index: volume as u64,
                     };
                     let v = self.volumes.get(volume as usize).ok_or(bad)?;
                     let contains = (0..3).all(|k| {
@@ -228,37 +241,61 @@ impl<'a> Tree<'a> {
                     }
                     (v.lo, v.hi)
                 }
-                NodeKind::Solid { first, count } => {
+                NodeKind::Solid {
+                    first,
+                    inline_count,
+                    bounds,
+                } => {
                     let bad = |what| Corruption {
                         what,
                         level,
-                        index: path[level as usize],
+                        index: first as u64,
                     };
-                    let refs = self
-                        .refs
-                        .get(first as usize..first as usize + count as usize)
+                    let (refs, _) = leaf_refs(self.refs, first, inline_count)
                         .ok_or(bad("triangle references out of range"))?;
-                    for &ti in refs {
-                        let tri = self
-                            .tris
-                            .get(ti as usize)
-                            .ok_or(bad("triangle index out of range"))?;
-                        c.triangles_tested += 1;
-                        if let Some(t) = shear.intersect(&tri.v, ray.tmin, t_best) {
-                            let hit = HitInfo {
-                                t,
-                                prim: tri.prim,
-                                tri: ti,
-                            };
-                            if ANY {
-                                return Ok(Some(hit));
-                            }
-                            if best.is_none() || t < t_best {
-                                t_best = t;
-                                best = Some(hit);
-                            }
+                    // The leaf's tight bounds (spec §4.2), widened by the cell margin: a ray that
+                    // misses them over [tmin, best] cannot hit any of the leaf's triangles inside
+                    // the cell, so their references and records are not even loaded.
+                    let s16 = size as f64 / 16.0;
+                    let (mut tn, mut tf) = (ray.tmin as f64, t_best as f64);
+                    for k in 0..3 {
+                        let blo = cell_lo[k] as f64 + bounds.lo[k] as f64 * s16 - CELL_MARGIN;
+                        let bhi =
+                            cell_lo[k] as f64 + (bounds.hi[k] as f64 + 1.0) * s16 + CELL_MARGIN;
+                        if moves[k] {
+                            let (a, b) = ((blo - o[k]) * inv[k], (bhi - o[k]) * inv[k]);
+                            tn = tn.max(a.min(b));
+                            tf = tf.min(a.max(b));
+                        } else if o[k] < blo || o[k] > bhi {
+                            tn = f64::INFINITY;
                         }
                     }
+                    if tn <= tf {
+                        for &ti in refs {
+                            let tri = self
+                                .tris
+                                .get(ti as usize)
+                                .ok_or(bad("triangle index out of range"))?;
+                            c.triangles_tested += 1;
+                            if let Some(t) = shear.intersect(&tri.v, ray.tmin, t_best) {
+                                let hit = HitInfo {
+                                    t,
+                                    prim: tri.prim,
+                                    tri: ti,
+                                };
+                                if ANY {
+                                    return Ok(Some(hit));
+                                }
+                                if best.is_none() || t < t_best {
+                                    t_best = t;
+                                    best = Some(hit);
+                                }
+                            }
+                        }
+                    } else {
+                        c.leaves_culled += 1;
+                    }
+                    t_stop = t1.min(t_best as f64);
                     (cell_lo, cell_lo.map(|x| x + size))
                 }
                 NodeKind::Internal => {
@@ -271,29 +308,23 @@ impl<'a> Tree<'a> {
             };
 
             // 3. Exit of the box (slab test on its far faces); stop where nothing closer remains.
-            let mut t_exit = f64::INFINITY;
-            let mut axis = 0;
-            for k in 0..3 {
-                let plane = if d[k] > 0.0 {
-                    hi[k]
-                } else if d[k] < 0.0 {
-                    lo[k]
-                } else {
-                    continue;
-                };
-                let t = (plane as f64 - o[k]) * inv[k];
-                if t < t_exit {
-                    t_exit = t;
-                    axis = k;
-                }
-            }
-            if !(t_exit < t1.min(t_best as f64)) {
+            let face: [u32; 3] = std::array::from_fn(|k| if fwd[k] { hi[k] } else { lo[k] });
+            let te: [f64; 3] = std::array::from_fn(|k| (face[k] as f64 - exit_o[k]) * exit_inv[k]);
+            let axis = if te[0] <= te[1] && te[0] <= te[2] {
+                0
+            } else if te[1] <= te[2] {
+                1
+            } else {
+                2
+            };
+            let t_exit = te[axis];
+            if !(t_exit < t_stop) {
                 break;
             }
 
             // 4. Step into the neighbour across the exit face.
             let old = q;
-            if d[axis] > 0.0 {
+            if fwd[axis] {
                 if hi[axis] >= LATTICE_SIZE {
                     break;
                 }
@@ -305,10 +336,10 @@ impl<'a> Tree<'a> {
                 q[axis] = lo[axis] - 1;
             }
             for k in 0..3 {
-                if k != axis && d[k] != 0.0 {
+                if k != axis && moves[k] {
                     let p = o[k] + t_exit * d[k];
                     // Forward only, and inside the box being left.
-                    q[k] = if d[k] > 0.0 {
+                    q[k] = if fwd[k] {
                         clamp_floor(p, old[k], hi[k] - 1)
                     } else {
                         clamp_floor(p, lo[k], old[k])

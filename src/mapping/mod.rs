@@ -25,6 +25,7 @@
 pub mod morton;
 
 use crate::physical::format::{LevelEntry, NodeKind, NodeRecord, RankWord};
+use morton::MAX_LEVEL;
 
 /// What went wrong where, when a walk meets bytes that break the format's invariants. Small and
 /// `Copy` so the tracer's hot path can return it cheaply; turned into a
@@ -52,25 +53,102 @@ impl From<Corruption> for crate::error::FormatError {
     }
 }
 
+/// Per-level constants of a [`TreeMap`], copied out of the level table so the hot path reads
+/// them from one small array.
+#[derive(Clone, Copy, Debug, Default)]
+struct LevelInfo {
+    node_start: u64,
+    rank_start: u64,
+    node_count: u64,
+    /// Nodes of the next level (0 on the deepest level).
+    next_count: u64,
+}
+
+/// One step of a descent: the child to go to, or the leaf reached.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    Child(u64),
+    Leaf(NodeRecord),
+}
+
 /// The node records and rank directory of a tree, addressed by `(level, index in level)`.
 #[derive(Clone, Copy)]
 pub struct TreeMap<'a> {
+    /// 32 entries (levels past `level_count` are zero) so that `level & 31` indexes it
+    /// without a bounds check.
+    info: [LevelInfo; 32],
+    level_count: u32,
     levels: &'a [LevelEntry],
     nodes: &'a [NodeRecord],
     ranks: &'a [RankWord],
 }
 
 impl<'a> TreeMap<'a> {
+    /// A map over validated level, node and rank tables (levels beyond 22 are ignored; every
+    /// access is still bounds-checked against the slices).
     pub fn new(levels: &'a [LevelEntry], nodes: &'a [NodeRecord], ranks: &'a [RankWord]) -> Self {
+        let levels = &levels[..levels.len().min(MAX_LEVEL as usize + 1)];
+        let mut info = [LevelInfo::default(); 32];
+        for (l, e) in levels.iter().enumerate() {
+            info[l] = LevelInfo {
+                node_start: e.node_start,
+                rank_start: e.rank_start,
+                node_count: e.node_count,
+                next_count: levels.get(l + 1).map_or(0, |n| n.node_count),
+            };
+        }
         TreeMap {
+            info,
+            level_count: levels.len() as u32,
             levels,
             nodes,
             ranks,
         }
     }
 
+    /// One step of the descent towards lattice point `q` from node `idx` of `level`: if the node
+    /// is internal (its bit in the rank directory is set), the index at `level + 1` of its child
+    /// containing `q`; else its leaf record. An internal node's own record is never read: the
+    /// rank word says all a descent needs, and rank words (2 bits per node) stay in cache where
+    /// records (64 bits per node) do not.
+    #[inline(always)]
+    pub fn step(&self, level: u32, idx: u64, q: [u32; 3]) -> Result<Step, Corruption> {
+        let bad = |what| Corruption {
+            what,
+            level,
+            index: idx,
+        };
+        // Levels past the last have node_count 0, so the index check rejects them.
+        let li = &self.info[(level & 31) as usize];
+        if idx >= li.node_count {
+            return Err(bad("node index out of range"));
+        }
+        let word = self
+            .ranks
+            .get((li.rank_start + idx / 64) as usize)
+            .ok_or(bad("rank word out of range"))?;
+        let bit = idx % 64;
+        if (word.internal >> bit) & 1 == 1 {
+            if level + 1 >= self.level_count {
+                return Err(bad("internal node on the deepest level"));
+            }
+            let rank = word.rank + (word.internal & ((1u64 << bit) - 1)).count_ones() as u64;
+            let child = rank * 8 + morton::octant_of_point(q, level + 1) as u64;
+            if child >= li.next_count {
+                return Err(bad("rank directory points past the next level"));
+            }
+            Ok(Step::Child(child))
+        } else {
+            let rec = self
+                .nodes
+                .get((li.node_start + idx) as usize)
+                .ok_or(bad("node record out of range"))?;
+            Ok(Step::Leaf(*rec))
+        }
+    }
+
     pub fn level_count(&self) -> u32 {
-        self.levels.len() as u32
+        self.level_count
     }
 
     pub fn levels(&self) -> &'a [LevelEntry] {

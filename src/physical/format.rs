@@ -161,28 +161,76 @@ const _: () = assert!(std::mem::size_of::<RankWord>() == 16);
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
 pub struct NodeRecord {
-    /// Empty leaf: index of its merged volume. Solid leaf: index of its first triangle reference.
-    /// Internal node: 0 (reserved).
+    /// Empty leaf: index of its merged volume. Solid leaf: index of its first triangle reference
+    /// (or of its count word, spec §4.2). Internal node: 0 (reserved).
     pub payload: u32,
-    /// Bits 30..31: the [`NodeKind`]. Bits 0..29: solid leaf: number of references; else 0.
+    /// Bits 30..31: the kind. Solid leaf: bits 24..29 the reference count (0: escape), bits 0..23
+    /// the quantised bounds ([`LeafBounds`]). Other kinds: 0.
     pub meta: u32,
 }
 const _: () = assert!(std::mem::size_of::<NodeRecord>() == 8);
+
+/// Spec §4.2: a solid leaf's tight bounds, in sixteenths of its cell per axis: the box
+/// `[lo, hi + 1) / 16` of the cell contains every part of its triangles inside the cell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LeafBounds {
+    pub lo: [u8; 3],
+    pub hi: [u8; 3],
+}
+
+impl LeafBounds {
+    /// The whole cell.
+    pub const FULL: LeafBounds = LeafBounds {
+        lo: [0; 3],
+        hi: [15; 3],
+    };
+
+    fn pack(self) -> u32 {
+        let q = |v: u8, shift: u32| ((v & 15) as u32) << shift;
+        q(self.lo[0], 0)
+            | q(self.lo[1], 4)
+            | q(self.lo[2], 8)
+            | q(self.hi[0], 12)
+            | q(self.hi[1], 16)
+            | q(self.hi[2], 20)
+    }
+
+    fn unpack(bits: u32) -> LeafBounds {
+        let q = |shift: u32| ((bits >> shift) & 15) as u8;
+        LeafBounds {
+            lo: [q(0), q(4), q(8)],
+            hi: [q(12), q(16), q(20)],
+        }
+    }
+
+    pub fn is_valid(self) -> bool {
+        (0..3).all(|k| self.lo[k] <= self.hi[k] && self.hi[k] < 16)
+    }
+}
 
 /// Spec §4.2: the kinds of node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NodeKind {
     /// A leaf with no triangle; the ray skips its whole merged volume.
     Empty { volume: u32 },
-    /// A leaf with `count` triangle references starting at reference `first`.
-    Solid { first: u32, count: u32 },
+    /// A leaf with triangles. Its references are the `inline_count` words from `first`, or, when
+    /// `inline_count` is 0 (more than [`MAX_INLINE_REFS`] references), the number of words the
+    /// word at `first` says, after it. See [`leaf_refs`].
+    Solid {
+        first: u32,
+        inline_count: u32,
+        bounds: LeafBounds,
+    },
     /// A node with 8 children at the next level.
     Internal,
 }
 
-/// Largest reference count a solid leaf can record (30 bits).
-pub const MAX_LEAF_REFS: u32 = (1 << 30) - 1;
+/// Largest reference count stored in a solid leaf's record; larger counts are stored in the
+/// refs section, in the word before the references.
+pub const MAX_INLINE_REFS: u32 = 63;
 const KIND_SHIFT: u32 = 30;
+const COUNT_SHIFT: u32 = 24;
+const BOUNDS_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 const KIND_EMPTY: u32 = 0;
 const KIND_SOLID: u32 = 1;
 const KIND_INTERNAL: u32 = 2;
@@ -195,11 +243,14 @@ impl NodeRecord {
         }
     }
 
-    pub fn solid(first: u32, count: u32) -> NodeRecord {
-        debug_assert!(count > 0 && count <= MAX_LEAF_REFS);
+    /// A solid leaf whose references start at `first` (its count word, if `count` is above
+    /// [`MAX_INLINE_REFS`]).
+    pub fn solid(first: u32, count: u32, bounds: LeafBounds) -> NodeRecord {
+        debug_assert!(count > 0 && bounds.is_valid());
+        let inline = if count <= MAX_INLINE_REFS { count } else { 0 };
         NodeRecord {
             payload: first,
-            meta: KIND_SOLID << KIND_SHIFT | count,
+            meta: KIND_SOLID << KIND_SHIFT | inline << COUNT_SHIFT | bounds.pack(),
         }
     }
 
@@ -213,19 +264,46 @@ impl NodeRecord {
     /// Decodes the record; `None` for bit patterns no writer produces (corruption).
     #[inline]
     pub fn kind(self) -> Option<NodeKind> {
-        let low = self.meta & MAX_LEAF_REFS;
+        let low = self.meta & ((1 << KIND_SHIFT) - 1);
         match self.meta >> KIND_SHIFT {
             KIND_EMPTY if low == 0 => Some(NodeKind::Empty {
                 volume: self.payload,
             }),
-            KIND_SOLID if low != 0 => Some(NodeKind::Solid {
-                first: self.payload,
-                count: low,
-            }),
+            KIND_SOLID => {
+                let bounds = LeafBounds::unpack(low & BOUNDS_MASK);
+                bounds.is_valid().then_some(NodeKind::Solid {
+                    first: self.payload,
+                    inline_count: low >> COUNT_SHIFT,
+                    bounds,
+                })
+            }
             KIND_INTERNAL if low == 0 && self.payload == 0 => Some(NodeKind::Internal),
             _ => None,
         }
     }
+}
+
+/// The references of a solid leaf (spec §4.2), and the range of the refs section they and their
+/// count word (if any) occupy; `None` if they run past the section or an escaped count is not
+/// above [`MAX_INLINE_REFS`].
+#[inline]
+pub fn leaf_refs(
+    refs: &[u32],
+    first: u32,
+    inline_count: u32,
+) -> Option<(&[u32], std::ops::Range<usize>)> {
+    let first = first as usize;
+    let (start, count) = if inline_count != 0 {
+        (first, inline_count as usize)
+    } else {
+        let n = *refs.get(first)?;
+        if n <= MAX_INLINE_REFS {
+            return None;
+        }
+        (first + 1, n as usize)
+    };
+    let end = start.checked_add(count)?;
+    Some((refs.get(start..end)?, first..end))
 }
 
 /// Spec §5: a merged empty volume, an axis-aligned box of lattice cells (24 bytes).
@@ -268,42 +346,45 @@ mod tests {
             NodeRecord::empty(7).kind(),
             Some(NodeKind::Empty { volume: 7 })
         );
+        let b = LeafBounds {
+            lo: [1, 2, 3],
+            hi: [4, 15, 3],
+        };
         assert_eq!(
-            NodeRecord::solid(9, 3).kind(),
-            Some(NodeKind::Solid { first: 9, count: 3 })
+            NodeRecord::solid(9, 3, b).kind(),
+            Some(NodeKind::Solid {
+                first: 9,
+                inline_count: 3,
+                bounds: b
+            })
+        );
+        assert_eq!(
+            NodeRecord::solid(9, 64, b).kind(),
+            Some(NodeKind::Solid {
+                first: 9,
+                inline_count: 0,
+                bounds: b
+            })
         );
         assert_eq!(NodeRecord::internal().kind(), Some(NodeKind::Internal));
-        assert_eq!(
-            NodeRecord {
-                payload: 0,
-                meta: 3 << 30
-            }
-            .kind(),
-            None
-        );
-        assert_eq!(
-            NodeRecord {
-                payload: 0,
-                meta: 1 << 30
-            }
-            .kind(),
-            None
-        ); // solid, 0 refs
-        assert_eq!(
-            NodeRecord {
-                payload: 1,
-                meta: 2 << 30
-            }
-            .kind(),
-            None
-        ); // internal, payload
-        assert_eq!(
-            NodeRecord {
-                payload: 1,
-                meta: 5
-            }
-            .kind(),
-            None
-        ); // empty, count bits
+        let raw = |payload, meta| NodeRecord { payload, meta }.kind();
+        assert_eq!(raw(0, 3 << 30), None); // kind 3
+        assert_eq!(raw(1, 2 << 30), None); // internal with a payload
+        assert_eq!(raw(1, 5), None); // empty with low bits
+        assert_eq!(raw(0, 1 << 30 | 1 << 24 | 0x00_0001), None); // bounds lo.x 1 > hi.x 0
+    }
+
+    #[test]
+    fn escaped_counts() {
+        let mut refs = vec![0u32; 70];
+        refs[2] = 64;
+        let (r, range) = leaf_refs(&refs, 2, 0).unwrap();
+        assert_eq!((r.len(), range), (64, 2..67));
+        refs[2] = 63; // must be above the inline maximum
+        assert!(leaf_refs(&refs, 2, 0).is_none());
+        refs[2] = 100; // runs past the end
+        assert!(leaf_refs(&refs, 2, 0).is_none());
+        assert_eq!(leaf_refs(&refs, 68, 2).unwrap().1, 68..70);
+        assert!(leaf_refs(&refs, 69, 2).is_none());
     }
 }

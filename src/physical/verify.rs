@@ -7,6 +7,8 @@ use serde::Serialize;
 
 use super::file::OavmFile;
 use super::format::*;
+use crate::build::subdivide::CELL_MARGIN;
+use crate::geom::tribox::clipped_bounds;
 use crate::mapping::TreeMap;
 use crate::mapping::morton::{LATTICE_SIZE, MAX_LEVEL, cell_origin, cell_size};
 
@@ -170,17 +172,32 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
         let lo = crate::mapping::morton::decode(key);
         let size = cell_size(l);
         match kind {
-            NodeKind::Solid { first, count } => {
+            NodeKind::Solid {
+                first,
+                inline_count,
+                bounds,
+            } => {
                 if first as u64 != next_ref {
                     d.push(format!(
                         "level {l} node {i}: references start at {first}, expected {next_ref} (leaf order)"
                     ));
                 }
-                next_ref = first as u64 + count as u64;
-                if next_ref > refs.len() as u64 {
-                    d.push(format!(
-                        "level {l} node {i}: references run past the refs section"
-                    ));
+                match leaf_refs(refs, first, inline_count) {
+                    None => {
+                        d.push(format!("level {l} node {i}: references run past the refs section or have a bad count word"));
+                        next_ref = first as u64 + inline_count.max(1) as u64;
+                    }
+                    Some((leaf, range)) => {
+                        next_ref = range.end as u64;
+                        if !leaf.windows(2).all(|w| w[0] < w[1]) {
+                            d.push(format!(
+                                "level {l} node {i}: references are not strictly increasing"
+                            ));
+                        }
+                        if let Some(what) = bounds_defect(header, tris, leaf, lo, size, bounds) {
+                            d.push(format!("level {l} node {i}: {what}"));
+                        }
+                    }
                 }
             }
             NodeKind::Empty { volume } => match volumes.get(volume as usize) {
@@ -277,6 +294,44 @@ fn fill_leaf_keys(map: &TreeMap, leaves: &mut [(u64, u32, u64, NodeKind)], d: &m
             .unwrap_or(0);
         leaf.0 = crate::mapping::morton::encode(cell_origin(code, l));
     }
+}
+
+/// Checks that a solid leaf's tight bounds contain every part of its triangles inside its cell
+/// (recomputed by clipping, as the builder does).
+fn bounds_defect(
+    header: &Header,
+    tris: &[TriRecord],
+    leaf: &[u32],
+    cell_lo: [u32; 3],
+    size: u32,
+    bounds: LeafBounds,
+) -> Option<String> {
+    let scale = LATTICE_SIZE as f64 / header.root_size;
+    let m = CELL_MARGIN;
+    let lo: [f64; 3] = std::array::from_fn(|k| cell_lo[k] as f64 - m);
+    let hi: [f64; 3] = std::array::from_fn(|k| (cell_lo[k] + size) as f64 + m);
+    let s16 = size as f64 / 16.0;
+    for &t in leaf {
+        let tri = tris.get(t as usize)?;
+        let v: [[f64; 3]; 3] = std::array::from_fn(|i| {
+            std::array::from_fn(|k| (tri.v[i][k] as f64 - header.root_min[k]) * scale)
+        });
+        let Some((a, b)) = clipped_bounds(&v, lo, hi) else {
+            continue;
+        };
+        for k in 0..3 {
+            // The stored box, widened by the margin as the tracer widens it.
+            let slo = cell_lo[k] as f64 + bounds.lo[k] as f64 * s16 - m;
+            let shi = cell_lo[k] as f64 + (bounds.hi[k] as f64 + 1.0) * s16 + m;
+            // Allow the rounding of recomputing the clip (far below the margin).
+            if a[k] < slo - 1e-6 || b[k] > shi + 1e-6 {
+                return Some(format!(
+                    "tight bounds {bounds:?} do not contain triangle {t}"
+                ));
+            }
+        }
+    }
+    None
 }
 
 /// Describes a solid leaf whose interior overlaps box `v`, if there is one.
