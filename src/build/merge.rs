@@ -27,10 +27,17 @@
 
 use crate::build::subdivide::{BuildLevel, BuildNode};
 use crate::mapping::morton::{LATTICE_SIZE, cell_origin, cell_size};
-use crate::physical::format::VolumeRecord;
+use crate::physical::format::{VolumeRecord, VolumeShape};
 
-/// For every level, for every node: the box an empty leaf refers to (`None` for other nodes).
-pub type LeafBoxes = Vec<Vec<Option<VolumeRecord>>>;
+/// An empty leaf's merged volume: its box, and its shape relative to the leaf.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Merged {
+    pub volume: VolumeRecord,
+    pub shape: VolumeShape,
+}
+
+/// For every level, for every node: the volume an empty leaf refers to (`None` for other nodes).
+pub type LeafBoxes = Vec<Vec<Option<Merged>>>;
 
 /// The box of node `code` at `level`.
 pub fn cell_box(code: u64, level: u32) -> VolumeRecord {
@@ -53,7 +60,15 @@ pub fn merge_volumes(levels: &[BuildLevel], merge: bool) -> LeafBoxes {
                 lv.nodes
                     .iter()
                     .zip(&lv.codes)
-                    .map(|(n, &code)| is_empty_leaf(n).then(|| cell_box(code, l as u32)))
+                    .map(|(n, &code)| {
+                        is_empty_leaf(n).then(|| Merged {
+                            volume: cell_box(code, l as u32),
+                            shape: VolumeShape {
+                                level: l as u8,
+                                axes: 0,
+                            },
+                        })
+                    })
                     .collect()
             })
             .collect();
@@ -80,9 +95,12 @@ pub fn merge_volumes(levels: &[BuildLevel], merge: bool) -> LeafBoxes {
     // Top-down: the box of every all-empty node.
     let mut boxes: LeafBoxes = levels.iter().map(|lv| vec![None; lv.nodes.len()]).collect();
     if all_empty[0][0] {
-        boxes[0][0] = Some(VolumeRecord {
-            lo: [0; 3],
-            hi: [LATTICE_SIZE; 3],
+        boxes[0][0] = Some(Merged {
+            volume: VolumeRecord {
+                lo: [0; 3],
+                hi: [LATTICE_SIZE; 3],
+            },
+            shape: VolumeShape { level: 0, axes: 0 },
         });
     }
     for l in 0..levels.len().saturating_sub(1) {
@@ -107,7 +125,13 @@ pub fn merge_volumes(levels: &[BuildLevel], merge: bool) -> LeafBoxes {
             for c in 0..8 {
                 if empty[c] {
                     let axes = merged_axes(&empty, c);
-                    boxes[l + 1][first + c] = Some(group_box(&parent, half, c, axes));
+                    boxes[l + 1][first + c] = Some(Merged {
+                        volume: group_box(&parent, half, c, axes),
+                        shape: VolumeShape {
+                            level: l as u8 + 1,
+                            axes,
+                        },
+                    });
                 }
             }
         }

@@ -21,6 +21,7 @@ use crate::mapping::morton::{LATTICE_SIZE, MAX_LEVEL};
 use crate::mesh::Mesh;
 use crate::physical::format::{
     LeafBounds, LevelEntry, MAX_INLINE_REFS, NodeRecord, RankWord, TriRecord, VolumeRecord,
+    VolumeShape,
 };
 use crate::physical::writer::TreeParts;
 use subdivide::{BuildLevel, BuildNode, LatticeTri, SubdivideParams};
@@ -323,6 +324,10 @@ fn layout(
         ))
     };
     let mut payload: Vec<Vec<u32>> = levels.iter().map(|lv| vec![0; lv.nodes.len()]).collect();
+    let mut shapes: Vec<Vec<VolumeShape>> = levels
+        .iter()
+        .map(|lv| vec![VolumeShape { level: 0, axes: 0 }; lv.nodes.len()])
+        .collect();
     let mut refs: Vec<u32> = Vec::new();
     let mut new_index = vec![u32::MAX; records.len()];
     let mut triangles: Vec<TriRecord> = Vec::with_capacity(records.len());
@@ -334,8 +339,9 @@ fn layout(
             continue;
         };
         if tris.is_empty() {
-            let b =
+            let merged =
                 boxes[l][i].ok_or_else(|| Error::Build("empty leaf without a volume".into()))?;
+            let b = merged.volume;
             let next = volumes.len();
             let v = *volume_index.entry(b).or_insert_with(|| {
                 volumes.push(b);
@@ -345,6 +351,7 @@ fn layout(
                 return Err(too_many("volumes", volumes.len()));
             }
             payload[l][i] = v;
+            shapes[l][i] = merged.shape;
         } else {
             if refs.len() + tris.len() + 1 > u32::MAX as usize {
                 return Err(too_many("triangle references", refs.len() + tris.len()));
@@ -394,7 +401,7 @@ fn layout(
                     }
                     BuildNode::Leaf(t) if t.is_empty() => {
                         empty_leaves += 1;
-                        NodeRecord::empty(payload[l][i])
+                        NodeRecord::empty(payload[l][i], shapes[l][i])
                     }
                     BuildNode::Leaf(t) => {
                         solid_leaves += 1;

@@ -33,9 +33,9 @@ use crate::build::subdivide::CELL_MARGIN;
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
-use crate::mapping::{Corruption, Step, TreeMap};
+use crate::mapping::{Corruption, TreeMap};
 use crate::physical::file::OavmFile;
-use crate::physical::format::{NodeKind, SectionKind, TriRecord, VolumeRecord, leaf_refs};
+use crate::physical::format::{SectionKind, TriRecord, leaf_refs};
 
 /// Work counters of a batch of rays (summed over its rays).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -85,7 +85,6 @@ pub struct HitInfo {
 #[derive(Clone, Copy)]
 pub struct Tree<'a> {
     map: TreeMap<'a>,
-    volumes: &'a [VolumeRecord],
     refs: &'a [u32],
     tris: &'a [TriRecord],
     root_min: [f64; 3],
@@ -106,7 +105,6 @@ impl<'a> Tree<'a> {
         let depth = h.level_count.saturating_sub(1).min(MAX_LEVEL);
         Tree {
             map,
-            volumes: file.records(SectionKind::Volumes),
             refs: file.records(SectionKind::Refs),
             tris: file.records(SectionKind::Triangles),
             root_min: h.root_min,
@@ -148,17 +146,29 @@ impl<'a> Tree<'a> {
         let o: [f64; 3] =
             std::array::from_fn(|k| (ray.origin[k] as f64 - self.root_min[k]) * self.scale);
         let d: [f64; 3] = std::array::from_fn(|k| ray.dir[k] as f64 * self.scale);
-        let inv: [f64; 3] = std::array::from_fn(|k| 1.0 / d[k]);
+        let moves: [bool; 3] = std::array::from_fn(|k| d[k] != 0.0);
+        let fwd: [bool; 3] = std::array::from_fn(|k| d[k] > 0.0);
+        // Plane crossings as `t = plane * inv - oi`. An axis the ray does not move along gets
+        // `inv = 0`, `oi = -inf`: its planes are never crossed (`t = +inf`).
+        let inv: [f64; 3] = std::array::from_fn(|k| if moves[k] { 1.0 / d[k] } else { 0.0 });
+        let oi: [f64; 3] = std::array::from_fn(|k| {
+            if moves[k] {
+                o[k] * inv[k]
+            } else {
+                f64::NEG_INFINITY
+            }
+        });
+        let still_inside =
+            |lo: f64, hi: f64| (0..3).all(|k| moves[k] || (o[k] >= lo && o[k] <= hi));
 
         // Clip to the root (slab test); an axis the ray is parallel to must contain the origin.
         let (mut t0, mut t1) = (ray.tmin as f64, ray.tmax as f64);
+        if !still_inside(0.0, n) {
+            return Ok(None);
+        }
         for k in 0..3 {
-            if d[k] == 0.0 {
-                if !(o[k] >= 0.0 && o[k] <= n) {
-                    return Ok(None);
-                }
-            } else {
-                let (a, b) = (-o[k] * inv[k], (n - o[k]) * inv[k]);
+            if moves[k] {
+                let (a, b) = (-oi[k], n * inv[k] - oi[k]);
                 t0 = t0.max(a.min(b));
                 t1 = t1.min(a.max(b));
             }
@@ -170,120 +180,98 @@ impl<'a> Tree<'a> {
             std::array::from_fn(|k| clamp_floor(o[k] + t0 * d[k], 0, LATTICE_SIZE - 1));
 
         let shear = RayShear::new(ray);
-        // Per axis: does the ray move forward (+1), backward (-1) or not at all? The exit face
-        // of a box is its `hi` face forward, its `lo` face backward; an axis the ray does not
-        // move along never exits, which `exit_o = -inf` encodes: (face - (-inf)) * 1 = +inf.
-        let fwd: [bool; 3] = std::array::from_fn(|k| d[k] > 0.0);
-        let moves: [bool; 3] = std::array::from_fn(|k| d[k] != 0.0);
-        let exit_o: [f64; 3] =
-            std::array::from_fn(|k| if moves[k] { o[k] } else { f64::NEG_INFINITY });
-        let exit_inv: [f64; 3] = std::array::from_fn(|k| if moves[k] { inv[k] } else { 1.0 });
-
+        let tmin = ray.tmin;
         let mut best: Option<HitInfo> = None;
         let mut t_best = ray.tmax;
-        let mut t_stop = t1.min(t_best as f64);
-        // Indices of the current leaf's ancestors by level; 32 entries so `level & 31` indexes it
-        // without a bounds check.
+        let mut t_stop = t1;
+        // Indices of the current leaf's ancestors by level (32 entries: `level & 31` needs no
+        // bounds check).
         let mut path = [0u64; 32];
         let mut level = 0u32;
-        let mut steps = 0u64;
-        loop {
-            steps += 1;
-            if steps > self.max_steps {
-                return Err(Corruption {
+        let mut budget = self.max_steps;
+        let mut k = Counters::default();
+        let result = loop {
+            budget -= 1;
+            if budget == 0 {
+                break Err(Corruption {
                     what: "walk exceeds its step bound",
                     level,
                     index: 0,
                 });
             }
             // 1. Locate the leaf containing q, from the common ancestor down.
-            let kind = loop {
-                let idx = path[(level & 31) as usize];
-                c.nodes_visited += 1;
-                match self.map.step(level, idx, q)? {
-                    Step::Child(child) => {
-                        level += 1;
-                        path[(level & 31) as usize] = child;
-                    }
-                    Step::Leaf(rec) => match rec.kind() {
-                        Some(NodeKind::Internal) | None => {
-                            return Err(Corruption {
-                                what: "invalid leaf record",
-                                level,
-                                index: idx,
-                            });
-                        }
-                        Some(leaf) => break leaf,
-                    },
-                }
+            let rec;
+            (level, rec) = match self.map.descend(level, &mut path, q, &mut k.nodes_visited) {
+                Ok(found) => found,
+                Err(e) => break Err(e),
             };
-            c.leaves_visited += 1;
+            k.leaves_visited += 1;
 
             // 2. Cross it: the box the ray leaves, and the triangles on the way.
             let size = morton::cell_size(level);
             let cell_lo = q.map(|x| x & !(size - 1));
-            let (lo, hi) = match kind {
-                NodeKind::Empty { volume } => {
-                    c.volumes_crossed += 1;
-                    let bad = Corruption {
-                        what: "merged volume missing or not containing its leaf",
-                        level,
-                        index: volume as u64,
-                    };
-                    let v = self.volumes.get(volume as usize).ok_or(bad)?;
-                    let contains = (0..3).all(|k| {
-                        v.lo[k] <= cell_lo[k]
-                            && cell_lo[k] + size <= v.hi[k]
-                            && v.hi[k] <= LATTICE_SIZE
-                    });
-                    if !contains {
-                        return Err(bad);
+            let (lo, hi) = match rec.kind_bits() {
+                0 => {
+                    // Empty: its merged volume, rebuilt from the shape in the record (spec
+                    // §4.2), jumped past whole.
+                    k.volumes_crossed += 1;
+                    let shape = rec.shape_bits();
+                    if shape.level as u32 > level {
+                        break Err(Corruption {
+                            what: "merged volume smaller than its leaf",
+                            level,
+                            index: path[(level & 31) as usize],
+                        });
                     }
-                    (v.lo, v.hi)
+                    shape.box_around(q)
                 }
-                NodeKind::Solid {
-                    first,
-                    inline_count,
-                    bounds,
-                } => {
-                    let bad = |what| Corruption {
-                        what,
-                        level,
-                        index: first as u64,
-                    };
-                    let (refs, _) = leaf_refs(self.refs, first, inline_count)
-                        .ok_or(bad("triangle references out of range"))?;
+                1 => {
+                    let (inline_count, b) = rec.solid_bits();
                     // The leaf's tight bounds (spec §4.2), widened by the cell margin: a ray that
                     // misses them over [tmin, best] cannot hit any of the leaf's triangles inside
                     // the cell, so their references and records are not even loaded.
                     let s16 = size as f64 / 16.0;
-                    let (mut tn, mut tf) = (ray.tmin as f64, t_best as f64);
-                    for k in 0..3 {
-                        let blo = cell_lo[k] as f64 + bounds.lo[k] as f64 * s16 - CELL_MARGIN;
+                    let q4 = |shift: u32| ((b >> shift) & 15) as f64;
+                    let (mut tn, mut tf) = (tmin as f64, t_best as f64);
+                    let mut inside = true;
+                    for a in 0..3 {
+                        let blo = cell_lo[a] as f64 + q4(4 * a as u32) * s16 - CELL_MARGIN;
                         let bhi =
-                            cell_lo[k] as f64 + (bounds.hi[k] as f64 + 1.0) * s16 + CELL_MARGIN;
-                        if moves[k] {
-                            let (a, b) = ((blo - o[k]) * inv[k], (bhi - o[k]) * inv[k]);
-                            tn = tn.max(a.min(b));
-                            tf = tf.min(a.max(b));
-                        } else if o[k] < blo || o[k] > bhi {
-                            tn = f64::INFINITY;
+                            cell_lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN;
+                        if moves[a] {
+                            let (x, y) = (blo * inv[a] - oi[a], bhi * inv[a] - oi[a]);
+                            tn = tn.max(x.min(y));
+                            tf = tf.min(x.max(y));
+                        } else {
+                            inside &= o[a] >= blo && o[a] <= bhi;
                         }
                     }
-                    if tn <= tf {
+                    if inside && tn <= tf {
+                        let Some((refs, _)) = leaf_refs(self.refs, rec.payload, inline_count)
+                        else {
+                            break Err(Corruption {
+                                what: "triangle references out of range",
+                                level,
+                                index: rec.payload as u64,
+                            });
+                        };
+                        k.triangles_tested += refs.len() as u64;
                         for &ti in refs {
-                            let tri = self
-                                .tris
-                                .get(ti as usize)
-                                .ok_or(bad("triangle index out of range"))?;
-                            c.triangles_tested += 1;
-                            if let Some(t) = shear.intersect(&tri.v, ray.tmin, t_best) {
+                            let Some(tri) = self.tris.get(ti as usize) else {
+                                return Err(Corruption {
+                                    what: "triangle index out of range",
+                                    level,
+                                    index: ti as u64,
+                                });
+                            };
+                            if let Some(t) = shear.intersect(&tri.v, tmin, t_best) {
                                 let hit = HitInfo {
                                     t,
                                     prim: tri.prim,
                                     tri: ti,
                                 };
                                 if ANY {
+                                    *c += k;
                                     return Ok(Some(hit));
                                 }
                                 if best.is_none() || t < t_best {
@@ -292,24 +280,26 @@ impl<'a> Tree<'a> {
                                 }
                             }
                         }
+                        t_stop = t1.min(t_best as f64);
                     } else {
-                        c.leaves_culled += 1;
+                        k.leaves_culled += 1;
                     }
-                    t_stop = t1.min(t_best as f64);
                     (cell_lo, cell_lo.map(|x| x + size))
                 }
-                NodeKind::Internal => {
-                    return Err(Corruption {
-                        what: "descent ended on an internal node",
+                _ => {
+                    break Err(Corruption {
+                        what: "invalid leaf record",
                         level,
-                        index: 0,
+                        index: path[(level & 31) as usize],
                     });
                 }
             };
 
             // 3. Exit of the box (slab test on its far faces); stop where nothing closer remains.
-            let face: [u32; 3] = std::array::from_fn(|k| if fwd[k] { hi[k] } else { lo[k] });
-            let te: [f64; 3] = std::array::from_fn(|k| (face[k] as f64 - exit_o[k]) * exit_inv[k]);
+            let te: [f64; 3] = std::array::from_fn(|a| {
+                let face = if fwd[a] { hi[a] } else { lo[a] };
+                face as f64 * inv[a] - oi[a]
+            });
             let axis = if te[0] <= te[1] && te[0] <= te[2] {
                 0
             } else if te[1] <= te[2] {
@@ -319,36 +309,37 @@ impl<'a> Tree<'a> {
             };
             let t_exit = te[axis];
             if !(t_exit < t_stop) {
-                break;
+                break Ok(best);
             }
 
             // 4. Step into the neighbour across the exit face.
             let old = q;
             if fwd[axis] {
                 if hi[axis] >= LATTICE_SIZE {
-                    break;
+                    break Ok(best);
                 }
                 q[axis] = hi[axis];
             } else {
                 if lo[axis] == 0 {
-                    break;
+                    break Ok(best);
                 }
                 q[axis] = lo[axis] - 1;
             }
-            for k in 0..3 {
-                if k != axis && moves[k] {
-                    let p = o[k] + t_exit * d[k];
+            for a in 0..3 {
+                if a != axis && moves[a] {
+                    let p = o[a] + t_exit * d[a];
                     // Forward only, and inside the box being left.
-                    q[k] = if fwd[k] {
-                        clamp_floor(p, old[k], hi[k] - 1)
+                    q[a] = if fwd[a] {
+                        clamp_floor(p, old[a], hi[a] - 1)
                     } else {
-                        clamp_floor(p, lo[k], old[k])
+                        clamp_floor(p, lo[a], old[a])
                     };
                 }
             }
             level = level.min(morton::common_level(old, q));
-        }
-        Ok(best)
+        };
+        *c += k;
+        result
     }
 }
 

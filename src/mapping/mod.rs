@@ -106,6 +106,59 @@ impl<'a> TreeMap<'a> {
         }
     }
 
+    /// Descends from the node `path[level]` to the leaf containing lattice point `q`, writing the
+    /// indices of the nodes passed into `path` and counting them in `visits`. Returns the leaf's
+    /// level and record. Internal nodes are recognised by their bit in the rank directory and
+    /// their own records are never read: rank words (2 bits per node) stay in cache where
+    /// records (64 bits per node) do not.
+    ///
+    /// `path[level]` must be a node index obtained from this map (the root, 0, or a child found
+    /// by a descent): then every index is in range by construction, since each child index is
+    /// checked against the size of the next level (0 past the deepest, which also rejects an
+    /// internal node there). The slices are still accessed with bounds checks, so bytes that
+    /// break this only ever produce an error.
+    #[inline(always)]
+    pub fn descend(
+        &self,
+        mut level: u32,
+        path: &mut [u64; 32],
+        q: [u32; 3],
+        visits: &mut u64,
+    ) -> Result<(u32, NodeRecord), Corruption> {
+        loop {
+            let idx = path[(level & 31) as usize];
+            let li = &self.info[(level & 31) as usize];
+            *visits += 1;
+            let bad = |what| Corruption {
+                what,
+                level,
+                index: idx,
+            };
+            let word = self
+                .ranks
+                .get((li.rank_start + idx / 64) as usize)
+                .ok_or(bad("rank word out of range"))?;
+            let bit = idx % 64;
+            if (word.internal >> bit) & 1 == 0 {
+                let rec = self
+                    .nodes
+                    .get((li.node_start + idx) as usize)
+                    .ok_or(bad("node record out of range"))?;
+                return Ok((level, *rec));
+            }
+            let rank = word.rank + (word.internal & ((1u64 << bit) - 1)).count_ones() as u64;
+            // Octant of q among the children (level + 1 <= 21 for any child that exists).
+            let p = MAX_LEVEL.wrapping_sub(level + 1) & 31;
+            let octant = ((q[0] >> p) & 1) | ((q[1] >> p) & 1) << 1 | ((q[2] >> p) & 1) << 2;
+            let child = rank * 8 + octant as u64;
+            if child >= li.next_count {
+                return Err(bad("rank directory points past the next level"));
+            }
+            level += 1;
+            path[(level & 31) as usize] = child;
+        }
+    }
+
     /// One step of the descent towards lattice point `q` from node `idx` of `level`: if the node
     /// is internal (its bit in the rank directory is set), the index at `level + 1` of its child
     /// containing `q`; else its leaf record. An internal node's own record is never read: the

@@ -165,7 +165,8 @@ pub struct NodeRecord {
     /// (or of its count word, spec §4.2). Internal node: 0 (reserved).
     pub payload: u32,
     /// Bits 30..31: the kind. Solid leaf: bits 24..29 the reference count (0: escape), bits 0..23
-    /// the quantised bounds ([`LeafBounds`]). Other kinds: 0.
+    /// the quantised bounds ([`LeafBounds`]). Empty leaf: bits 0..7 the shape of its volume
+    /// ([`VolumeShape`]). Internal node: 0.
     pub meta: u32,
 }
 const _: () = assert!(std::mem::size_of::<NodeRecord>() == 8);
@@ -208,11 +209,62 @@ impl LeafBounds {
     }
 }
 
+/// Spec §4.2: the shape of an empty leaf's merged volume, as its record also stores it: the
+/// volume is the node of level `level` containing the leaf, doubled along each axis in `axes`
+/// to the extent of that node's parent. The volume table holds the same box; the tracer rebuilds
+/// it from the shape and its position, without reading the table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct VolumeShape {
+    /// Level of the merged nodes (the children of the type-2 node that stopped merging).
+    pub level: u8,
+    /// Bit `k`: merged with the sibling along axis `k`.
+    pub axes: u8,
+}
+
+impl VolumeShape {
+    fn pack(self) -> u32 {
+        (self.axes & 7) as u32 | ((self.level & 31) as u32) << 3
+    }
+
+    fn unpack(bits: u32) -> Option<VolumeShape> {
+        let s = VolumeShape {
+            axes: (bits & 7) as u8,
+            level: ((bits >> 3) & 31) as u8,
+        };
+        let ok = bits >> 8 == 0
+            && s.level as u32 <= crate::mapping::morton::MAX_LEVEL
+            && (s.level > 0 || s.axes == 0);
+        ok.then_some(s)
+    }
+
+    /// The box, in lattice cells, of this shape around lattice point `q`. Defined for any bits:
+    /// a level above 21 counts as 21, and a merge beyond the root gives a box past the lattice,
+    /// which ends a walk.
+    #[inline(always)]
+    pub fn box_around(self, q: [u32; 3]) -> ([u32; 3], [u32; 3]) {
+        let size = 1u32 << (crate::mapping::morton::MAX_LEVEL - (self.level as u32).min(21));
+        let mut lo = [0; 3];
+        let mut hi = [0; 3];
+        for k in 0..3 {
+            // Merged along k: the parent's extent (twice the size); else the node's own.
+            let span = if self.axes >> k & 1 == 1 {
+                size << 1
+            } else {
+                size
+            };
+            lo[k] = q[k] & !(span - 1);
+            hi[k] = lo[k] + span;
+        }
+        (lo, hi)
+    }
+}
+
 /// Spec §4.2: the kinds of node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NodeKind {
-    /// A leaf with no triangle; the ray skips its whole merged volume.
-    Empty { volume: u32 },
+    /// A leaf with no triangle; the ray skips its whole merged volume, entry `volume` of the
+    /// volume table, whose box `shape` also gives.
+    Empty { volume: u32, shape: VolumeShape },
     /// A leaf with triangles. Its references are the `inline_count` words from `first`, or, when
     /// `inline_count` is 0 (more than [`MAX_INLINE_REFS`] references), the number of words the
     /// word at `first` says, after it. See [`leaf_refs`].
@@ -236,10 +288,10 @@ const KIND_SOLID: u32 = 1;
 const KIND_INTERNAL: u32 = 2;
 
 impl NodeRecord {
-    pub fn empty(volume: u32) -> NodeRecord {
+    pub fn empty(volume: u32, shape: VolumeShape) -> NodeRecord {
         NodeRecord {
             payload: volume,
-            meta: KIND_EMPTY << KIND_SHIFT,
+            meta: KIND_EMPTY << KIND_SHIFT | shape.pack(),
         }
     }
 
@@ -261,13 +313,40 @@ impl NodeRecord {
         }
     }
 
+    /// The kind bits (`0` empty leaf, `1` solid leaf, `2` internal, `3` invalid), for the tracer's
+    /// fast path, which then reads the fields below without the validation of [`Self::kind`]:
+    /// any bits give a box or a range it bounds-checks, and `verify` reports them.
+    #[inline(always)]
+    pub fn kind_bits(self) -> u32 {
+        self.meta >> KIND_SHIFT
+    }
+
+    /// An empty leaf's volume shape, unvalidated (see [`Self::kind_bits`]).
+    #[inline(always)]
+    pub fn shape_bits(self) -> VolumeShape {
+        VolumeShape {
+            axes: (self.meta & 7) as u8,
+            level: ((self.meta >> 3) & 31) as u8,
+        }
+    }
+
+    /// A solid leaf's inline count and packed bounds, unvalidated (see [`Self::kind_bits`]).
+    #[inline(always)]
+    pub fn solid_bits(self) -> (u32, u32) {
+        (
+            (self.meta >> COUNT_SHIFT) & MAX_INLINE_REFS,
+            self.meta & BOUNDS_MASK,
+        )
+    }
+
     /// Decodes the record; `None` for bit patterns no writer produces (corruption).
     #[inline]
     pub fn kind(self) -> Option<NodeKind> {
         let low = self.meta & ((1 << KIND_SHIFT) - 1);
         match self.meta >> KIND_SHIFT {
-            KIND_EMPTY if low == 0 => Some(NodeKind::Empty {
+            KIND_EMPTY => VolumeShape::unpack(low).map(|shape| NodeKind::Empty {
                 volume: self.payload,
+                shape,
             }),
             KIND_SOLID => {
                 let bounds = LeafBounds::unpack(low & BOUNDS_MASK);
@@ -342,9 +421,13 @@ mod tests {
 
     #[test]
     fn node_kinds_round_trip_and_reject_garbage() {
+        let shape = VolumeShape {
+            level: 3,
+            axes: 0b101,
+        };
         assert_eq!(
-            NodeRecord::empty(7).kind(),
-            Some(NodeKind::Empty { volume: 7 })
+            NodeRecord::empty(7, shape).kind(),
+            Some(NodeKind::Empty { volume: 7, shape })
         );
         let b = LeafBounds {
             lo: [1, 2, 3],
@@ -370,8 +453,26 @@ mod tests {
         let raw = |payload, meta| NodeRecord { payload, meta }.kind();
         assert_eq!(raw(0, 3 << 30), None); // kind 3
         assert_eq!(raw(1, 2 << 30), None); // internal with a payload
-        assert_eq!(raw(1, 5), None); // empty with low bits
+        assert_eq!(raw(1, 1 << 8), None); // empty with bits past the shape
+        assert_eq!(raw(1, 1), None); // empty, merged along x at level 0 (beyond the root)
+        assert_eq!(raw(1, 22 << 3), None); // empty, level 22
         assert_eq!(raw(0, 1 << 30 | 1 << 24 | 0x00_0001), None); // bounds lo.x 1 > hi.x 0
+    }
+
+    #[test]
+    fn volume_shapes_give_boxes() {
+        let q = [5 << 18, 3 << 18, 0];
+        // Level 2 node (size 2^19) containing q, doubled along x to its level-1 parent.
+        let s = VolumeShape {
+            level: 2,
+            axes: 0b001,
+        };
+        assert_eq!(
+            s.box_around(q),
+            ([1 << 20, 1 << 19, 0], [1 << 21, 2 << 19, 1 << 19])
+        );
+        let root = VolumeShape { level: 0, axes: 0 };
+        assert_eq!(root.box_around(q), ([0; 3], [1 << 21; 3]));
     }
 
     #[test]

@@ -200,7 +200,7 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
                     }
                 }
             }
-            NodeKind::Empty { volume } => match volumes.get(volume as usize) {
+            NodeKind::Empty { volume, shape } => match volumes.get(volume as usize) {
                 None => d.push(format!("level {l} node {i}: volume {volume} out of range")),
                 Some(v) => {
                     volume_used[volume as usize] = true;
@@ -208,6 +208,12 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
                     if !contains {
                         d.push(format!(
                             "level {l} node {i}: volume {volume} does not contain the leaf"
+                        ));
+                    }
+                    let (slo, shi) = shape.box_around(lo);
+                    if shape.level as u32 > l || slo != v.lo || shi != v.hi {
+                        d.push(format!(
+                            "level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
                         ));
                     }
                 }
