@@ -85,17 +85,18 @@ impl RayShear {
             v_ = (ax * cy - ay * cx) as f32;
             w = (bx * ay - by * ax) as f32;
         }
-        if (u < 0.0 || v_ < 0.0 || w < 0.0) && (u > 0.0 || v_ > 0.0 || w > 0.0) {
-            return None;
-        }
+        // Inside when the three edge functions agree in sign. Evaluated without branches (the
+        // outcome is unpredictable); the caller branches once, on the answer, which is mostly
+        // "miss".
+        let all_pos = (u >= 0.0) & (v_ >= 0.0) & (w >= 0.0);
+        let all_neg = (u <= 0.0) & (v_ <= 0.0) & (w <= 0.0);
         let det = u + v_ + w;
-        if det == 0.0 {
-            return None;
-        }
         let t_scaled = u * (self.sz * a[2]) + v_ * (self.sz * b[2]) + w * (self.sz * c[2]);
         let t = t_scaled / det;
-        // `t` is NaN only for non-finite vertices, which the builder rejects; NaN fails both tests.
-        (t >= tmin && t <= tmax).then_some(t)
+        // det == 0 gives t = NaN or inf; NaN fails the range test, and det != 0 is required.
+        // Non-finite vertices (rejected by the builder) give NaN too.
+        let hit = (all_pos | all_neg) & (det != 0.0) & (t >= tmin) & (t <= tmax);
+        hit.then_some(t)
     }
 }
 

@@ -18,21 +18,27 @@
 //!    rather than on the interleaved code, so it is right across parent boundaries
 //!    (see [`crate::mapping::morton`]).
 //!
-//! **No cracks.** `q` only ever moves forward along each axis (in the ray's direction), and
-//! along the exit axis by at least one cell, so no cell is entered twice and a walk takes at
-//! most `3 * 2^depth` steps, which is also the bound enforced against corrupt files. Rounding in
+//! **Bounded, whatever the bytes.** Every box a walk crosses contains `q` (a leaf's cell does;
+//! a volume is rebuilt around `q` from its shape, whose level is checked to be no finer than the
+//! leaf's), and its faces lie on the grid of a level no deeper than the tree's depth `D`. A step
+//! moves `q` along the exit axis past such a face, and along the other axes only forward (in the
+//! ray's direction) and within the box. So no box is entered twice, and since `q` moves forward
+//! to a new line of the level-`D` grid along one axis at every step, a walk takes at most
+//! `3 * 2^D + 1` steps, for any file: the loop needs no step counter. Rounding in
 //! the exit point can only move `q` to a cell the ray passes within about `2^-31` cells of,
 //! and the builder references every triangle in every cell within [`CELL_MARGIN`] of it, so a
 //! triangle is never missed for being just across a face.
 //!
 //! [`CELL_MARGIN`]: crate::build::subdivide::CELL_MARGIN
 
+use std::hint::select_unpredictable;
+
 use serde::Serialize;
 
 use crate::build::subdivide::CELL_MARGIN;
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
-use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
+use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
 use crate::physical::file::OavmFile;
 use crate::physical::format::{SectionKind, TriRecord, leaf_refs};
@@ -90,8 +96,6 @@ pub struct Tree<'a> {
     root_min: [f64; 3],
     /// Lattice cells per world unit.
     scale: f64,
-    /// Bound on the steps of one walk: `3 * 2^depth + 1`.
-    max_steps: u64,
 }
 
 impl<'a> Tree<'a> {
@@ -102,14 +106,12 @@ impl<'a> Tree<'a> {
             file.records(SectionKind::Nodes),
             file.records(SectionKind::Ranks),
         );
-        let depth = h.level_count.saturating_sub(1).min(MAX_LEVEL);
         Tree {
             map,
             refs: file.records(SectionKind::Refs),
             tris: file.records(SectionKind::Triangles),
             root_min: h.root_min,
             scale: LATTICE_SIZE as f64 / h.root_size,
-            max_steps: 3 * (1u64 << depth) + 1,
         }
     }
 
@@ -188,17 +190,8 @@ impl<'a> Tree<'a> {
         // bounds check).
         let mut path = [0u64; 32];
         let mut level = 0u32;
-        let mut budget = self.max_steps;
         let mut k = Counters::default();
         let result = loop {
-            budget -= 1;
-            if budget == 0 {
-                break Err(Corruption {
-                    what: "walk exceeds its step bound",
-                    level,
-                    index: 0,
-                });
-            }
             // 1. Locate the leaf containing q, from the common ancestor down.
             let rec;
             (level, rec) = match self.map.descend(level, &mut path, q, &mut k.nodes_visited) {
@@ -300,42 +293,36 @@ impl<'a> Tree<'a> {
                 let face = if fwd[a] { hi[a] } else { lo[a] };
                 face as f64 * inv[a] - oi[a]
             });
-            let axis = if te[0] <= te[1] && te[0] <= te[2] {
-                0
-            } else if te[1] <= te[2] {
-                1
-            } else {
-                2
-            };
-            let t_exit = te[axis];
+            // Branch-free: which axis is crossed first is unpredictable from ray to ray.
+            let a01 = select_unpredictable(te[1] < te[0], 1usize, 0usize);
+            let t01 = te[0].min(te[1]);
+            let axis = select_unpredictable(te[2] < t01, 2usize, a01);
+            let t_exit = t01.min(te[2]);
             if !(t_exit < t_stop) {
                 break Ok(best);
             }
 
-            // 4. Step into the neighbour across the exit face.
+            // 4. Step into the neighbour across the exit face: along the exit axis to `hi` or
+            // `lo - 1`; along the others to the exit point's cell, forward only and inside the
+            // box being left (so the walk never turns back; see the module documentation).
             let old = q;
-            if fwd[axis] {
-                if hi[axis] >= LATTICE_SIZE {
-                    break Ok(best);
-                }
-                q[axis] = hi[axis];
-            } else {
-                if lo[axis] == 0 {
-                    break Ok(best);
-                }
-                q[axis] = lo[axis] - 1;
-            }
+            let mut next = [0u32; 3];
             for a in 0..3 {
-                if a != axis && moves[a] {
-                    let p = o[a] + t_exit * d[a];
-                    // Forward only, and inside the box being left.
-                    q[a] = if fwd[a] {
-                        clamp_floor(p, old[a], hi[a] - 1)
-                    } else {
-                        clamp_floor(p, lo[a], old[a])
-                    };
-                }
+                let p = o[a] + t_exit * d[a];
+                let (lo_a, hi_a) = if fwd[a] {
+                    (old[a], hi[a] - 1)
+                } else {
+                    (lo[a], old[a])
+                };
+                let lateral = select_unpredictable(moves[a], clamp_floor(p, lo_a, hi_a), old[a]);
+                let across = select_unpredictable(fwd[a], hi[a], lo[a].wrapping_sub(1));
+                next[a] = select_unpredictable(a == axis, across, lateral);
             }
+            // Leaving the root: `hi` at the lattice's end, or `lo - 1` wrapping below 0.
+            if next[axis] >= LATTICE_SIZE {
+                break Ok(best);
+            }
+            q = next;
             level = level.min(morton::common_level(old, q));
         };
         *c += k;
@@ -343,14 +330,9 @@ impl<'a> Tree<'a> {
     }
 }
 
-/// `floor(p)` clamped to `[lo, hi]` (NaN gives `lo`).
+/// `floor(p)` clamped to `[lo, hi]`, without branches (`max` and `min` give the other operand
+/// for NaN, so NaN gives `lo`; truncation is floor for the non-negative clamped value).
 #[inline(always)]
 fn clamp_floor(p: f64, lo: u32, hi: u32) -> u32 {
-    if !(p > lo as f64) {
-        lo
-    } else if p >= hi as f64 {
-        hi
-    } else {
-        p as u32
-    }
+    p.max(lo as f64).min(hi as f64) as u32
 }
