@@ -249,19 +249,30 @@ impl<'a> Tree<'a> {
                             });
                         };
                         k.triangles_tested += refs.len() as u64;
-                        for &ti in refs {
-                            let Some(tri) = self.tris.get(ti as usize) else {
+                        // Four triangles at a time; a short last group repeats its first
+                        // triangle (a repeated hit changes nothing: ties keep the first).
+                        for group in refs.chunks(4) {
+                            let tri =
+                                |i: usize| self.tris.get(group[i.min(group.len() - 1)] as usize);
+                            let (Some(r0), Some(r1), Some(r2), Some(r3)) =
+                                (tri(0), tri(1), tri(2), tri(3))
+                            else {
                                 return Err(Corruption {
                                     what: "triangle index out of range",
                                     level,
-                                    index: ti as u64,
+                                    index: rec.payload as u64,
                                 });
                             };
-                            if let Some(t) = shear.intersect(&tri.v, tmin, t_best) {
+                            let (mut mask, ts) =
+                                shear.intersect4([&r0.v, &r1.v, &r2.v, &r3.v], tmin, t_best);
+                            while mask != 0 {
+                                let l = mask.trailing_zeros() as usize;
+                                mask &= mask - 1;
+                                let (t, rec_l) = (ts[l], [r0, r1, r2, r3][l]);
                                 let hit = HitInfo {
                                     t,
-                                    prim: tri.prim,
-                                    tri: ti,
+                                    prim: rec_l.prim,
+                                    tri: group[l.min(group.len() - 1)],
                                 };
                                 if ANY {
                                     *c += k;
