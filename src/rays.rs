@@ -188,12 +188,13 @@ pub struct Camera {
 
 impl Camera {
     /// A camera that frames `bounds`: looking at its centre from the front (+z), a little from
-    /// the right and above, far enough for the bounding sphere to fill the view.
+    /// the right and above, at 0.8 of the distance at which the bounding sphere would just fit
+    /// the view (meshes rarely fill their bounding sphere).
     pub fn framing(bounds: &Bounds) -> Camera {
         let c = bounds.centre();
         let radius = (0.5 * bounds.diagonal()).max(f64::MIN_POSITIVE);
         let fov_y: f64 = 40.0;
-        let dist = radius / (fov_y.to_radians() * 0.5).sin() * 1.05;
+        let dist = radius / (fov_y.to_radians() * 0.5).sin() * 0.8;
         let dir = normalize([0.35, 0.3, 1.0]);
         Camera {
             eye: std::array::from_fn(|k| c[k] + dir[k] * dist),
