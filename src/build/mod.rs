@@ -442,7 +442,7 @@ fn leaf_bounds(lattice: &[LatticeTri], tris: &[u32], code: u64, level: u32) -> L
     use crate::mapping::morton::{cell_origin, cell_size};
     let size = cell_size(level) as f64;
     let origin = cell_origin(code, level).map(|c| c as f64);
-    let m = subdivide::CELL_MARGIN;
+    let m = crate::physical::format::CELL_MARGIN;
     let lo: [f64; 3] = std::array::from_fn(|k| origin[k] - m);
     let hi: [f64; 3] = std::array::from_fn(|k| origin[k] + size + m);
     let mut blo = [f64::INFINITY; 3];

@@ -11,14 +11,7 @@ use rayon::prelude::*;
 
 use crate::geom::tribox::triangle_overlaps_box;
 use crate::mapping::morton::{MAX_LEVEL, cell_size};
-
-/// Every cell is enlarged by this many lattice units (of the `2^21` lattice; `2^-20` of the
-/// root's edge) on each side when triangles are assigned to it. A triangle lying on, or within
-/// floating-point error of, a face between two cells is thereby referenced by both, so a ray
-/// whose traversal rounds onto the other side of that face still meets it: no ray slips through
-/// the crack between cells. It is far above the f64 error of traversal (about `2^-31` units) and
-/// of the f32 triangle test relative to the root (about `2^-2` units).
-pub const CELL_MARGIN: f64 = 2.0;
+use crate::physical::format::CELL_MARGIN;
 
 /// A triangle in lattice coordinates, with its bounding box.
 pub struct LatticeTri {

@@ -29,19 +29,18 @@
 //! and the builder references every triangle in every cell within [`CELL_MARGIN`] of it, so a
 //! triangle is never missed for being just across a face.
 //!
-//! [`CELL_MARGIN`]: crate::build::subdivide::CELL_MARGIN
+//! [`CELL_MARGIN`]: crate::physical::format::CELL_MARGIN
 
 use std::hint::select_unpredictable;
 
 use serde::Serialize;
 
-use crate::build::subdivide::CELL_MARGIN;
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
 use crate::physical::file::OavmFile;
-use crate::physical::format::{SectionKind, TriRecord, leaf_refs};
+use crate::physical::format::{CELL_MARGIN, SectionKind, TriRecord, leaf_refs};
 
 /// Work counters of a batch of rays (summed over its rays).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]

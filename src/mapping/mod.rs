@@ -59,16 +59,8 @@ impl From<Corruption> for crate::error::FormatError {
 struct LevelInfo {
     node_start: u64,
     rank_start: u64,
-    node_count: u64,
     /// Nodes of the next level (0 on the deepest level).
     next_count: u64,
-}
-
-/// One step of a descent: the child to go to, or the leaf reached.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Step {
-    Child(u64),
-    Leaf(NodeRecord),
 }
 
 /// The node records and rank directory of a tree, addressed by `(level, index in level)`.
@@ -93,7 +85,6 @@ impl<'a> TreeMap<'a> {
             info[l] = LevelInfo {
                 node_start: e.node_start,
                 rank_start: e.rank_start,
-                node_count: e.node_count,
                 next_count: levels.get(l + 1).map_or(0, |n| n.node_count),
             };
         }
@@ -156,47 +147,6 @@ impl<'a> TreeMap<'a> {
             }
             level += 1;
             path[(level & 31) as usize] = child;
-        }
-    }
-
-    /// One step of the descent towards lattice point `q` from node `idx` of `level`: if the node
-    /// is internal (its bit in the rank directory is set), the index at `level + 1` of its child
-    /// containing `q`; else its leaf record. An internal node's own record is never read: the
-    /// rank word says all a descent needs, and rank words (2 bits per node) stay in cache where
-    /// records (64 bits per node) do not.
-    #[inline(always)]
-    pub fn step(&self, level: u32, idx: u64, q: [u32; 3]) -> Result<Step, Corruption> {
-        let bad = |what| Corruption {
-            what,
-            level,
-            index: idx,
-        };
-        // Levels past the last have node_count 0, so the index check rejects them.
-        let li = &self.info[(level & 31) as usize];
-        if idx >= li.node_count {
-            return Err(bad("node index out of range"));
-        }
-        let word = self
-            .ranks
-            .get((li.rank_start + idx / 64) as usize)
-            .ok_or(bad("rank word out of range"))?;
-        let bit = idx % 64;
-        if (word.internal >> bit) & 1 == 1 {
-            if level + 1 >= self.level_count {
-                return Err(bad("internal node on the deepest level"));
-            }
-            let rank = word.rank + (word.internal & ((1u64 << bit) - 1)).count_ones() as u64;
-            let child = rank * 8 + morton::octant_of_point(q, level + 1) as u64;
-            if child >= li.next_count {
-                return Err(bad("rank directory points past the next level"));
-            }
-            Ok(Step::Child(child))
-        } else {
-            let rec = self
-                .nodes
-                .get((li.node_start + idx) as usize)
-                .ok_or(bad("node record out of range"))?;
-            Ok(Step::Leaf(*rec))
         }
     }
 

@@ -15,6 +15,14 @@ pub const VERSION: u32 = 1;
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
 
+/// Spec §6: every cell is enlarged by this many lattice units (of the `2^21` lattice; `2^-20` of
+/// the root's edge) on each side when triangles are assigned to it, and solid leaves' tight
+/// bounds are widened by as much. A triangle lying on, or within floating-point error of, a face
+/// between two cells is thereby referenced by both, so a ray whose traversal rounds onto the
+/// other side of that face still meets it: no ray slips through the crack between cells. It is
+/// far above the f64 error of traversal (about `2^-31` units).
+pub const CELL_MARGIN: f64 = 2.0;
+
 /// Spec §2, `flags` bit 0: empty leaves refer to merged volumes (else one volume per empty leaf).
 pub const FLAG_MERGED: u32 = 1;
 /// Every flag this version knows; any other bit set is an error at open.

@@ -7,7 +7,6 @@ use serde::Serialize;
 
 use super::file::OavmFile;
 use super::format::*;
-use crate::build::subdivide::CELL_MARGIN;
 use crate::geom::tribox::clipped_bounds;
 use crate::mapping::TreeMap;
 use crate::mapping::morton::{LATTICE_SIZE, MAX_LEVEL, cell_origin, cell_size};
