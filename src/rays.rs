@@ -206,22 +206,27 @@ impl Camera {
 
     /// One ray through the centre of each pixel, row by row from the top left; unit directions.
     pub fn primary_rays(&self, width: u32, height: u32) -> Vec<Ray> {
+        let mut rays = Vec::with_capacity(width as usize * height as usize);
+        for y in 0..height {
+            rays.extend(self.row(width, height, y));
+        }
+        rays
+    }
+
+    /// The rays of pixel row `y` of a `width` x `height` image (see [`Self::primary_rays`]).
+    pub fn row(&self, width: u32, height: u32, y: u32) -> impl Iterator<Item = Ray> + use<> {
         let f = normalize(sub(self.target, self.eye));
         let r = normalize(cross(f, self.up));
         let u = cross(r, f);
         let h = (self.fov_y.to_radians() * 0.5).tan();
         let w = h * width as f64 / height as f64;
         let eye = self.eye.map(|x| x as f32);
-        let mut rays = Vec::with_capacity(width as usize * height as usize);
-        for y in 0..height {
-            for x in 0..width {
-                let sx = ((x as f64 + 0.5) / width as f64 * 2.0 - 1.0) * w;
-                let sy = (1.0 - (y as f64 + 0.5) / height as f64 * 2.0) * h;
-                let d = normalize(std::array::from_fn(|k| f[k] + sx * r[k] + sy * u[k]));
-                rays.push(Ray::new(eye, d.map(|x| x as f32), 0.0, f32::INFINITY));
-            }
-        }
-        rays
+        let sy = (1.0 - (y as f64 + 0.5) / height as f64 * 2.0) * h;
+        (0..width).map(move |x| {
+            let sx = ((x as f64 + 0.5) / width as f64 * 2.0 - 1.0) * w;
+            let d = normalize(std::array::from_fn(|k| f[k] + sx * r[k] + sy * u[k]));
+            Ray::new(eye, d.map(|x| x as f32), 0.0, f32::INFINITY)
+        })
     }
 }
 

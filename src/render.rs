@@ -54,16 +54,19 @@ pub fn render<D: AsRef<[u8]> + Sync>(
     }
     let start = Instant::now();
     let tree = scene.tree();
-    let rays = opts.camera.primary_rays(opts.width, opts.height);
     let width = opts.width as usize;
-    let mut rgb = vec![0u8; rays.len() * 3];
+    // Rays are made row by row: the image is the only per-pixel allocation (3 bytes a pixel).
+    let mut rgb = vec![0u8; width * opts.height as usize * 3];
     let stats = rgb
         .par_chunks_mut(width * 3)
-        .zip(rays.par_chunks(width))
         .enumerate()
-        .try_fold(RenderStats::default, |mut s, (y, (row, rays))| {
-            for (x, ray) in rays.iter().enumerate() {
-                let px = shade(&tree, ray, opts.light, &mut s)?;
+        .try_fold(RenderStats::default, |mut s, (y, row)| {
+            for (x, ray) in opts
+                .camera
+                .row(opts.width, opts.height, y as u32)
+                .enumerate()
+            {
+                let px = shade(&tree, &ray, opts.light, &mut s)?;
                 let bg = background(y as f64 / opts.height as f64);
                 let c = px.unwrap_or(bg);
                 row[3 * x..3 * x + 3].copy_from_slice(&c.map(to_srgb8));

@@ -18,7 +18,20 @@ impl MappedFile {
     /// Maps `path` read-only.
     pub fn open(path: &Path) -> std::io::Result<MappedFile> {
         let file = File::open(path)?;
-        if file.metadata()?.len() == 0 {
+        let meta = file.metadata()?;
+        if meta.is_dir() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::IsADirectory,
+                "is a directory, not an .oavm file",
+            ));
+        }
+        if !meta.is_file() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "is not a regular file",
+            ));
+        }
+        if meta.len() == 0 {
             return Ok(MappedFile { map: None });
         }
         // SAFETY: the map is read-only and we only ever create `&[u8]` views of it. The one

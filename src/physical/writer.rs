@@ -117,6 +117,19 @@ pub fn encode(parts: &TreeParts) -> AlignedBytes {
     out
 }
 
+/// `e` without the temporary file's path that `tempfile` appends to its errors (as
+/// ` at path "..."`, in a wrapper that exposes neither the inner error nor the OS code).
+fn os_error(e: std::io::Error) -> std::io::Error {
+    if e.raw_os_error().is_some() {
+        return e;
+    }
+    let text = e.to_string();
+    match text.split_once(" at path ") {
+        Some((msg, _)) => std::io::Error::new(e.kind(), msg.to_string()),
+        None => e,
+    }
+}
+
 /// Writes `bytes` to `path` atomically: into a temporary file in the same directory, flushed to
 /// disk, then renamed over `path`. On any error the temporary file is removed and `path` is left
 /// as it was, so no partial output is ever visible.
@@ -125,15 +138,21 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Error> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".oavm-pack-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| Error::io(dir, e))?;
-    tmp.write_all(bytes).map_err(|e| Error::io(tmp.path(), e))?;
-    tmp.as_file()
-        .sync_all()
-        .map_err(|e| Error::io(tmp.path(), e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    // Errors name the file asked for, never the temporary one (whose name means nothing to the
+    // user); the OS error alone says what went wrong.
+    let err = |e: std::io::Error| Error::io(path, os_error(e));
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".oavm-pack-").suffix(".tmp");
+    // A temporary file is private (0600); the output should get the permissions of any new
+    // file (0666 less the umask), which the rename keeps.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = builder.tempfile_in(dir).map_err(err)?;
+    tmp.write_all(bytes).map_err(err)?;
+    tmp.as_file().sync_all().map_err(err)?;
+    tmp.persist(path).map_err(|e| err(e.error))?;
     Ok(())
 }
