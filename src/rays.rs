@@ -133,9 +133,9 @@ impl Bounds {
             max: [f32::NEG_INFINITY; 3],
         };
         for p in points {
-            for k in 0..3 {
-                b.min[k] = b.min[k].min(p[k]);
-                b.max[k] = b.max[k].max(p[k]);
+            for (k, &c) in p.iter().enumerate() {
+                b.min[k] = b.min[k].min(c);
+                b.max[k] = b.max[k].max(c);
             }
         }
         b
@@ -333,8 +333,8 @@ mod tests {
         // The centre of the image looks at the centre of the box.
         let mid = cam.primary_rays(1, 1)[0];
         let to_c = normalize(sub(b.centre(), cam.eye));
-        for k in 0..3 {
-            assert!((mid.dir[k] as f64 - to_c[k]).abs() < 1e-6);
+        for (d, c) in mid.dir.iter().zip(to_c) {
+            assert!((*d as f64 - c).abs() < 1e-6);
         }
     }
 }

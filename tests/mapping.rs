@@ -106,7 +106,8 @@ fn mapping_queries_on_a_real_tree() {
     }
 
     // Face neighbours against brute force over all leaves, for a sample of leaves.
-    let leaf_boxes: Vec<((u32, u64), ([u32; 3], u32))> = leaves
+    type LeafBox = ((u32, u64), ([u32; 3], u32));
+    let leaf_boxes: Vec<LeafBox> = leaves
         .iter()
         .map(|&&(l, idx, code, _)| ((l, idx), (cell_origin(code, l), cell_size(l))))
         .collect();

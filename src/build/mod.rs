@@ -298,9 +298,9 @@ fn layout(
                 .iter()
                 .zip(&lv.codes)
                 .enumerate()
-                .filter_map(move |(i, (n, &code))| {
-                    matches!(n, BuildNode::Leaf(_))
-                        .then(|| (code << (3 * (MAX_LEVEL - l as u32)), l as u32, i as u32))
+                .filter(|(_, (n, _))| matches!(n, BuildNode::Leaf(_)))
+                .map(move |(i, (_, &code))| {
+                    (code << (3 * (MAX_LEVEL - l as u32)), l as u32, i as u32)
                 })
         })
         .collect();

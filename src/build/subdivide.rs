@@ -42,6 +42,12 @@ pub struct BuildLevel {
     pub nodes: Vec<BuildNode>,
 }
 
+/// What happens to a node of the level being built.
+enum Decision {
+    Leaf(u64, Vec<u32>),
+    Split(Box<[Pending; 8]>),
+}
+
 struct Pending {
     code: u64,
     tris: Vec<u32>,
@@ -73,7 +79,7 @@ pub fn subdivide(
         grand_count: u32::MAX,
     }];
     for level in 0..=max_depth {
-        let split: Vec<Result<[Pending; 8], (u64, Vec<u32>)>> = current
+        let split: Vec<Decision> = current
             .into_par_iter()
             .map(|p| {
                 let count = p.tris.len() as u32;
@@ -82,9 +88,9 @@ pub fn subdivide(
                 // point or line, or duplicates): further splits would only multiply references.
                 let stuck = count == p.parent_count && count == p.grand_count;
                 if count <= params.leaf_size || level == max_depth || stuck {
-                    Err((p.code, p.tris))
+                    Decision::Leaf(p.code, p.tris)
                 } else {
-                    Ok(split_node(tris, &p, level))
+                    Decision::Split(Box::new(split_node(tris, &p, level)))
                 }
             })
             .collect();
@@ -93,12 +99,12 @@ pub fn subdivide(
         let mut next = Vec::new();
         for s in split {
             match s {
-                Ok(children) => {
+                Decision::Split(children) => {
                     codes.push(children[0].code >> 3);
                     nodes.push(BuildNode::Internal);
-                    next.extend(children);
+                    next.extend(*children);
                 }
-                Err((code, t)) => {
+                Decision::Leaf(code, t) => {
                     codes.push(code);
                     nodes.push(BuildNode::Leaf(t));
                 }

@@ -174,6 +174,8 @@ impl<'a> Tree<'a> {
                 t1 = t1.min(a.max(b));
             }
         }
+        // Negated on purpose: NaN (from a NaN tmin or tmax) must mean a miss.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
         if !(t0 <= t1) {
             return Ok(None);
         }
@@ -308,6 +310,8 @@ impl<'a> Tree<'a> {
             let t01 = te[0].min(te[1]);
             let axis = select_unpredictable(te[2] < t01, 2usize, a01);
             let t_exit = t01.min(te[2]);
+            // Negated on purpose: a NaN bound must stop the walk.
+            #[allow(clippy::neg_cmp_op_on_partial_ord)]
             if !(t_exit < t_stop) {
                 break Ok(best);
             }

@@ -192,9 +192,10 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
             header.level_count - 1
         )));
     }
-    if !header.root_min.iter().all(|c| c.is_finite())
-        || !(header.root_size.is_finite() && header.root_size > 0.0)
-    {
+    let root_ok = header.root_min.iter().all(|c| c.is_finite())
+        && header.root_size.is_finite()
+        && header.root_size > 0.0;
+    if !root_ok {
         return Err(header_err(format!(
             "root cube (min {:?}, size {}) is not finite and positive",
             header.root_min, header.root_size
