@@ -1437,17 +1437,12 @@ fn misaligned_buffers_give_errors_not_panics() {
 // Known bugs found by the runs above, one small reproduction each. Each test FAILS until its bug
 // is fixed in the library (these tests only read; the fix belongs to the owner of the code).
 
-/// BUG (overflow panic on a corrupt rank word). `TreeMap::descend` (the tracer) computes
-/// `word.rank + popcount` and `rank * 8` (src/mapping/mod.rs, lines 149 and 153 at the time of
-/// writing), and `TreeMap::child` the same (lines 249-250), which `verify` calls through its
-/// check that no volume covers a solid leaf; `TreeMap::step` (188-189) too. A rank word whose
-/// `rank` is at least `2^61` overflows: a panic wherever overflow checks are on (tests, debug
-/// builds of `oavm-trace`), a wrapped index otherwise. The file needs no rewriting: one flipped
-/// bit on disk (rank word 12's top bit 61) makes `oavm-trace --verify` panic instead of
-/// reporting the checksum mismatch. Fix: `checked_add` / `checked_mul` (or compare `rank`
-/// with `next_count / 8` before multiplying), giving "rank directory points past the next level".
+/// Regression: a rank word whose `rank` is at least `2^61` used to overflow `rank + popcount`
+/// and `rank * 8` in `TreeMap::descend` (the tracer) and `TreeMap::child` (reached by verify): a
+/// panic with overflow checks on, a wrapped index otherwise. One flipped bit on disk (rank word
+/// 12's bit 61) was enough. Now the arithmetic is checked and the answer is a corruption error.
 #[test]
-fn bug_huge_rank_in_a_rank_word_panics() {
+fn huge_rank_in_a_rank_word_is_an_error_not_a_panic() {
     let fix = default_file();
     let ranks = fix.region("ranks section").range.start;
     let rank_at = |word: usize| ranks + 16 * word + 8;
@@ -1504,17 +1499,13 @@ fn bug_huge_rank_in_a_rank_word_panics() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
-/// BUG (verify misses a moved root cube). Spec §2: the root cube is centred on
-/// `mesh_min..mesh_max` (the bounds of the stored triangles) with edge `(largest extent) *
-/// (1 + 1/1024)`, so the mesh lies strictly inside. `verify` checks neither that rule nor that
-/// the triangles lie inside the root, and a referenced triangle that does not reach its leaf's
-/// cell at all is skipped by the tight-bounds check (`clipped_bounds` gives `None`). So a header
-/// whose `root_min` or `root_size` was rewritten (checksum recomputed) passes verify while the
-/// tree no longer covers the mesh and rays miss. Fix: check `root_min`/`root_size` against
-/// `mesh_min`/`mesh_max` as the builder derives them, `mesh_min`/`mesh_max` against the stored
-/// triangles, and report a referenced triangle that misses its leaf's widened cell.
+/// Regression: verify used to pass a header whose `root_min` or `root_size` was rewritten
+/// (checksum recomputed), though the tree no longer covered the mesh and rays missed. Verify now
+/// recomputes the root cube from `mesh_min..mesh_max` as the builder does (spec §2), checks those
+/// bounds against the stored triangles, and reports a referenced triangle that misses its leaf's
+/// widened cell.
 #[test]
-fn bug_verify_misses_a_moved_root_cube() {
+fn verify_catches_a_moved_root_cube() {
     let fix = default_file();
     let f64_at = |b: &[u8], at: usize| f64::from_bits(read_u64(b, at));
     let size = f64_at(&fix.bytes, ROOT_SIZE_AT);

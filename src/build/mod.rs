@@ -233,19 +233,7 @@ fn prepare(mesh: &Mesh) -> Result<Prepared, Error> {
         records.iter().flat_map(|r| r.v.iter()).for_each(&mut grow);
     }
 
-    // The root cube: centred on the mesh, edge = the largest extent plus 1/1024, so the mesh
-    // sits strictly inside. A mesh with no extent (one point) gets an edge relative to its
-    // coordinates, or 1.
-    let centre: [f64; 3] = std::array::from_fn(|k| (lo[k] as f64 + hi[k] as f64) * 0.5);
-    let extent = (0..3)
-        .map(|k| hi[k] as f64 - lo[k] as f64)
-        .fold(0.0, f64::max);
-    let mut root_size = extent * (1.0 + 1.0 / 1024.0);
-    if !(root_size > 0.0 && root_size.is_normal()) {
-        let mag = centre.iter().map(|c| c.abs()).fold(0.0, f64::max);
-        root_size = if mag > 0.0 { mag * 1e-6 } else { 1.0 };
-    }
-    let root_min: [f64; 3] = std::array::from_fn(|k| centre[k] - root_size * 0.5);
+    let (root_min, root_size) = root_cube(lo, hi);
     let scale = LATTICE_SIZE as f64 / root_size;
 
     let lattice = records
@@ -264,6 +252,26 @@ fn prepare(mesh: &Mesh) -> Result<Prepared, Error> {
         mesh_min: lo,
         mesh_max: hi,
     })
+}
+
+/// The root cube for mesh bounds `lo..hi` (format-spec §2): centred on the mesh, edge = the
+/// largest extent plus 1/1024, so the mesh sits strictly inside; a mesh with no extent (one
+/// point) gets an edge of `1e-6` of its largest coordinate magnitude, or 1. Returns the lowest
+/// corner and the edge. `verify` recomputes it to check a file's header.
+pub fn root_cube(lo: [f32; 3], hi: [f32; 3]) -> ([f64; 3], f64) {
+    let centre: [f64; 3] = std::array::from_fn(|k| (lo[k] as f64 + hi[k] as f64) * 0.5);
+    let extent = (0..3)
+        .map(|k| hi[k] as f64 - lo[k] as f64)
+        .fold(0.0, f64::max);
+    let mut root_size = extent * (1.0 + 1.0 / 1024.0);
+    if !(root_size > 0.0 && root_size.is_normal()) {
+        let mag = centre.iter().map(|c| c.abs()).fold(0.0, f64::max);
+        root_size = if mag > 0.0 { mag * 1e-6 } else { 1.0 };
+    }
+    (
+        std::array::from_fn(|k| centre[k] - root_size * 0.5),
+        root_size,
+    )
 }
 
 /// A triangle whose edges' cross product is exactly zero in f64 (coincident or collinear

@@ -53,6 +53,16 @@ impl From<Corruption> for crate::error::FormatError {
     }
 }
 
+/// `8 * rank + octant` for the internal node at bit `bit` of `word`: checked, since a corrupt
+/// rank word can hold any value (`None` on overflow, which no valid file reaches).
+#[inline(always)]
+fn child_index(word: &RankWord, bit: u64, octant: u32) -> Option<u64> {
+    let rank = word
+        .rank
+        .checked_add((word.internal & ((1u64 << bit) - 1)).count_ones() as u64)?;
+    rank.checked_mul(8)?.checked_add(octant as u64)
+}
+
 /// Per-level constants of a [`TreeMap`], copied out of the level table so the hot path reads
 /// them from one small array.
 #[derive(Clone, Copy, Debug, Default)]
@@ -137,14 +147,12 @@ impl<'a> TreeMap<'a> {
                     .ok_or(bad("node record out of range"))?;
                 return Ok((level, *rec));
             }
-            let rank = word.rank + (word.internal & ((1u64 << bit) - 1)).count_ones() as u64;
             // Octant of q among the children (level + 1 <= 21 for any child that exists).
             let p = MAX_LEVEL.wrapping_sub(level + 1) & 31;
             let octant = ((q[0] >> p) & 1) | ((q[1] >> p) & 1) << 1 | ((q[2] >> p) & 1) << 2;
-            let child = rank * 8 + octant as u64;
-            if child >= li.next_count {
-                return Err(bad("rank directory points past the next level"));
-            }
+            let child = child_index(word, bit, octant)
+                .filter(|&c| c < li.next_count)
+                .ok_or(bad("rank directory points past the next level"))?;
             level += 1;
             path[(level & 31) as usize] = child;
         }
@@ -196,8 +204,8 @@ impl<'a> TreeMap<'a> {
         if (word.internal >> bit) & 1 == 0 {
             return Err(bad("internal node not marked in the rank directory"));
         }
-        let rank = word.rank + (word.internal & ((1u64 << bit) - 1)).count_ones() as u64;
-        let child = rank * 8 + octant as u64;
+        let child = child_index(word, bit, octant)
+            .ok_or(bad("rank directory points past the next level"))?;
         let next = self
             .levels
             .get(level as usize + 1)

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use super::file::OavmFile;
 use super::format::*;
-use crate::geom::tribox::clipped_bounds;
+use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
 use crate::mapping::TreeMap;
 use crate::mapping::morton::{LATTICE_SIZE, MAX_LEVEL, cell_origin, cell_size};
 
@@ -104,6 +104,32 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
     let refs: &[u32] = file.records(SectionKind::Refs);
     let tris: &[TriRecord] = file.records(SectionKind::Triangles);
     let map = TreeMap::new(levels, nodes, ranks);
+
+    // The root cube follows from the mesh bounds (spec §2), and those from the triangles.
+    let (root_min, root_size) = crate::build::root_cube(header.mesh_min, header.mesh_max);
+    if root_min != header.root_min || root_size != header.root_size {
+        d.push(format!(
+            "header: root cube (min {:?}, size {}) is not the one the mesh bounds give (min {root_min:?}, size {root_size})",
+            header.root_min, header.root_size
+        ));
+    }
+    if !tris.is_empty() {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in tris.iter().flat_map(|t| t.v.iter()) {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        if lo != header.mesh_min || hi != header.mesh_max {
+            d.push(format!(
+                "header: mesh bounds {:?}..{:?} are not the triangles' bounds {lo:?}..{hi:?}",
+                header.mesh_min, header.mesh_max
+            ));
+        }
+    }
+    let merged = header.flags & FLAG_MERGED != 0;
 
     // Node kinds, rank directory, and the leaves (for the order checks below).
     let mut leaves: Vec<(u64, u32, u64, NodeKind)> = Vec::new();
@@ -210,6 +236,9 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
                         ));
                     }
                     let (slo, shi) = shape.box_around(lo);
+                    if !merged && (shape.level as u32 != l || shape.axes != 0) {
+                        d.push(format!("level {l} node {i}: merged volume {shape:?} in a file built without merging"));
+                    }
                     if shape.level as u32 > l || slo != v.lo || shi != v.hi {
                         d.push(format!(
                             "level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
@@ -321,6 +350,14 @@ fn bounds_defect(
         let v: [[f64; 3]; 3] = std::array::from_fn(|i| {
             std::array::from_fn(|k| (tri.v[i][k] as f64 - header.root_min[k]) * scale)
         });
+        // The triangle must overlap the widened cell by the builder's own exact test (spec §6).
+        let c: [f64; 3] = std::array::from_fn(|k| (lo[k] + hi[k]) * 0.5);
+        let h: [f64; 3] = std::array::from_fn(|k| (hi[k] - lo[k]) * 0.5);
+        if !triangle_overlaps_box(&v, c, h) {
+            return Some(format!(
+                "references triangle {t}, which does not overlap its cell"
+            ));
+        }
         let Some((a, b)) = clipped_bounds(&v, lo, hi) else {
             continue;
         };
