@@ -9,6 +9,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
+use crate::mapping::Corruption;
 use crate::physical::verify::VerifyReport;
 use crate::physical::{MappedFile, OavmFile};
 pub use trace::{Counters, HitInfo, Tree};
@@ -61,51 +62,47 @@ impl<D: AsRef<[u8]>> Scene<D> {
 
     /// Closest hits of `rays` into `out` (same length), in parallel on the current rayon pool.
     pub fn intersect_batch(&self, rays: &[Ray], out: &mut [Hit]) -> Result<Counters, Error> {
-        check_len(rays.len(), out.len())?;
         let tree = self.tree();
-        rays.par_chunks(CHUNK)
-            .zip(out.par_chunks_mut(CHUNK))
-            .try_fold(Counters::default, |mut c, (rays, out)| {
-                for (ray, o) in rays.iter().zip(out) {
-                    *o = match tree.intersect(ray, &mut c)? {
-                        Some(h) => Hit {
-                            t: h.t,
-                            prim: h.prim,
-                        },
-                        None => Hit::MISS,
-                    };
-                }
-                Ok(c)
-            })
-            .try_reduce(Counters::default, |a, b| Ok(a + b))
-            .map_err(|e: crate::mapping::Corruption| self.corrupt(e))
+        self.batch(rays, out, |ray, c| {
+            Ok(tree.intersect(ray, c)?.map_or(Hit::MISS, |h| Hit {
+                t: h.t,
+                prim: h.prim,
+            }))
+        })
     }
 
     /// Any-hit answers of `rays` into `out` (1: occluded, 0: not), in parallel.
     pub fn occluded_batch(&self, rays: &[Ray], out: &mut [u8]) -> Result<Counters, Error> {
-        check_len(rays.len(), out.len())?;
         let tree = self.tree();
+        self.batch(rays, out, |ray, c| Ok(tree.occluded(ray, c)? as u8))
+    }
+
+    /// Answers `rays` into `out` with `answer`, in chunks on rayon, summing the counters.
+    fn batch<T: Send>(
+        &self,
+        rays: &[Ray],
+        out: &mut [T],
+        answer: impl Fn(&Ray, &mut Counters) -> Result<T, Corruption> + Sync,
+    ) -> Result<Counters, Error> {
+        if rays.len() != out.len() {
+            return Err(Error::Invalid(format!(
+                "{} rays but room for {} answers",
+                rays.len(),
+                out.len()
+            )));
+        }
         rays.par_chunks(CHUNK)
             .zip(out.par_chunks_mut(CHUNK))
             .try_fold(Counters::default, |mut c, (rays, out)| {
                 for (ray, o) in rays.iter().zip(out) {
-                    *o = tree.occluded(ray, &mut c)? as u8;
+                    *o = answer(ray, &mut c)?;
                 }
                 Ok(c)
             })
             .try_reduce(Counters::default, |a, b| Ok(a + b))
-            .map_err(|e: crate::mapping::Corruption| self.corrupt(e))
+            .map_err(|e: Corruption| self.corrupt(e))
     }
 }
 
 /// Rays per rayon task: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 256;
-
-fn check_len(rays: usize, out: usize) -> Result<(), Error> {
-    if rays != out {
-        return Err(Error::Invalid(format!(
-            "{rays} rays but room for {out} answers"
-        )));
-    }
-    Ok(())
-}
