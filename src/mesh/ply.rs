@@ -738,6 +738,11 @@ fn parse_int(token: &[u8]) -> Option<i64> {
     Some(if negative { -value } else { value })
 }
 
+/// A list's length: an integer of the list's count type, not negative.
+fn list_len(token: &[u8], count: IntType) -> Option<i64> {
+    parse_typed_int(token, count).filter(|&n| n >= 0)
+}
+
 /// An integer of type `ty`, or `None` if the token is not one.
 #[inline]
 fn parse_typed_int(token: &[u8], ty: IntType) -> Option<i64> {
@@ -868,31 +873,27 @@ fn read_ascii_element(
                         .ok_or_else(|| bad(record, line, token, "a number".to_owned()))?;
                 }
                 Field::SkipList { count, .. } => {
-                    let n = parse_typed_int(token, count)
-                        .filter(|&n| n >= 0)
-                        .ok_or_else(|| {
-                            bad(
-                                record,
-                                line,
-                                token,
-                                format!("a list length of type {count:?}"),
-                            )
-                        })?;
+                    let n = list_len(token, count).ok_or_else(|| {
+                        bad(
+                            record,
+                            line,
+                            token,
+                            format!("a list length of type {count:?}"),
+                        )
+                    })?;
                     for _ in 0..n {
                         text.token().map_err(|m| missing(m, record, line, i))?;
                     }
                 }
                 Field::Indices { count, item } => {
-                    let n = parse_typed_int(token, count)
-                        .filter(|&n| n >= 0)
-                        .ok_or_else(|| {
-                            bad(
-                                record,
-                                line,
-                                token,
-                                format!("a list length of type {count:?}"),
-                            )
-                        })?;
+                    let n = list_len(token, count).ok_or_else(|| {
+                        bad(
+                            record,
+                            line,
+                            token,
+                            format!("a list length of type {count:?}"),
+                        )
+                    })?;
                     let mut fan = Fan::default();
                     for _ in 0..n {
                         let token = text.token().map_err(|m| missing(m, record, line, i))?;
