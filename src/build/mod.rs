@@ -277,7 +277,7 @@ pub fn root_cube(lo: [f32; 3], hi: [f32; 3]) -> ([f64; 3], f64) {
 /// A triangle whose edges' cross product is exactly zero in f64 (coincident or collinear
 /// corners): it has no area and no ray can hit it (`RAYS.md`: degenerate triangles keep their
 /// ids but are never hit), so it is not stored.
-fn is_degenerate(v: &[[f32; 3]; 3]) -> bool {
+pub(crate) fn is_degenerate(v: &[[f32; 3]; 3]) -> bool {
     let e1: [f64; 3] = std::array::from_fn(|k| v[1][k] as f64 - v[0][k] as f64);
     let e2: [f64; 3] = std::array::from_fn(|k| v[2][k] as f64 - v[0][k] as f64);
     let c = [

@@ -1,0 +1,189 @@
+//! The structures the OAVM paper compares against (its Table 2 and Figs. 7-8), built from the same
+//! triangles and queried through the same interface as OAVM's tracer, so that one benchmark can
+//! run the same rays through all of them (`oavm-bench`).
+//!
+//! - [`grid`]: uniform grid, 3D-DDA traversal (Amanatides & Woo 1987);
+//! - [`kdtree`]: the paper's "improved KD-tree": SAH splits with empty-space cut-off, stack
+//!   traversal;
+//! - [`octree`]: the classic octree: OAVM's subdivision, no merging, child pointers, ordinary
+//!   traversal;
+//! - [`bvh`]: a binned-SAH BVH, the modern reference (pbrt-v4's BVH is the bar for quality);
+//! - [`OavmAccel`]: OAVM itself, packed in memory.
+//!
+//! They share the geometry kernels of [`crate::geom`] (the watertight triangle test, the exact
+//! triangle-box test) and the counters of [`Counters`]. They live in memory; only OAVM has a file
+//! format. Each reports its size with the counting conventions written in its module docs.
+
+pub mod bvh;
+pub mod grid;
+pub mod kdtree;
+pub mod octree;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::build::{BuildOptions, is_degenerate};
+use crate::error::Error;
+use crate::geom::{Hit, Ray};
+use crate::logical::{Counters, Scene};
+use crate::mesh::Mesh;
+use crate::physical::AlignedBytes;
+
+/// Size of a built structure. What a "node" and a "pointer" are for each structure is written in
+/// its module documentation, matched to the paper's Table 2 where possible.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StructureStats {
+    pub name: &'static str,
+    pub build_seconds: f64,
+    pub nodes: u64,
+    /// Pointers and offsets stored (child pointers, primitive-list pointers).
+    pub pointers: u64,
+    /// Bytes of the structure in memory, including its triangle data and reference lists.
+    pub bytes: u64,
+}
+
+/// What every structure answers. Implementations are read-only after build, so a batch runs on
+/// rayon with `&self`. They count their work in `c` (nodes visited, leaves visited, triangles
+/// tested, as their module docs define them) but not `c.rays`, which the batch counts.
+pub trait Accelerator: Send + Sync {
+    fn stats(&self) -> &StructureStats;
+    /// Closest hit with `tmin <= t <= tmax` (`Hit::MISS` for none, and for invalid rays).
+    fn intersect(&self, ray: &Ray, c: &mut Counters) -> Hit;
+    /// Whether any triangle is hit with `tmin <= t <= tmax`; stops at the first found.
+    fn occluded(&self, ray: &Ray, c: &mut Counters) -> bool;
+}
+
+/// The triangles every structure is built from: the mesh's non-degenerate triangles (as OAVM
+/// stores them), with their primitive ids.
+#[derive(Clone, Debug, Default)]
+pub struct Triangles {
+    pub v: Vec<[[f32; 3]; 3]>,
+    pub prim: Vec<u32>,
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+}
+
+impl Triangles {
+    pub fn from_mesh(mesh: &Mesh) -> Result<Triangles, Error> {
+        let mut t = Triangles {
+            min: [f32::INFINITY; 3],
+            max: [f32::NEG_INFINITY; 3],
+            ..Triangles::default()
+        };
+        for (i, tri) in mesh.triangles.iter().enumerate() {
+            let mut v = [[0f32; 3]; 3];
+            for (k, &ix) in tri.iter().enumerate() {
+                v[k] = *mesh.positions.get(ix as usize).ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "triangle {i} refers to vertex {ix}, the mesh has {}",
+                        mesh.positions.len()
+                    ))
+                })?;
+            }
+            if is_degenerate(&v) {
+                continue;
+            }
+            for p in &v {
+                for k in 0..3 {
+                    t.min[k] = t.min[k].min(p[k]);
+                    t.max[k] = t.max[k].max(p[k]);
+                }
+            }
+            t.v.push(v);
+            t.prim.push(i as u32);
+        }
+        Ok(t)
+    }
+
+    pub fn len(&self) -> usize {
+        self.v.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.v.is_empty()
+    }
+}
+
+/// OAVM packed in memory (the same bytes a file holds), behind the common interface.
+pub struct OavmAccel {
+    scene: Scene<AlignedBytes>,
+    stats: StructureStats,
+}
+
+impl OavmAccel {
+    pub fn build(mesh: &Mesh, opts: &BuildOptions) -> Result<OavmAccel, Error> {
+        let t = std::time::Instant::now();
+        let (parts, s) = crate::build::build(mesh, opts, &|_| {})?;
+        let bytes = crate::physical::writer::encode(&parts);
+        let build_seconds = t.elapsed().as_secs_f64();
+        let scene = Scene::from_bytes(bytes, "memory")?;
+        let stats = StructureStats {
+            name: "oavm",
+            build_seconds,
+            nodes: s.nodes,
+            pointers: s.pointers.total,
+            bytes: scene.file().bytes().len() as u64,
+        };
+        Ok(OavmAccel { scene, stats })
+    }
+
+    pub fn scene(&self) -> &Scene<AlignedBytes> {
+        &self.scene
+    }
+}
+
+impl Accelerator for OavmAccel {
+    fn stats(&self) -> &StructureStats {
+        &self.stats
+    }
+
+    fn intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
+        let rays = c.rays; // the tracer counts its rays; here the batch does
+        let hit = self.scene.tree().intersect(ray, c);
+        c.rays = rays;
+        match hit {
+            Ok(Some(h)) => Hit {
+                t: h.t,
+                prim: h.prim,
+            },
+            // The bytes were made in this process; a corruption here is a bug, reported as a miss
+            // by the answer and loudly by the cross-checks of `oavm-bench`.
+            _ => Hit::MISS,
+        }
+    }
+
+    fn occluded(&self, ray: &Ray, c: &mut Counters) -> bool {
+        let rays = c.rays;
+        let hit = self.scene.tree().occluded(ray, c);
+        c.rays = rays;
+        matches!(hit, Ok(true))
+    }
+}
+
+/// Closest hits of `rays` through `acc` into `out`, on the current rayon pool.
+pub fn intersect_batch(acc: &dyn Accelerator, rays: &[Ray], out: &mut [Hit]) -> Counters {
+    batch(rays, out, |r, c| acc.intersect(r, c))
+}
+
+/// Any-hit answers (1 or 0) of `rays` through `acc` into `out`, on the current rayon pool.
+pub fn occluded_batch(acc: &dyn Accelerator, rays: &[Ray], out: &mut [u8]) -> Counters {
+    batch(rays, out, |r, c| acc.occluded(r, c) as u8)
+}
+
+fn batch<T: Send>(
+    rays: &[Ray],
+    out: &mut [T],
+    f: impl Fn(&Ray, &mut Counters) -> T + Sync,
+) -> Counters {
+    rays.par_chunks(256)
+        .zip(out.par_chunks_mut(256))
+        .map(|(rays, out)| {
+            let mut c = Counters::default();
+            for (r, o) in rays.iter().zip(out) {
+                c.rays += 1;
+                *o = f(r, &mut c);
+            }
+            c
+        })
+        .reduce(Counters::default, |a, b| a + b)
+}
