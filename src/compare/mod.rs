@@ -187,3 +187,24 @@ fn batch<T: Send>(
         })
         .reduce(Counters::default, |a, b| a + b)
 }
+
+/// The structures `oavm-bench` knows, by name, in the order it reports them.
+pub const STRUCTURES: [&str; 5] = ["grid", "kdtree", "octree", "bvh", "oavm"];
+
+/// Builds the structure called `name` (one of [`STRUCTURES`]) over `mesh` (OAVM and the classic
+/// octree take `opts`, the subdivision they share; the others have their own heuristics).
+pub fn build_structure(
+    name: &str,
+    mesh: &Mesh,
+    tris: &Triangles,
+    opts: &BuildOptions,
+) -> Result<Box<dyn Accelerator>, Error> {
+    let _ = tris;
+    match name {
+        "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),
+        _ => Err(Error::Invalid(format!(
+            "unknown structure {name:?}: expected one of {}",
+            STRUCTURES.join(", ")
+        ))),
+    }
+}
