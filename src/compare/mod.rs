@@ -84,9 +84,9 @@ impl Triangles {
                 continue;
             }
             for p in &v {
-                for k in 0..3 {
-                    t.min[k] = t.min[k].min(p[k]);
-                    t.max[k] = t.max[k].max(p[k]);
+                for (k, &c) in p.iter().enumerate() {
+                    t.min[k] = t.min[k].min(c);
+                    t.max[k] = t.max[k].max(c);
                 }
             }
             t.v.push(v);
