@@ -1,0 +1,271 @@
+#!/usr/bin/env python3
+"""Writes docs/results.md from the JSON of `oavm-bench --json`. Run by tools/results.sh:
+
+    python3 tools/results.py BENCH.json [--scaling SCALING.json] [--kitchen-png PATH] \\
+        [--command CMD] > docs/results.md
+
+BENCH.json is one `oavm-bench --json` run over the scenes; SCALING.json (optional) one over the
+dragon's decimations, for build times against triangle count. Rebuilds, from our measurements, the
+tables of the OAVM paper (Yuan et al., Acta Optica Sinica 37(1), 2017, 120001,
+DOI 10.3788/aos201737.0120001): Table 2 (creation time, total nodes, total pointers), Fig. 7
+(nodes visited per ray), Fig. 8 (intersection time), and checks each of the paper's claims.
+Standard library only.
+"""
+import json
+import math
+import sys
+
+# The paper's claims: percentage change of OAVM against another structure, averaged over the
+# paper's scenes (its abstract gives the first two; the issue that asked for this page the rest).
+CLAIMS = [
+    ("pointers", "octree", -54.45, "total pointers, OAVM vs the classic octree"),
+    ("time", "octree", -52.37, "intersection time, OAVM vs the classic octree"),
+    ("time", "grid", -50.79, "intersection time, OAVM vs the uniform grid"),
+    ("time", "kdtree", -45.24, "intersection time, OAVM vs the KD-tree"),
+]
+ORDER = ["grid", "kdtree", "octree", "bvh", "oavm"]
+NAMES = {"grid": "uniform grid", "kdtree": "KD-tree (SAH)", "octree": "classic octree",
+         "bvh": "BVH (binned SAH)", "oavm": "OAVM"}
+SCENE_NAMES = {"bun_zipper": "Bunny", "dragon_vrip": "Dragon", "kitchen": "Kitchen",
+               "Robot": "Robots", "museum5": "Museum", "sibenik": "Sibenik",
+               "CornellBox-Original": "Cornell box"}
+# Scenes of the paper that we have (its Happy Buddha is not available here).
+PAPER_SCENES = ["Bunny", "Dragon", "Kitchen", "Robots", "Museum"]
+SETS = ("primary", "random", "shadow")
+
+
+def mrays(s, threads):
+    return next((m for t, m in s["mrays_per_s"] if t == threads), None)
+
+
+def seconds(s, threads):
+    m = mrays(s, threads)
+    return s["rays"] / (m * 1e6) if m else None
+
+
+def pct(new, old):
+    return 100.0 * (new - old) / old if old else float("nan")
+
+
+def sets_of(s):
+    by = {x["set"]: x for x in s["sets"]}
+    return [by[k] for k in SETS if k in by]
+
+
+def fmt_ms(v):
+    return f"{v:,.1f}" if v is not None else "-"
+
+
+def arg(args, flag):
+    return args[args.index(flag) + 1] if flag in args else None
+
+
+def scene_section(w, sc, threads):
+    name = SCENE_NAMES.get(sc["scene"], sc["scene"])
+    structs = {s["name"]: s for s in sc["structures"]}
+    w(f"## {name}\n")
+    view = " from the scene's own viewpoint" if sc.get("camera") == "scene" else ""
+    w(f"`{sc['path']}`: {sc['input_triangles']:,} triangles ({sc['triangles']:,} stored after "
+      f"dropping degenerate ones){view}.\n")
+    w("Size and creation (the paper's Table 2):\n")
+    w("| structure | creation (ms) | nodes | pointers | MB |")
+    w("|---|---:|---:|---:|---:|")
+    for key in ORDER:
+        s = structs.get(key)
+        if s:
+            w(f"| {NAMES[key]} | {s['build_ms']:,.1f} | {s['nodes']:,} | {s['pointers']:,} | "
+              f"{s['bytes'] / 1e6:,.2f} |")
+    w("")
+    w("Work per ray (Fig. 7) and time (Fig. 8), for the primary, random and shadow rays "
+      f"({', '.join(f'{x['rays']:,}' for x in sets_of(next(iter(structs.values()))))} rays):\n")
+    head = " | ".join(f"{t} thread{'s' if t > 1 else ''}: Mrays/s" for t in threads)
+    w(f"| structure | nodes visited / ray | triangles tested / ray | time, 1 thread (ms) | {head} | "
+      f"disagreements with OAVM |")
+    w("|---|---|---|---|" + "---|" * len(threads) + "---:|")
+    for key in ORDER:
+        s = structs.get(key)
+        if not s:
+            continue
+        xs = sets_of(s)
+        nv = " / ".join(f"{x['nodes_visited_per_ray']:.1f}" for x in xs)
+        tv = " / ".join(f"{x['triangles_tested_per_ray']:.1f}" for x in xs)
+        ms = " / ".join(fmt_ms(seconds(x, 1) * 1e3 if seconds(x, 1) else None) for x in xs)
+        speeds = " | ".join(" / ".join(f"{mrays(x, t):.2f}" if mrays(x, t) else "-" for x in xs)
+                            for t in threads)
+        dis = sum(x["disagree_with_oavm"] for x in xs)
+        w(f"| {NAMES[key]} | {nv} | {tv} | {ms} | {speeds} | {dis} |")
+    w("")
+
+
+def claim_value(what, o, s, set_name):
+    if what == "pointers":
+        return pct(o["pointers"], s["pointers"])
+    po = {x["set"]: x for x in o["sets"]}.get(set_name)
+    ps = {x["set"]: x for x in s["sets"]}.get(set_name)
+    if not po or not ps or not seconds(po, 1) or not seconds(ps, 1):
+        return None
+    return pct(seconds(po, 1), seconds(ps, 1))
+
+
+def verdict(avg, paper):
+    if avg is None:
+        return "not measured"
+    if avg <= paper:
+        return "**holds**"
+    if avg < 0:
+        return "**partly**: OAVM is better, by less"
+    return "**does not hold**: OAVM is worse"
+
+
+def claims_section(w, scenes):
+    w("## The paper's claims, measured\n")
+    w("Each claim is a percentage change of OAVM against another structure, averaged (arithmetic "
+      "mean of the per-scene changes) over the paper's scenes that we have: "
+      f"{', '.join(PAPER_SCENES)}. The paper's Happy Buddha (1,087,716 triangles) is not "
+      "available here. Intersection time is the time to trace the primary rays on one thread "
+      "(closest hit), the paper's rendering workload; the same change for the random rays, for "
+      "the shadow rays (any hit) and over all seven scenes is shown beside it.\n")
+    w("| claim | paper | measured: primary rays, paper's scenes (per scene) | random | shadow | "
+      "primary, all 7 scenes | verdict |")
+    w("|---|---:|---|---:|---:|---:|---|")
+    by_name = {SCENE_NAMES.get(sc["scene"], sc["scene"]): sc for sc in scenes}
+    for what, other, paper, label in CLAIMS:
+        cols = {}
+        for set_name in ("primary", "random", "shadow"):
+            for group, names in (("paper", PAPER_SCENES), ("all", list(by_name))):
+                vals = []
+                for n in names:
+                    sc = by_name.get(n)
+                    if not sc:
+                        continue
+                    st = {s["name"]: s for s in sc["structures"]}
+                    if "oavm" in st and other in st:
+                        v = claim_value(what, st["oavm"], st[other], set_name)
+                        if v is not None:
+                            vals.append((n, v))
+                cols[(set_name, group)] = vals
+
+        def avg(vals):
+            return sum(v for _, v in vals) / len(vals) if vals else None
+
+        def show(vals):
+            a = avg(vals)
+            return f"{a:+.1f} %" if a is not None else "-"
+
+        main = cols[("primary", "paper")]
+        per = ", ".join(f"{n} {v:+.1f}" for n, v in main)
+        if what == "pointers":
+            w(f"| {label} | {paper:+.2f} % | {show(main)} ({per}) | | | {show(cols[('primary', 'all')])} "
+              f"| {verdict(avg(main), paper)} |")
+        else:
+            w(f"| {label} | {paper:+.2f} % | {show(main)} ({per}) | {show(cols[('random', 'paper')])} | "
+              f"{show(cols[('shadow', 'paper')])} | {show(cols[('primary', 'all')])} | "
+              f"{verdict(avg(main), paper)} |")
+    w("")
+
+
+def scaling_section(w, data):
+    w("## Creation time against scene size\n")
+    w("The dragon's three decimations (Stanford's own) and the full mesh, every structure built "
+      "once per run, best of the runs. The last column divides the KD-tree's time by n log2 n: "
+      "a constant there means an O(n log n) build.\n")
+    rows = []
+    for sc in data["scenes"]:
+        st = {s["name"]: s for s in sc["structures"]}
+        rows.append((sc["triangles"], sc["scene"], st))
+    rows.sort()
+    cols = [k for k in ORDER if any(k in st for _, _, st in rows)]
+    w("| mesh | triangles | " + " | ".join(f"{NAMES[k]} (ms)" for k in cols) +
+      " | KD-tree ns / (n log2 n) |")
+    w("|---|---:|" + "---:|" * len(cols) + "---:|")
+    for n, scene, st in rows:
+        kd = st.get("kdtree")
+        per = f"{kd['build_ms'] * 1e6 / (n * math.log2(n)):.1f}" if kd and n > 1 else "-"
+        w(f"| {scene} | {n:,} | " + " | ".join(fmt_ms(st[k]["build_ms"]) if k in st else "-"
+                                           for k in cols) + f" | {per} |")
+    w("")
+
+
+NOTES = """## What we assumed, and why a claim does or does not hold
+
+The paper does not specify its baselines in detail (grid resolution, KD-tree cost constants,
+octree traversal, timing method, machine) and its code is not published; its per-scene tables
+could not be obtained here (only its abstract, which gives the two averages -54.45 % and
+-52.37 %; the -50.79 % and -45.24 % come from the issue that asked for this page). So the
+"paper" column holds averages only, and each of our structures is our own reading of it:
+
+- **Uniform grid**: 3D-DDA (Amanatides & Woo 1987), resolution by the heuristic in
+  `src/compare/grid.rs`. **KD-tree**: the SAH with an empty-space bonus (pbrt's constants) and
+  stack traversal, `src/compare/kdtree.rs`. **Classic octree**: exactly OAVM's subdivision (same
+  leaf size K and depth D, the same triangle-box test), no merging, 8 child pointers per inner
+  node, parametric top-down traversal (Revelles et al. 2000), `src/compare/octree.rs`.
+  **BVH**: binned SAH, pbrt-v4's flattened layout and traversal, `src/compare/bvh.rs`; the
+  paper has no BVH, it is here as the modern reference.
+- **Pointers.** For the classic octree: 8 child pointers per internal node plus one
+  triangle-list pointer per non-empty leaf. For OAVM: its rank-directory entries plus one offset
+  per leaf (reference offset of a solid leaf, volume index of an empty leaf), i.e. every offset
+  it stores (format-spec §9). The paper's -54.45 % probably leaves OAVM's leaf offsets out or
+  counts more pointers per octree node; ours counts every stored offset.
+- **Intersection time.** All five structures are ours, in Rust, in one process, with the same
+  watertight triangle test, the same rays and the same counters. OAVM is tuned beyond the paper
+  (tight leaf bounds, branch-free stepping, four-lane triangle tests; README), the others are
+  straightforward textbook implementations, so part of any advantage is engineering, not the
+  idea; the nodes-visited and triangles-tested columns separate the two.
+- **Scenes.** BART's kitchen, robots and museum are read from AFF at their first frame (the
+  paper does not say which frame it used); their primary rays come from each scene's own
+  viewpoint. The other scenes are framed by oavm-bench's default camera.
+"""
+
+
+def main():
+    args = sys.argv[1:]
+    if not args or args[0].startswith("-"):
+        sys.exit(__doc__)
+    data = json.load(open(args[0]))
+    scaling = json.load(open(arg(args, "--scaling"))) if arg(args, "--scaling") else None
+    kitchen_png = arg(args, "--kitchen-png")
+    command = arg(args, "--command")
+    out = []
+    w = out.append
+    opts = data["options"]
+    threads = sorted({t for sc in data["scenes"] for s in sc["structures"]
+                      for x in s["sets"] for t, _ in x["mrays_per_s"]})
+    w("# OAVM and the structures of its paper, measured\n")
+    w("Generated by `tools/results.sh`, which runs `oavm-bench --json` over the scenes and "
+      "`tools/results.py` over its output; do not edit by hand." +
+      (f" This page came from `{command}`." if command else "") + "\n")
+    w(f"Every structure is built from the same triangles and traced with the same rays: "
+      f"{data['width']}x{data['height']} primary rays, {data['random']:,} random rays through the "
+      f"scene's bounds, and a shadow ray toward a point light from every primary hit; times are the "
+      f"best of {data['reps']} runs on this 2-core machine, at 1 and 2 threads. OAVM and the "
+      f"classic octree share their subdivision (leaf size K = {opts['leaf_size']}, maximum depth "
+      f"D = {opts['max_depth']}). Every answer of every structure is checked against OAVM's in "
+      f"the same run (same hit or miss, t within 1e-4 of the scene diagonal); the last column of "
+      f"each time table counts disagreements.\n")
+    w("What the paper's terms mean here (the module docs of `src/compare/` give the details):\n")
+    w("- **creation time**: building the structure in memory from the triangle list, parsing "
+      "excluded; for OAVM, building and encoding its file bytes;")
+    w("- **nodes**: grid cells; KD-tree inner nodes and leaves; octree nodes (inner and leaves); "
+      "BVH inner nodes and leaves; OAVM nodes of every level;")
+    w("- **pointers**: child pointers and primitive-list offsets stored (OAVM has no child "
+      "pointers: rank-directory entries and leaf offsets);")
+    w("- **nodes visited per ray** (Fig. 7): grid cells stepped through; tree nodes entered; OAVM "
+      "node records read in its descents;")
+    w("- **intersection time** (Fig. 8): wall time to trace a ray set on one thread.\n")
+    claims_section(w, data["scenes"])
+    w(NOTES)
+    for sc in data["scenes"]:
+        scene_section(w, sc, threads)
+    if scaling:
+        scaling_section(w, scaling)
+    if kitchen_png:
+        w("## The kitchen from its own viewpoint\n")
+        w(f"![BART kitchen, rendered by oavm-trace from the scene's own viewpoint]({kitchen_png})\n")
+        w("Made by tools/results.sh with `oavm-pack ../shared/scenes/bart/kitchen/kitchen.aff "
+          "kitchen.oavm` and `oavm-trace kitchen.oavm --view ../shared/scenes/bart/kitchen/kitchen.aff` "
+          "(oavm-trace's own point light and grey shading; BART's materials and lights are not read).\n")
+    print("\n".join(out))
+
+
+if __name__ == "__main__":
+    main()

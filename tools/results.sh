@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Regenerates docs/results.md (and docs/kitchen.png): the OAVM paper's comparison on our scenes.
+#
+#   tools/results.sh [--reps N] [--random N] ...   # extra flags go to every oavm-bench run
+#
+# Runs `oavm-bench --json` over the seven scenes (all five structures, 1 and 2 threads), then
+# over the dragon's decimations for build-time scaling, renders the kitchen from its own
+# viewpoint, and writes the page with tools/results.py. The JSON is kept in target/results/
+# (not in git). About 15 minutes on a 2-core machine.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+S=../shared/scenes
+OUT=target/results
+mkdir -p "$OUT" docs
+cargo build --release --bin oavm-bench --bin oavm-pack --bin oavm-trace
+BIN=target/release
+
+SCENES=(
+  "$S/bunny/bun_zipper.ply"
+  "$S/dragon/dragon_vrip.ply"
+  "$S/bart/kitchen/kitchen.aff"
+  "$S/bart/robot/Robot.aff"
+  "$S/bart/museum/museum5.aff"
+  "$S/sibenik/sibenik.obj"
+  "$S/cornell_box/CornellBox-Original.obj"
+)
+"$BIN/oavm-bench" --json "$@" "${SCENES[@]}" > "$OUT/bench.json.tmp"
+mv "$OUT/bench.json.tmp" "$OUT/bench.json"
+
+# Build times against size: few rays, one run, one thread (only the builds matter here).
+"$BIN/oavm-bench" --json --reps 1 --threads 1 --random 1000 --width 32 --height 24 \
+  "$S/dragon/dragon_vrip_res4.ply" "$S/dragon/dragon_vrip_res3.ply" \
+  "$S/dragon/dragon_vrip_res2.ply" "$S/dragon/dragon_vrip.ply" > "$OUT/scaling.json.tmp"
+mv "$OUT/scaling.json.tmp" "$OUT/scaling.json"
+
+"$BIN/oavm-pack" "$S/bart/kitchen/kitchen.aff" "$OUT/kitchen.oavm" > /dev/null
+"$BIN/oavm-trace" "$OUT/kitchen.oavm" --view "$S/bart/kitchen/kitchen.aff" -o docs/kitchen.png
+
+python3 tools/results.py "$OUT/bench.json" --scaling "$OUT/scaling.json" \
+  --kitchen-png kitchen.png --command "tools/results.sh $*" > docs/results.md.tmp
+mv docs/results.md.tmp docs/results.md
+echo "wrote docs/results.md and docs/kitchen.png"
