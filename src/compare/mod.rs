@@ -200,6 +200,7 @@ pub fn build_structure(
     opts: &BuildOptions,
 ) -> Result<Box<dyn Accelerator>, Error> {
     match name {
+        "octree" => Ok(Box::new(octree::ClassicOctree::build(tris, opts))),
         "bvh" => Ok(Box::new(bvh::Bvh::build(tris))),
         "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),
         _ => Err(Error::Invalid(format!(
