@@ -193,7 +193,8 @@ impl ClassicOctree {
             .collect();
         let params = SubdivideParams {
             max_depth: opts.max_depth,
-            leaf_size: opts.leaf_size,
+            // OAVM refuses K = 0 (`BuildOptions::validate`); here it means K = 1.
+            leaf_size: opts.leaf_size.max(1),
         };
         let levels = subdivide::subdivide(&lattice, params, &|_, _| {});
         drop(lattice);
