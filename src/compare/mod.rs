@@ -199,8 +199,9 @@ pub fn build_structure(
     tris: &Triangles,
     opts: &BuildOptions,
 ) -> Result<Box<dyn Accelerator>, Error> {
-    let _ = tris;
     match name {
+        "octree" => Ok(Box::new(octree::ClassicOctree::build(tris, opts))),
+        "bvh" => Ok(Box::new(bvh::Bvh::build(tris))),
         "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),
         _ => Err(Error::Invalid(format!(
             "unknown structure {name:?}: expected one of {}",
