@@ -199,8 +199,8 @@ pub fn build_structure(
     tris: &Triangles,
     opts: &BuildOptions,
 ) -> Result<Box<dyn Accelerator>, Error> {
-    let _ = tris;
     match name {
+        "grid" => Ok(Box::new(grid::UniformGrid::build(tris))),
         "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),
         _ => Err(Error::Invalid(format!(
             "unknown structure {name:?}: expected one of {}",
