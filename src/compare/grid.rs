@@ -465,12 +465,12 @@ fn resolution(ext: [f64; 3], target: f64) -> [u32; 3] {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::geom::brute;
     use crate::mesh::Mesh;
 
-    fn tris_of(v: Vec<[[f32; 3]; 3]>) -> (Triangles, Mesh) {
+    pub(crate) fn tris_of(v: Vec<[[f32; 3]; 3]>) -> (Triangles, Mesh) {
         let mut mesh = Mesh::default();
         for t in &v {
             let base = mesh.positions.len() as u32;
@@ -481,13 +481,13 @@ mod tests {
         (tris, mesh)
     }
 
-    fn rng(seed: u64) -> impl FnMut() -> f32 {
+    pub(crate) fn rng(seed: u64) -> impl FnMut() -> f32 {
         let mut s = crate::rays::SplitMix64::new(seed);
         move || s.next_f64() as f32
     }
 
     /// A random triangle soup in the unit cube.
-    fn soup(n: usize, seed: u64) -> Vec<[[f32; 3]; 3]> {
+    pub(crate) fn soup(n: usize, seed: u64) -> Vec<[[f32; 3]; 3]> {
         let mut r = rng(seed);
         (0..n)
             .map(|_| {
@@ -498,7 +498,7 @@ mod tests {
     }
 
     /// Random rays from around the unit cube, some axis-parallel, some starting inside.
-    fn rays(n: usize, seed: u64) -> Vec<Ray> {
+    pub(crate) fn rays(n: usize, seed: u64) -> Vec<Ray> {
         let mut r = rng(seed);
         (0..n)
             .map(|i| {
@@ -625,6 +625,10 @@ mod tests {
                 2 => [r() - 0.5, r() * 0.01, 0.0],
                 _ => [r() - 0.5, r() - 0.5, r() - 0.5],
             };
+            hits += check(&g, &mesh, &[Ray::new(o, d, 0.0, f32::INFINITY)]);
+            // Rays lying in the plane of the cell face.
+            let o = [0.5, r(), r()];
+            let d = [0.0, r() - 0.5, r() - 0.5];
             hits += check(&g, &mesh, &[Ray::new(o, d, 0.0, f32::INFINITY)]);
         }
         assert!(hits > 1000, "{hits}");

@@ -201,6 +201,7 @@ pub fn build_structure(
 ) -> Result<Box<dyn Accelerator>, Error> {
     match name {
         "grid" => Ok(Box::new(grid::UniformGrid::build(tris))),
+        "kdtree" => Ok(Box::new(kdtree::KdTree::build(tris))),
         "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),
         _ => Err(Error::Invalid(format!(
             "unknown structure {name:?}: expected one of {}",
