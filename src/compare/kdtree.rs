@@ -213,7 +213,7 @@ struct Split {
 /// One sweep over a node's sorted events: the SAH-best plane strictly inside `[lo, hi]`.
 fn sweep(events: &[Event], n: usize, lo: [f32; 3], hi: [f32; 3]) -> Option<Split> {
     let sa = area(lo, hi);
-    if !(sa > 0.0) {
+    if sa.is_nan() || sa <= 0.0 {
         return None;
     }
     let inv_sa = 1.0 / sa;
