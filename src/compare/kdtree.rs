@@ -24,7 +24,12 @@
 //! only keeps a triangle that really enters it, with the bounds of the part inside); only their
 //! new events, O(sqrt N) per node for typical meshes, are sorted and merged in. Every level of the
 //! tree therefore costs O(N) and the build O(N log N) after the one root sort. Clipped bounds are
-//! rounded outward to f32, so a triangle's events always cover it. The build is sequential.
+//! rounded outward to f32, so a triangle's events always cover it. The build is sequential after
+//! the root sort (rayon). Measured with `oavm-bench --structure kdtree` (release, 2 shared
+//! cores) on the dragon: 55 ms for 11,102 triangles, 221 ms for 47,794, 757 ms for 202,520 and
+//! 2.16 s for 871,306, i.e. 0.37, 0.30, 0.21 and 0.13 µs per `N log2 N`: no worse than
+//! O(N log N), the per-triangle cost falling where the depth limit ends the finer meshes' trees
+//! early.
 //!
 //! **Storage** is pbrt's 8-byte node ([`KdNode`]): an interior node stores its split position
 //! (f32), its axis (2 bits) and the index of its above child (30 bits); the below child follows
