@@ -200,6 +200,8 @@ pub fn build_structure(
     opts: &BuildOptions,
 ) -> Result<Box<dyn Accelerator>, Error> {
     match name {
+        "grid" => Ok(Box::new(grid::UniformGrid::build(tris))),
+        "kdtree" => Ok(Box::new(kdtree::KdTree::build(tris))),
         "octree" => Ok(Box::new(octree::ClassicOctree::build(tris, opts))),
         "bvh" => Ok(Box::new(bvh::Bvh::build(tris))),
         "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),

@@ -1,0 +1,180 @@
+//! The uniform grid and the KD-tree of `oavm::compare` against brute force on real meshes.
+//!
+//! Scenes: the bunny (`bun_zipper.ply`) and the dragon at resolution 3 (`dragon_vrip_res3.ply`).
+//! Ray sets per scene: [`RANDOM`] random rays and a [`WIDTH`] x [`HEIGHT`] camera (closest hit
+//! and any hit on both), and shadow rays toward `default_light` from every brute-force primary
+//! hit (any hit, and closest hit too). Every ray is compared with brute force
+//! (`oavm::geom::brute`), which shares only the watertight triangle test with the structures.
+//!
+//! Agreement is the rule of `../shared/RAYS.md` (both miss, or both hit with
+//! `|t1 - t2| <= 1e-4 L`); a set passes when at most 0.01 % of its rays disagree
+//! ([`allowed`]), and the any-hit answers must agree with brute force's on the same budget.
+//! The brute-force closest hits are computed once per scene and shared by both structures; the
+//! brute-force any-hit answer of a ray is whether its brute-force closest hit exists (the same
+//! question: both search `[tmin, tmax]`), except on the shadow rays, where
+//! `brute::occluded` itself is called.
+
+use std::path::PathBuf;
+
+use oavm::compare::grid::UniformGrid;
+use oavm::compare::kdtree::KdTree;
+use oavm::compare::{Accelerator, Triangles};
+use oavm::geom::brute;
+use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
+use oavm::{Counters, Hit, Mesh, Ray};
+use rayon::prelude::*;
+
+const RANDOM: usize = 20_000;
+/// 20,000 camera rays.
+const WIDTH: u32 = 160;
+const HEIGHT: u32 = 125;
+
+fn allowed(n: usize) -> usize {
+    n / 10_000
+}
+
+fn shared_scene(rel: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/scenes")
+        .join(rel)
+}
+
+fn agree(a: Hit, b: Hit, diag: f64) -> bool {
+    a.is_hit() == b.is_hit() && (!a.is_hit() || ((a.t - b.t).abs() as f64) <= 1e-4 * diag)
+}
+
+struct Set {
+    name: &'static str,
+    rays: Vec<Ray>,
+    closest: Vec<Hit>,
+    occluded: Vec<bool>,
+}
+
+fn sets(mesh: &Mesh) -> (Vec<Set>, f64) {
+    let b = Bounds::of_points(mesh.positions.iter().copied());
+    let brute_all =
+        |rays: &[Ray]| -> Vec<Hit> { rays.par_iter().map(|r| brute::intersect(mesh, r)).collect() };
+    let random = random_rays(&b, RANDOM, 0x5eed);
+    let camera = Camera::framing(&b).primary_rays(WIDTH, HEIGHT);
+    let (rc, cc) = (brute_all(&random), brute_all(&camera));
+    let shadow = shadow_rays(&camera, &cc, default_light(&b));
+    let sc = brute_all(&shadow);
+    let so: Vec<bool> = shadow
+        .par_iter()
+        .map(|r| brute::occluded(mesh, r))
+        .collect();
+    let occ = |h: &[Hit]| h.iter().map(Hit::is_hit).collect::<Vec<_>>();
+    let out = vec![
+        Set {
+            name: "random",
+            occluded: occ(&rc),
+            rays: random,
+            closest: rc,
+        },
+        Set {
+            name: "camera",
+            occluded: occ(&cc),
+            rays: camera,
+            closest: cc,
+        },
+        Set {
+            name: "shadow",
+            rays: shadow,
+            closest: sc,
+            occluded: so,
+        },
+    ];
+    (out, b.diagonal().max(f64::MIN_POSITIVE))
+}
+
+/// Compares `acc` with the brute-force answers of every set; panics on too many disagreements.
+fn compare(scene: &str, acc: &dyn Accelerator, sets: &[Set], diag: f64) {
+    for set in sets {
+        let n = set.rays.len();
+        let (hits, c): (Vec<(Hit, bool)>, Vec<Counters>) = set
+            .rays
+            .par_iter()
+            .map(|r| {
+                let mut c = Counters::default();
+                let h = acc.intersect(r, &mut c);
+                let o = acc.occluded(r, &mut c);
+                ((h, o), c)
+            })
+            .unzip();
+        let c = c.into_iter().fold(Counters::default(), |a, b| a + b);
+        let mut bad_c = 0;
+        let mut bad_o = 0;
+        let mut exact = 0;
+        for (i, &(h, o)) in hits.iter().enumerate() {
+            let b = set.closest[i];
+            if !agree(b, h, diag) {
+                bad_c += 1;
+                if bad_c <= 3 {
+                    eprintln!(
+                        "{scene} {} {}: ray {i} {:?}: brute {b:?}, got {h:?}",
+                        acc.stats().name,
+                        set.name,
+                        set.rays[i]
+                    );
+                }
+            }
+            exact += (b == h) as usize;
+            if o != set.occluded[i] {
+                bad_o += 1;
+                if bad_o <= 3 {
+                    eprintln!(
+                        "{scene} {} {}: any hit of ray {i} {:?}: brute {}, got {o}",
+                        acc.stats().name,
+                        set.name,
+                        set.rays[i],
+                        set.occluded[i]
+                    );
+                }
+            }
+        }
+        let brute_hits = set.closest.iter().filter(|h| h.is_hit()).count();
+        eprintln!(
+            "{scene} {} {}: {n} rays, {brute_hits} hit, {bad_c} closest / {bad_o} any-hit \
+             disagreements, {exact} identical (t and prim); {c:?}",
+            acc.stats().name,
+            set.name
+        );
+        assert!(n >= 1000, "{} set too small: {n}", set.name);
+        assert!(
+            brute_hits > n / 20,
+            "{} set: too few hits ({brute_hits})",
+            set.name
+        );
+        assert!(c.nodes_visited > 0 && c.triangles_tested > 0);
+        assert_eq!(c.rays, 0, "structures must not count rays");
+        assert!(bad_c <= allowed(n), "{} closest: {bad_c} of {n}", set.name);
+        assert!(bad_o <= allowed(n), "{} any hit: {bad_o} of {n}", set.name);
+    }
+}
+
+fn check_scene(rel: &str) {
+    let mesh = oavm::mesh::load(&shared_scene(rel)).expect("load");
+    let tris = Triangles::from_mesh(&mesh).expect("triangles");
+    assert!(tris.len() > 40_000);
+    let (sets, diag) = sets(&mesh);
+    let grid = UniformGrid::build(&tris);
+    let s = grid.stats();
+    eprintln!("{rel}: {s:?}");
+    assert!(s.nodes > 1000 && s.bytes > 36 * tris.len() as u64);
+    compare(rel, &grid, &sets, diag);
+    let kd = KdTree::build(&tris);
+    let s = kd.stats();
+    eprintln!("{rel}: {s:?}");
+    assert!(s.nodes > 1000 && s.pointers > 0 && s.bytes > 36 * tris.len() as u64);
+    compare(rel, &kd, &sets, diag);
+}
+
+#[test]
+fn bunny_matches_brute_force() {
+    check_scene("bunny/bun_zipper.ply");
+}
+
+#[test]
+fn dragon_res3_matches_brute_force() {
+    check_scene("dragon/dragon_vrip_res3.ply");
+}
