@@ -51,7 +51,8 @@
 //! frames` gives the animation range (the default time is `start`, or 0 without `a`); `i level
 //! file` includes `file` (relative to the including file's directory) when `level` is at most the
 //! detail level (0, or as set by `d level`). Read and skipped, with their operands checked as
-//! numbers: `b r g b`, `am r g b`, `l x y z [r g b]`, `f r g b Kd Ks shine T ior` (8 numbers),
+//! numbers: `b r g b`, `am r g b`, `l x y z [r g b]` (only the position is kept, in
+//! [`AffScene::lights`]), `f r g b Kd Ks shine T ior` (8 numbers),
 //! `fm` (12 numbers: ambient, diffuse, specular colours, shine, transmittance, index of
 //! refraction). A `k camera` block (BART's camera path) is read like any other and not used: the
 //! camera is the `v` block.
@@ -127,6 +128,8 @@ pub struct AffScene {
     pub animation: Option<(f64, f64, u64)>,
     /// The time the scene is posed at.
     pub time: f64,
+    /// The point lights (`l`), placed by the transforms around them.
+    pub lights: Vec<[f64; 3]>,
     pub counts: AffCounts,
 }
 
@@ -177,13 +180,14 @@ pub fn parse_aff_with(
     check_budget(p.parsed, &name)?;
     p.parse_file(bytes, &name, path)?;
     let time = time.unwrap_or(p.animation.map_or(0.0, |a| a.0));
-    let mesh = p.pose(time)?;
+    let (mesh, lights) = p.pose(time)?;
     super::check_sizes(&mesh, &name)?;
     Ok(AffScene {
         mesh,
         view: p.view,
         animation: p.animation,
         time,
+        lights,
         counts: p.counts,
     })
 }
@@ -518,6 +522,8 @@ struct Parser<'r> {
     triangles: Vec<[u32; 3]>,
     runs: Vec<Run>,
     anim_tris: Vec<AnimTri>,
+    /// Point lights: node and local position.
+    lights: Vec<(usize, [f64; 3])>,
     animations: HashMap<Vec<u8>, Animation>,
     view: Option<AffView>,
     animation: Option<(f64, f64, u64)>,
@@ -543,6 +549,7 @@ impl<'r> Parser<'r> {
             triangles: Vec::new(),
             runs: Vec::new(),
             anim_tris: Vec::new(),
+            lights: Vec::new(),
             animations: HashMap::new(),
             view: None,
             animation: None,
@@ -597,10 +604,11 @@ impl<'r> Parser<'r> {
                 b"b" => src.skip_numbers(3, "the background colour `b`")?,
                 b"am" => src.skip_numbers(3, "the ambient light `am`")?,
                 b"l" => {
-                    src.skip_numbers(3, "the light position `l`")?;
+                    let p = src.vec3(&|| "the position of the light `l`".into())?;
                     if src.tok.peek().is_some_and(looks_like_number) {
                         src.skip_numbers(3, "the light colour `l`")?;
                     }
+                    self.lights.push((self.current, p));
                 }
                 b"f" => src.skip_numbers(8, "the material `f`")?,
                 b"fm" => src.skip_numbers(12, "the material `fm`")?,
@@ -1042,8 +1050,8 @@ impl<'r> Parser<'r> {
         result.map_err(wrap)
     }
 
-    /// Poses the scene at `time` and makes the mesh.
-    fn pose(&self, time: f64) -> Result<Mesh, MeshError> {
+    /// Poses the scene at `time`: the mesh and the light positions.
+    fn pose(&self, time: f64) -> Result<(Mesh, Vec<[f64; 3]>), MeshError> {
         let mut world = Vec::with_capacity(self.nodes.len());
         let mut visible = Vec::with_capacity(self.nodes.len());
         for (i, node) in self.nodes.iter().enumerate() {
@@ -1106,10 +1114,18 @@ impl<'r> Parser<'r> {
                 .copied()
                 .collect()
         };
-        Ok(Mesh {
-            positions,
-            triangles,
-        })
+        let lights = self
+            .lights
+            .iter()
+            .map(|&(node, p)| apply(&world[node], p))
+            .collect();
+        Ok((
+            Mesh {
+                positions,
+                triangles,
+            },
+            lights,
+        ))
     }
 }
 
