@@ -710,3 +710,77 @@ fn random_mutations_never_panic() {
     eprintln!("{ok} mutated scenes read, {err} rejected");
     assert!(ok > 150 && err > 150, "{ok} ok, {err} errors");
 }
+
+// ---------------------------------------------------------------------------------------------
+// The binaries: oavm-pack --time, oavm-trace --view
+
+fn run(cmd: &mut std::process::Command) -> std::process::Output {
+    cmd.stdin(std::process::Stdio::null())
+        .output()
+        .expect("cannot spawn the binary")
+}
+
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    let be = |o: usize| u32::from_be_bytes(b[o..o + 4].try_into().unwrap());
+    (be(16), be(20))
+}
+
+#[test]
+fn pack_poses_a_scene_at_a_time_and_trace_takes_its_view() {
+    let museum = bart("museum/museum5.aff");
+    if !museum.exists() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let pack = env!("CARGO_BIN_EXE_oavm-pack");
+    let trace = env!("CARGO_BIN_EXE_oavm-trace");
+    let (a, b) = (dir.path().join("a.oavm"), dir.path().join("b.oavm"));
+    for (out, t) in [(&a, "0.5"), (&b, "-0.5")] {
+        let o = run(std::process::Command::new(pack)
+            .arg(&museum)
+            .arg(out)
+            .arg(format!("--time={t}"))
+            .arg("--json"));
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(v["time"].as_f64(), Some(t.parse().unwrap()));
+        assert_eq!(v["input_triangles"].as_u64(), Some(11_564));
+    }
+    assert_ne!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+
+    // A time for a PLY file is an error that says why.
+    let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bunny.ply");
+    let o = run(std::process::Command::new(pack)
+        .arg(&bunny)
+        .arg(dir.path().join("c.oavm"))
+        .args(["--time", "1"]));
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("only BART AFF scenes"));
+
+    // --view: the scene's resolution unless --width/--height say otherwise.
+    let png = dir.path().join("m.png");
+    let o = run(std::process::Command::new(trace)
+        .arg(&a)
+        .arg("--view")
+        .arg(&museum)
+        .arg("-o")
+        .arg(&png));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(png_size(&png), (800, 600));
+    let o = run(std::process::Command::new(trace)
+        .arg(&a)
+        .arg("--view")
+        .arg(&museum)
+        .args(["--width", "64", "-o"])
+        .arg(&png));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(png_size(&png), (64, 600));
+    // --view and --eye do not go together.
+    let o = run(std::process::Command::new(trace)
+        .arg(&a)
+        .arg("--view")
+        .arg(&museum)
+        .args(["--eye", "0,0,0"]));
+    assert_eq!(o.status.code(), Some(2));
+}
