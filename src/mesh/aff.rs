@@ -12,8 +12,9 @@
 //!
 //! Geometry (kept, in file order):
 //!
-//! - `p n` then `n` vertices `x y z`: a polygon, fan-triangulated ([`Fan`]); `pp n`: the same
-//!   with a normal after each vertex (normals are skipped);
+//! - `p n` then `n` vertices `x y z`: a polygon, fan-triangulated as PLY and OBJ faces are
+//!   (`v0 v1 v2`, `v0 v2 v3`, ...); `pp n`: the same with a normal after each vertex (normals are
+//!   skipped);
 //! - `tt texture` then three `x y z u v`; `ttp texture` then three `x y z nx ny nz u v`: a
 //!   textured triangle (patch);
 //! - `m`: a triangle mesh, `vertices n` then `n` × `x y z`, optionally `normals n` then `n` ×
@@ -27,7 +28,7 @@
 //! - `c bx by bz br ax ay az ar`: a cone or cylinder (NFF), open as in NFF (no caps),
 //!   tessellated into [`CONE_SEGMENTS`] quads around the axis, two triangles each;
 //! - `s x y z r`: a sphere (NFF), tessellated as a UV sphere of [`SPHERE_SLICES`] slices around
-//!   the y-like axis and [`SPHERE_STACKS`] stacks pole to pole: `2 × slices × (stacks - 1)`
+//!   the y axis and [`SPHERE_STACKS`] stacks from pole to pole: `2 × slices × (stacks - 1)`
 //!   triangles (960), with `|r|` as radius.
 //!
 //! Transforms, composed on a stack:
@@ -39,12 +40,13 @@
 //!   file;
 //! - `k name { motion n  rows... }` with motions `transl` (rows `t x y z T C B`), `rot` (rows
 //!   `t ax ay az deg T C B`), `scale` (rows `t sx sy sz T C B`), each with at least 4 rows, and
-//!   `visibility` (rows `t flag`): Kochanek–Bartels splines, see [`kb`](super::kb) for the maths.
-//!   `k` blocks may come before or after the `x` they animate, in any file; when a name has
-//!   several `k` blocks the last one read counts (BART's list lookup finds the newest). An
-//!   object is visible until its first visibility key, then as the latest key at or before the
-//!   time says; invisible subtrees are dropped after primitive ids are assigned, so the ids of
-//!   the triangles that remain keep their file order.
+//!   `visibility` (rows `t flag`). Transforms follow Kochanek–Bartels splines (Kochanek, Bartels
+//!   1984): positions and scales as cubic Hermite segments, rotations as quaternion `squad`
+//!   segments, as BART's reference code computes them; see [`super::kb`] for the maths. `k`
+//!   blocks may come before or after the `x` they animate, in any file; when a name has several
+//!   `k` blocks the last one read counts (BART's list lookup finds the newest). An object is
+//!   visible until its first visibility key, then as the latest key at or before the time says;
+//!   the triangles of invisible subtrees are left out, the others keep their file order.
 //!
 //! Scene statements: `v` (a block of `from x y z`, `at x y z`, `up x y z`, `angle deg`,
 //! `hither d`, `resolution w h`, all six required, in any order) gives [`AffView`]; `a start end
@@ -65,6 +67,9 @@
 //! [`AffCounts::polygons`] counts the polygon statements (`p`, `pp`, `tt`, `ttp`, and each row
 //! of a mesh's `triangles` block) before fan triangulation: the "polygons" of the BART scene
 //! headers and of the OAVM paper. Animated triangles, cones and spheres are counted apart.
+//! Measured (`tests/mesh_aff.rs`): the kitchen has 110,561 polygons (all triangles; 63,706
+//! vertices), the robots 71,708 (134,127 vertices), museum level 5 10,143 polygons (10,284
+//! triangles) plus 1,024 animated triangles and 8 cones (256 triangles).
 //!
 //! # Untrusted input
 //!

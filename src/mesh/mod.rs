@@ -12,7 +12,7 @@
 
 pub mod aff;
 mod error;
-mod kb;
+pub mod kb;
 mod obj;
 mod ply;
 
