@@ -204,6 +204,42 @@ impl Camera {
         }
     }
 
+    /// A camera at `from` looking at `at`, `up` giving the image's up direction, with a vertical
+    /// field of view of `fov_deg` degrees (an NFF/AFF viewpoint). The error says which of these
+    /// cannot make a camera: non-finite values, `from == at`, `up` parallel to the view
+    /// direction, or a field of view outside (0, 180).
+    pub fn look_at(
+        from: [f64; 3],
+        at: [f64; 3],
+        up: [f64; 3],
+        fov_deg: f64,
+    ) -> Result<Camera, String> {
+        if !from.iter().chain(&at).chain(&up).all(|c| c.is_finite()) {
+            return Err("the camera's from, at and up must be finite".into());
+        }
+        if !(fov_deg > 0.0 && fov_deg < 180.0) {
+            return Err(format!(
+                "the field of view is {fov_deg} degrees; it must be between 0 and 180"
+            ));
+        }
+        let f = sub(at, from);
+        let fl = dot(f, f).sqrt();
+        if !(fl.is_finite() && fl > 0.0) {
+            return Err("the camera looks from the point it looks at".into());
+        }
+        let ul = dot(up, up).sqrt();
+        let side = cross(f, up);
+        if !(ul.is_finite() && ul > 0.0) || dot(side, side).sqrt() <= 1e-9 * fl * ul {
+            return Err("the camera's up vector is zero or parallel to its view direction".into());
+        }
+        Ok(Camera {
+            eye: from,
+            target: at,
+            up,
+            fov_y: fov_deg,
+        })
+    }
+
     /// One ray through the centre of each pixel, row by row from the top left; unit directions.
     pub fn primary_rays(&self, width: u32, height: u32) -> Vec<Ray> {
         let mut rays = Vec::with_capacity(width as usize * height as usize);
@@ -267,6 +303,10 @@ pub fn shadow_rays(primary: &[Ray], hits: &[Hit], light: [f32; 3]) -> Vec<Ray> {
 
 pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

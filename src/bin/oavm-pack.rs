@@ -8,12 +8,12 @@ use clap::Parser;
 use oavm::build::{self, BuildOptions, PackReport};
 use oavm::cli::{Progress, main_with, with_threads};
 
-/// Packs a triangle mesh (PLY or OBJ) into an .oavm file: a Morton-ordered octree with merged
+/// Packs a triangle mesh (PLY, OBJ, or a BART AFF scene posed at one time) into an .oavm file: a Morton-ordered octree with merged
 /// empty volumes, ready to be memory-mapped and traced by oavm-trace.
 #[derive(Parser, Debug)]
 #[command(name = "oavm-pack", version)]
 struct Args {
-    /// Input mesh: .ply (ascii or binary) or .obj.
+    /// Input mesh: .ply (ascii or binary), .obj, or .aff (a BART scene with its includes).
     mesh: PathBuf,
     /// Output .oavm file (written atomically: a temporary file, then renamed).
     out: PathBuf,
@@ -26,6 +26,10 @@ struct Args {
     /// Do not merge empty leaves into larger volumes.
     #[arg(long)]
     no_merge: bool,
+    /// Pose an animated .aff scene at this time (default: its animation start, or 0). An error
+    /// for other formats.
+    #[arg(long, value_name = "T", allow_negative_numbers = true)]
+    time: Option<f64>,
     /// Print the report as one JSON object.
     #[arg(long)]
     json: bool,
@@ -45,7 +49,9 @@ fn main() -> ExitCode {
         opts.validate()?;
         let progress = Progress::new(std::io::stderr().is_terminal());
         let report = with_threads(args.threads, || {
-            build::pack(&args.mesh, &args.out, &opts, &|m| progress.set(m))
+            build::pack_at(&args.mesh, args.time, &args.out, &opts, &|m| {
+                progress.set(m)
+            })
         })?;
         progress.finish();
         let mut out = std::io::stdout().lock();
@@ -68,6 +74,9 @@ fn human(r: &PackReport) -> String {
         "mesh",
         format!("{} ({:.1} MB)", r.mesh, r.mesh_bytes as f64 / 1e6),
     );
+    if let Some(time) = r.time {
+        line("scene time", time.to_string());
+    }
     line(
         "triangles",
         format!(

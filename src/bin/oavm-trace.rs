@@ -15,8 +15,8 @@ use serde_json::json;
 
 /// Traces rays through an .oavm file made by oavm-pack.
 ///
-/// With no mode option, renders the model from a camera that frames it, shaded by a point light
-/// with shadows, and writes a PNG. With --rays and --hits (closest hit) or --occluded (any hit),
+/// With no mode option, renders the model from a camera that frames it (or from the viewpoint of
+/// a BART scene, --view), shaded by a point light with shadows, and writes a PNG. With --rays and --hits (closest hit) or --occluded (any hit),
 /// traces a ray file in the formats of RAYS.md. With --verify, checks every byte of the file.
 #[derive(Parser, Debug)]
 #[command(name = "oavm-trace", version)]
@@ -43,10 +43,17 @@ struct Args {
     /// Image to write (default: the file's name with .png).
     #[arg(short, long, value_name = "PNG")]
     output: Option<PathBuf>,
-    #[arg(long, default_value_t = 1024)]
-    width: u32,
-    #[arg(long, default_value_t = 768)]
-    height: u32,
+    /// Image width (default 1024, or the --view scene's resolution).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height (default 768, or the --view scene's resolution).
+    #[arg(long)]
+    height: Option<u32>,
+    /// Take the camera from this BART AFF scene's viewpoint (`v`: from, at, up, and angle as the
+    /// vertical field of view) and the light from its first light (`l`), or the viewpoint
+    /// without one; the image size is the scene's resolution unless --width/--height are given.
+    #[arg(long, value_name = "SCENE.aff", conflicts_with_all = ["eye", "target", "fov", "up"])]
+    view: Option<PathBuf>,
     /// Camera position (default: in front of the model, framing it).
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
     eye: Option<[f64; 3]>,
@@ -194,27 +201,43 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         min: h.mesh_min,
         max: h.mesh_max,
     };
-    let mut camera = Camera::framing(&bounds);
-    if let Some(target) = args.target {
-        camera.target = target;
-    }
-    if let Some(eye) = args.eye {
-        camera.eye = eye;
-    }
-    camera.up = args.up;
-    camera.fov_y = args.fov;
-    if !(camera.fov_y > 0.0 && camera.fov_y < 180.0) || camera.eye == camera.target {
-        return Err(Error::Invalid(
-            "the camera needs 0 < --fov < 180 and --eye apart from --target".into(),
-        ));
-    }
+    let (camera, scene_light, (width, height)) = if let Some(view_path) = &args.view {
+        let aff = oavm::mesh::load_aff(view_path, None)?;
+        let v = aff.view.ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: the scene has no viewpoint (`v` block) for --view",
+                view_path.display()
+            ))
+        })?;
+        let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
+            .map_err(|e| Error::Invalid(format!("{}: viewpoint: {e}", view_path.display())))?;
+        let light = aff.lights.first().copied().unwrap_or(v.from);
+        (camera, Some(light), v.resolution)
+    } else {
+        let mut camera = Camera::framing(&bounds);
+        if let Some(target) = args.target {
+            camera.target = target;
+        }
+        if let Some(eye) = args.eye {
+            camera.eye = eye;
+        }
+        camera.up = args.up;
+        camera.fov_y = args.fov;
+        if !(camera.fov_y > 0.0 && camera.fov_y < 180.0) || camera.eye == camera.target {
+            return Err(Error::Invalid(
+                "the camera needs 0 < --fov < 180 and --eye apart from --target".into(),
+            ));
+        }
+        (camera, None, (1024, 768))
+    };
     let light = args
         .light
+        .or(scene_light)
         .map(|l| l.map(|c| c as f32))
         .unwrap_or_else(|| rays::default_light(&bounds));
     let opts = RenderOptions {
-        width: args.width,
-        height: args.height,
+        width: args.width.unwrap_or(width),
+        height: args.height.unwrap_or(height),
         camera,
         light,
     };

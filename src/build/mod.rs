@@ -534,6 +534,9 @@ fn stats_of(
 #[derive(Clone, Debug, Serialize)]
 pub struct PackReport {
     pub mesh: String,
+    /// The scene time an animated (AFF) scene was posed at, when one was asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time: Option<f64>,
     pub output: String,
     pub options: BuildOptions,
     pub mesh_bytes: u64,
@@ -555,11 +558,23 @@ pub fn pack(
     opts: &BuildOptions,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<PackReport, Error> {
+    pack_at(mesh_path, None, out, opts, progress)
+}
+
+/// [`pack`] with an animated (BART AFF) scene posed at `time` ([`crate::mesh::load_at`]); a
+/// time for any other format is an error.
+pub fn pack_at(
+    mesh_path: &std::path::Path,
+    time: Option<f64>,
+    out: &std::path::Path,
+    opts: &BuildOptions,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<PackReport, Error> {
     opts.validate()?;
     let t0 = Instant::now();
     progress("parsing the mesh");
     let mesh_bytes = std::fs::metadata(mesh_path).map(|m| m.len()).unwrap_or(0);
-    let mesh = crate::mesh::load(mesh_path)?;
+    let mesh = crate::mesh::load_at(mesh_path, time)?;
     let parse_seconds = t0.elapsed().as_secs_f64();
 
     let (parts, stats) = build(&mesh, opts, progress)?;
@@ -574,6 +589,7 @@ pub fn pack(
     let file_bytes = bytes.as_ref().len() as u64;
     Ok(PackReport {
         mesh: mesh_path.display().to_string(),
+        time,
         output: out.display().to_string(),
         options: *opts,
         mesh_bytes,

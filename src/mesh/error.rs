@@ -128,7 +128,50 @@ pub enum MeshError {
         detail: String,
     },
 
-    /// More vertices or triangles than 32-bit ids can name.
+    /// More vertices or triangles than 32-bit ids can name (or, for AFF, more include
+    /// expansion than the reader allows).
     #[error("{file}: too large: {detail}")]
     TooLarge { file: String, detail: String },
+
+    /// A BART AFF statement this reader cannot read: an unknown keyword, a missing `{`, an
+    /// unbalanced `}`, a mesh index out of range, too few keyframes, an include cycle.
+    #[error("{file}: line {line}: bad AFF: {detail}")]
+    Aff {
+        file: String,
+        line: u64,
+        detail: String,
+    },
+
+    /// An error in (or reading) the file an AFF `i` statement includes. `file` and `line` are
+    /// the including statement's; `source` names the included file, so printing the error shows
+    /// the include chain from the top file down.
+    #[error("{file}: line {line}: in the file included here: {source}")]
+    Included {
+        file: String,
+        line: u64,
+        source: Box<MeshError>,
+    },
+
+    /// A scene time that is not a finite number.
+    #[error("{file}: the animation time {time} is not a finite number")]
+    BadTime { file: String, time: f64 },
+
+    /// A time was asked for a file that is not an animated scene format.
+    #[error(
+        "{file}: a time was given, but only BART AFF scenes (.aff) are animated; this file is not one"
+    )]
+    NotAnimated { file: String },
+}
+
+impl MeshError {
+    /// The error at the bottom of an AFF include chain (`self` when it is not [`Included`]).
+    ///
+    /// [`Included`]: MeshError::Included
+    pub fn innermost(&self) -> &MeshError {
+        let mut e = self;
+        while let MeshError::Included { source, .. } = e {
+            e = source;
+        }
+        e
+    }
 }

@@ -1,4 +1,5 @@
-//! Mesh input: PLY (ascii, binary little- and big-endian) and OBJ (through `tobj`).
+//! Mesh input: PLY (ascii, binary little- and big-endian), OBJ (through `tobj`) and BART AFF
+//! scenes (posed at one time of their animation, see [`aff`]).
 //!
 //! Everything read here is untrusted: any bytes give a [`Mesh`] or a [`MeshError`] naming the
 //! file and the place, never a panic, and no count read from a file makes us allocate more than
@@ -9,12 +10,15 @@
 //! triangle of the file after fan triangulation, in file order. `positions[i]` is the file's
 //! vertex `i` (PLY vertex record `i`, OBJ `v` line `i + 1`), used or not.
 
+pub mod aff;
 mod error;
+pub mod kb;
 mod obj;
 mod ply;
 
 use std::path::Path;
 
+pub use aff::{AffCounts, AffScene, AffView, load_aff, parse_aff, parse_aff_with};
 pub use error::{MeshError, Place};
 pub use obj::parse_obj;
 pub use ply::parse_ply;
@@ -39,8 +43,23 @@ impl Mesh {
 }
 
 /// Reads the mesh in `path`. The format is PLY if the file starts with the PLY magic line,
-/// else OBJ if the extension is `.obj` or the first statements are OBJ statements.
+/// else a BART AFF scene if the extension is `.aff` (posed at its default time, see
+/// [`load_aff`]), else OBJ if the extension is `.obj` or the first statements are OBJ statements.
 pub fn load(path: &Path) -> Result<Mesh, MeshError> {
+    load_at(path, None)
+}
+
+/// Like [`load`], posing an AFF scene at `time` (`None`: its default time). A time for a file
+/// that is not AFF is an error ([`MeshError::NotAnimated`]).
+pub fn load_at(path: &Path, time: Option<f64>) -> Result<Mesh, MeshError> {
+    if is_aff(path) {
+        return load_aff(path, time).map(|scene| scene.mesh);
+    }
+    if time.is_some() {
+        return Err(MeshError::NotAnimated {
+            file: path.display().to_string(),
+        });
+    }
     let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
         path: path.to_owned(),
         source,
@@ -61,6 +80,12 @@ pub fn load(path: &Path) -> Result<Mesh, MeshError> {
         "it starts with neither the PLY magic line `ply` nor OBJ statements".to_owned()
     };
     Err(MeshError::UnknownFormat { file: name, detail })
+}
+
+/// Whether `path` names a BART AFF scene (by its extension, `.aff` in any case).
+pub fn is_aff(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("aff"))
 }
 
 /// Fan triangulation, fed one polygon corner at a time (RAYS.md, "Primitive ids"): the polygon
