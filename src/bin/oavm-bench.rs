@@ -94,6 +94,9 @@ struct SceneResult {
     input_triangles: usize,
     triangles: usize,
     diagonal: f64,
+    /// "scene": a BART scene's own camera (its animated camera at the first frame, else its `v`
+    /// block) and its first light; "framing": the default camera and light around the bounds.
+    camera: &'static str,
     structures: Vec<StructureResult>,
 }
 
@@ -175,10 +178,18 @@ fn bench_scene(
     names: &[&str],
     opts: &BuildOptions,
 ) -> Result<SceneResult, Error> {
-    let mesh = oavm::mesh::load(path)?;
+    let (mesh, view) = load_scene(path)?;
     let tris = Triangles::from_mesh(&mesh)?;
     let b = Bounds::of_points(tris.v.iter().flatten().copied());
     let diag = b.diagonal();
+    let (camera, light, camera_kind) = match view {
+        Some((cam, light)) => (
+            cam,
+            light.unwrap_or_else(|| rays::default_light(&b)),
+            "scene",
+        ),
+        None => (Camera::framing(&b), rays::default_light(&b), "framing"),
+    };
     eprintln!(
         "oavm-bench: {}: {} triangles",
         path.display(),
@@ -187,7 +198,7 @@ fn bench_scene(
 
     // OAVM first: every other structure is checked against it.
     let oavm = compare::OavmAccel::build(&mesh, opts)?;
-    let primary = Camera::framing(&b).primary_rays(args.width, args.height);
+    let primary = camera.primary_rays(args.width, args.height);
     let mut primary_hits = vec![Hit::MISS; primary.len()];
     compare::intersect_batch(&oavm, &primary, &mut primary_hits);
     let sets: [(&'static str, Vec<Ray>, bool); 3] = [
@@ -195,7 +206,7 @@ fn bench_scene(
         ("random", rays::random_rays(&b, args.random, 1), false),
         (
             "shadow",
-            rays::shadow_rays(&primary, &primary_hits, rays::default_light(&b)),
+            rays::shadow_rays(&primary, &primary_hits, light),
             true,
         ),
     ];
@@ -268,8 +279,33 @@ fn bench_scene(
         input_triangles: mesh.triangles.len(),
         triangles: tris.len(),
         diagonal: diag,
+        camera: camera_kind,
         structures,
     })
+}
+
+/// A scene's mesh, and for a BART AFF scene its own camera (the animated camera path at the
+/// first frame, else the `v` block) and first light.
+type SceneView = Option<(Camera, Option<[f32; 3]>)>;
+
+fn load_scene(path: &std::path::Path) -> Result<(oavm::mesh::Mesh, SceneView), Error> {
+    let is_aff = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("aff"));
+    if !is_aff {
+        return Ok((oavm::mesh::load(path)?, None));
+    }
+    let aff = oavm::mesh::load_aff(path, None)?;
+    let view = match aff.camera_path.or(aff.view) {
+        Some(v) => {
+            let cam = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
+                .map_err(|e| Error::Invalid(format!("{}: viewpoint: {e}", path.display())))?;
+            let light = aff.lights.first().map(|l| l.map(|c| c as f32));
+            Some((cam, light))
+        }
+        None => None,
+    };
+    Ok((aff.mesh, view))
 }
 
 /// Traces `rays` through `acc`: closest hits, or any-hit answers for `any`.
@@ -348,7 +384,7 @@ fn batch(args: &Args, names: &[&str], opts: &BuildOptions) -> Result<(), Error> 
             "--rays needs --hits (closest hit) or --occluded (any hit)".into(),
         ));
     }
-    let mesh = oavm::mesh::load(scene)?;
+    let (mesh, _) = load_scene(scene)?;
     let tris = Triangles::from_mesh(&mesh)?;
     let diag = Bounds::of_points(tris.v.iter().flatten().copied()).diagonal();
     let rays = rays::read_rays(rays_path)?;

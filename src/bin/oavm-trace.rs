@@ -54,6 +54,10 @@ struct Args {
     /// without one; the image size is the scene's resolution unless --width/--height are given.
     #[arg(long, value_name = "SCENE.aff", conflicts_with_all = ["eye", "target", "fov", "up"])]
     view: Option<PathBuf>,
+    /// With --view: take the camera from the scene's animated camera path (`k camera`) at its
+    /// first frame instead of its `v` block (BART's own animation frame).
+    #[arg(long, requires = "view")]
+    camera_path: bool,
     /// Camera position (default: in front of the model, framing it).
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
     eye: Option<[f64; 3]>,
@@ -203,12 +207,21 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
     };
     let (camera, scene_light, (width, height)) = if let Some(view_path) = &args.view {
         let aff = oavm::mesh::load_aff(view_path, None)?;
-        let v = aff.view.ok_or_else(|| {
-            Error::Invalid(format!(
-                "{}: the scene has no viewpoint (`v` block) for --view",
-                view_path.display()
-            ))
-        })?;
+        let v = if args.camera_path {
+            aff.camera_path.ok_or_else(|| {
+                Error::Invalid(format!(
+                    "{}: the scene has no camera path (`k camera` and a `v` block) for --camera-path",
+                    view_path.display()
+                ))
+            })?
+        } else {
+            aff.view.ok_or_else(|| {
+                Error::Invalid(format!(
+                    "{}: the scene has no viewpoint (`v` block) for --view",
+                    view_path.display()
+                ))
+            })?
+        };
         let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
             .map_err(|e| Error::Invalid(format!("{}: viewpoint: {e}", view_path.display())))?;
         let light = aff.lights.first().copied().unwrap_or(v.from);

@@ -136,6 +136,12 @@ pub struct AffCounts {
 pub struct AffScene {
     pub mesh: Mesh,
     pub view: Option<AffView>,
+    /// BART's animated camera (`k camera`) at the scene time, when the scene has one: the `v`
+    /// block's field of view, hither and resolution, placed by the camera's transform `M` as
+    /// BART's viewer places an OpenGL camera: `from = M (0,0,0)`, `at = M (0,0,-1)`, `up` = `M`'s
+    /// rotation of `(0,1,0)`. It is the frame the animation renders at that time, inside the
+    /// scene, where the `v` block may be a close-up (kitchen) or outside the scene (robots).
+    pub camera_path: Option<AffView>,
     /// `a start end frames`.
     pub animation: Option<(f64, f64, u64)>,
     /// The time the scene is posed at.
@@ -194,8 +200,24 @@ pub fn parse_aff_with(
     let time = time.unwrap_or(p.animation.map_or(0.0, |a| a.0));
     let (mesh, lights) = p.pose(time)?;
     super::check_sizes(&mesh, &name)?;
+    let camera_path = match (&p.view, p.animations.get(&b"camera"[..])) {
+        (Some(v), Some(a)) => {
+            let m = a.matrix(time);
+            let from = apply(&m, [0.0; 3]);
+            let at = apply(&m, [0.0, 0.0, -1.0]);
+            let up_point = apply(&m, [0.0, 1.0, 0.0]);
+            Some(AffView {
+                from,
+                at,
+                up: std::array::from_fn(|k| up_point[k] - from[k]),
+                ..*v
+            })
+        }
+        _ => None,
+    };
     Ok(AffScene {
         mesh,
+        camera_path,
         view: p.view,
         animation: p.animation,
         time,
