@@ -1,0 +1,192 @@
+//! End-to-end tests of `oavm-bench`, the OAVM paper's comparison driver: the real binary on real
+//! scenes (the Cornell box, BART's museum, the bundled bunny), small ray sets, in a temporary
+//! directory. It must build all five structures, find no disagreement with OAVM, report the
+//! figures the paper's tables need, trace ray files in RAYS.md's formats, and refuse bad usage.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+use oavm::compare::{self, Triangles};
+use oavm::rays::{self, Bounds};
+use oavm::{BuildOptions, Hit};
+use serde_json::Value;
+use tempfile::TempDir;
+
+fn bench() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_oavm-bench"))
+}
+
+fn run(cmd: &mut Command) -> Output {
+    cmd.stdin(Stdio::null())
+        .output()
+        .expect("cannot spawn oavm-bench")
+}
+
+fn describe(o: &Output) -> String {
+    format!(
+        "status {:?}\n--- stdout\n{}--- stderr\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+const SMALL: [&str; 10] = [
+    "--random",
+    "3000",
+    "--width",
+    "48",
+    "--height",
+    "36",
+    "--reps",
+    "1",
+    "--threads",
+    "1",
+];
+
+#[test]
+fn all_structures_agree_with_oavm_and_report_the_tables_figures() {
+    let cornell = common::shared_scene("cornell_box/CornellBox-Original.obj");
+    let museum = common::shared_scene("bart/museum/museum5.aff");
+    let o = run(bench().args(SMALL).arg("--json").arg(&cornell).arg(&museum));
+    assert!(o.status.success(), "{}", describe(&o));
+    let v: Value = serde_json::from_slice(&o.stdout).expect("JSON on stdout");
+    let scenes = v["scenes"].as_array().expect("scenes");
+    assert_eq!(scenes.len(), 2);
+    for sc in scenes {
+        let structs = sc["structures"].as_array().expect("structures");
+        let names: Vec<&str> = structs
+            .iter()
+            .map(|s| s["name"].as_str().unwrap())
+            .collect();
+        assert_eq!(names, compare::STRUCTURES, "{}", sc["scene"]);
+        let by = |n: &str| structs.iter().find(|s| s["name"] == n).unwrap();
+        // The classic octree is OAVM's subdivision with pointers: same nodes, more pointers.
+        assert_eq!(by("octree")["nodes"], by("oavm")["nodes"]);
+        assert!(by("octree")["pointers"].as_u64() > by("oavm")["pointers"].as_u64());
+        for s in structs {
+            assert!(s["nodes"].as_u64().unwrap() > 0, "{s}");
+            assert!(s["bytes"].as_u64().unwrap() > 0, "{s}");
+            assert!(s["build_ms"].as_f64().unwrap() >= 0.0, "{s}");
+            let sets = s["sets"].as_array().unwrap();
+            let set_names: Vec<&str> = sets.iter().map(|x| x["set"].as_str().unwrap()).collect();
+            assert_eq!(set_names, ["primary", "random", "shadow"]);
+            for x in sets {
+                assert_eq!(x["disagree_with_oavm"], 0, "{} {}", s["name"], x);
+                assert!(x["rays"].as_u64().unwrap() > 0);
+                assert!(x["nodes_visited_per_ray"].as_f64().unwrap() > 0.0, "{x}");
+                let speeds = x["mrays_per_s"].as_array().unwrap();
+                assert_eq!(speeds.len(), 1);
+                assert!(speeds[0][1].as_f64().unwrap() > 0.0);
+            }
+            // Primary rays inside a closed room hit something.
+            assert!(sets[0]["hits"].as_u64().unwrap() > 0, "{s}");
+        }
+    }
+    // BART scenes are traced from their own camera; the Cornell box is framed.
+    assert_eq!(scenes[0]["camera"], "framing");
+    assert_eq!(scenes[1]["camera"], "scene");
+}
+
+#[test]
+fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
+    let dir = TempDir::new().unwrap();
+    let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/bunny.ply");
+    let mesh = oavm::mesh::load(&bunny).unwrap();
+    let tris = Triangles::from_mesh(&mesh).unwrap();
+    let b = Bounds::of_points(tris.v.iter().flatten().copied());
+    let rays_in = rays::random_rays(&b, 5000, 7);
+    let rays_path = dir.path().join("r.rays");
+    rays::write_rays(&rays_path, &rays_in).unwrap();
+    for name in ["grid", "kdtree", "octree", "bvh"] {
+        let hits_path = dir.path().join(format!("{name}.hits"));
+        let occ_path = dir.path().join(format!("{name}.occl"));
+        for (flag, out) in [("--hits", &hits_path), ("--occluded", &occ_path)] {
+            let o = run(bench()
+                .arg(&bunny)
+                .args(["--structure", name, "--rays"])
+                .arg(&rays_path)
+                .arg(flag)
+                .arg(out));
+            assert!(o.status.success(), "{name} {flag}: {}", describe(&o));
+            let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+            assert_eq!(v["disagree_with_oavm"], 0, "{name} {flag}");
+            assert_eq!(v["rays"], 5000);
+        }
+        let acc = compare::build_structure(name, &mesh, &tris, &BuildOptions::default()).unwrap();
+        let mut want = vec![Hit::MISS; rays_in.len()];
+        compare::intersect_batch(acc.as_ref(), &rays_in, &mut want);
+        let got = rays::read_hits(&hits_path).unwrap();
+        assert_eq!(got.len(), want.len());
+        assert!(
+            got.iter()
+                .zip(&want)
+                .all(|(a, b)| a.t.to_bits() == b.t.to_bits() && a.prim == b.prim),
+            "{name}: the HITS file differs from the library's answers"
+        );
+        assert!(want.iter().filter(|h| h.is_hit()).count() > 100);
+        let occ = rays::read_occlusion(&occ_path).unwrap();
+        assert!(
+            occ.iter().zip(&want).all(|(&o, h)| (o == 1) == h.is_hit()),
+            "{name}: any hit and closest hit differ on full-length rays"
+        );
+    }
+}
+
+fn assert_usage_error(o: &Output, needle: &str) {
+    assert!(!o.status.success(), "{}", describe(o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(needle),
+        "expected {needle:?} in:\n{}",
+        describe(o)
+    );
+    assert!(!err.contains("panicked"), "{}", describe(o));
+}
+
+#[test]
+fn bad_usage_is_refused_clearly() {
+    let dir = TempDir::new().unwrap();
+    let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/bunny.ply");
+    let rays_path = dir.path().join("r.rays");
+    rays::write_rays(
+        &rays_path,
+        &rays::random_rays(&Bounds::of_points([[0.0; 3], [1.0; 3]]), 10, 1),
+    )
+    .unwrap();
+    assert_usage_error(
+        &run(bench().arg(&bunny).args(["--structure", "octtree"])),
+        "unknown structure",
+    );
+    assert_usage_error(
+        &run(bench()
+            .arg(&bunny)
+            .arg("--rays")
+            .arg(&rays_path)
+            .arg("--hits")
+            .arg(dir.path().join("h"))),
+        "exactly one --structure",
+    );
+    assert_usage_error(
+        &run(bench()
+            .arg(&bunny)
+            .args(["--structure", "bvh", "--rays"])
+            .arg(&rays_path)),
+        "--hits",
+    );
+    let missing: &Path = &dir.path().join("missing.ply");
+    assert_usage_error(&run(bench().args(SMALL).arg(missing)), "missing.ply");
+    let not_rays = dir.path().join("bad.rays");
+    std::fs::write(&not_rays, b"not a ray file").unwrap();
+    assert_usage_error(
+        &run(bench()
+            .arg(&bunny)
+            .args(["--structure", "grid", "--rays"])
+            .arg(&not_rays)
+            .arg("--hits")
+            .arg(dir.path().join("h"))),
+        "bad.rays",
+    );
+}
