@@ -53,7 +53,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::{Accelerator, StructureStats, Triangles};
+use super::{Accelerator, StructureStats, Triangles, brute_force, closer};
 use crate::geom::triangle::RayShear;
 use crate::geom::tribox::triangle_overlaps_box;
 use crate::geom::{Hit, Ray};
@@ -301,15 +301,7 @@ impl UniformGrid {
     }
 
     fn brute_intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
-        let sh = RayShear::new(ray);
-        let mut best = Hit::MISS;
-        for (i, t) in self.tris.iter().enumerate() {
-            c.triangles_tested += 1;
-            if let Some(th) = sh.intersect(t, ray.tmin, ray.tmax) {
-                closer(&mut best, th, self.prim[i]);
-            }
-        }
-        best
+        brute_force(&self.tris, &self.prim, ray, c)
     }
 }
 
@@ -366,19 +358,6 @@ impl Accelerator for UniformGrid {
             false
         });
         found
-    }
-}
-
-/// Replaces `best` by the hit (`t`, `prim`) if it is closer, or as close with a lower primitive
-/// id (the convention of `geom::brute`, which keeps the lowest id among equal `t`). Returns
-/// whether it did.
-#[inline]
-pub(crate) fn closer(best: &mut Hit, t: f32, prim: u32) -> bool {
-    if !best.is_hit() || t < best.t || (t == best.t && prim < best.prim) {
-        *best = Hit { t, prim };
-        true
-    } else {
-        false
     }
 }
 

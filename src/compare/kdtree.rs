@@ -62,8 +62,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::grid::{clip_ray, closer, finite_triangles, padded_bounds};
-use super::{Accelerator, StructureStats, Triangles};
+use super::grid::{clip_ray, finite_triangles, padded_bounds};
+use super::{Accelerator, StructureStats, Triangles, brute_force, closer};
 use crate::geom::triangle::RayShear;
 use crate::geom::tribox::clipped_bounds;
 use crate::geom::{Hit, Ray};
@@ -649,15 +649,7 @@ impl KdTree {
     }
 
     fn brute_intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
-        let sh = RayShear::new(ray);
-        let mut best = Hit::MISS;
-        for (i, t) in self.tris.iter().enumerate() {
-            c.triangles_tested += 1;
-            if let Some(th) = sh.intersect(t, ray.tmin, ray.tmax) {
-                closer(&mut best, th, self.prim[i]);
-            }
-        }
-        best
+        brute_force(&self.tris, &self.prim, ray, c)
     }
 }
 

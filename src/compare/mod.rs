@@ -160,6 +160,38 @@ impl Accelerator for OavmAccel {
     }
 }
 
+/// Replaces `best` by the hit (`t`, `prim`) if it is closer, or as close with a lower primitive
+/// id (the convention of `geom::brute`, which keeps the lowest id among equal `t`). Returns
+/// whether it did.
+#[inline]
+pub(crate) fn closer(best: &mut Hit, t: f32, prim: u32) -> bool {
+    if !best.is_hit() || t < best.t || (t == best.t && prim < best.prim) {
+        *best = Hit { t, prim };
+        true
+    } else {
+        false
+    }
+}
+
+/// The closest hit of `ray` among all of `tris` (with primitive ids `prim`), by the shared
+/// watertight test: the fallback of a structure whose indices would not fit its records.
+pub(crate) fn brute_force(
+    tris: &[[[f32; 3]; 3]],
+    prim: &[u32],
+    ray: &Ray,
+    c: &mut Counters,
+) -> Hit {
+    let sh = crate::geom::triangle::RayShear::new(ray);
+    let mut best = Hit::MISS;
+    for (t, &p) in tris.iter().zip(prim) {
+        c.triangles_tested += 1;
+        if let Some(th) = sh.intersect(t, ray.tmin, ray.tmax) {
+            closer(&mut best, th, p);
+        }
+    }
+    best
+}
+
 /// Closest hits of `rays` through `acc` into `out`, on the current rayon pool.
 pub fn intersect_batch(acc: &dyn Accelerator, rays: &[Ray], out: &mut [Hit]) -> Counters {
     batch(rays, out, |r, c| acc.intersect(r, c))
