@@ -215,7 +215,9 @@ could not be obtained here (only its abstract, which gives the two averages -54.
 - **Scenes.** BART's kitchen, robots and museum are read from AFF at their first frame (the
   paper does not say which frame it used); their primary rays come from each scene's own camera
   (BART's animated camera at that frame, as `oavm-trace --view SCENE.aff --camera-path` renders
-  it) and their shadow rays go to the scene's first light. The other scenes are framed by
+  it) and their shadow rays go to the scene's first light, unless that light leaves nearly every
+  primary hit in shadow, as the robots' does (it is above the roof of the box enclosing the
+  city); then to a point halfway between the camera and what its central ray hits. The other scenes are framed by
   oavm-bench's default camera and light.
 
 ## What the measurements show

@@ -95,7 +95,7 @@ struct SceneResult {
     triangles: usize,
     diagonal: f64,
     /// "scene": a BART scene's own camera (its animated camera at the first frame, else its `v`
-    /// block) and its first light; "framing": the default camera and light around the bounds.
+    /// block) and its first light (see `shadow_light`); "framing": the default camera and light around the bounds.
     camera: &'static str,
     structures: Vec<StructureResult>,
 }
@@ -182,13 +182,9 @@ fn bench_scene(
     let tris = Triangles::from_mesh(&mesh)?;
     let b = Bounds::of_points(tris.v.iter().flatten().copied());
     let diag = b.diagonal();
-    let (camera, light, camera_kind) = match view {
-        Some((cam, light)) => (
-            cam,
-            light.unwrap_or_else(|| rays::default_light(&b)),
-            "scene",
-        ),
-        None => (Camera::framing(&b), rays::default_light(&b), "framing"),
+    let (camera, scene_light, camera_kind) = match view {
+        Some((cam, light)) => (cam, Some(light), "scene"),
+        None => (Camera::framing(&b), None, "framing"),
     };
     eprintln!(
         "oavm-bench: {}: {} triangles",
@@ -201,6 +197,7 @@ fn bench_scene(
     let primary = camera.primary_rays(args.width, args.height);
     let mut primary_hits = vec![Hit::MISS; primary.len()];
     compare::intersect_batch(&oavm, &primary, &mut primary_hits);
+    let light = shadow_light(&oavm, &camera, scene_light, &primary, &primary_hits, &b);
     let sets: [(&'static str, Vec<Ray>, bool); 3] = [
         ("primary", primary.clone(), false),
         ("random", rays::random_rays(&b, args.random, 1), false),
@@ -282,6 +279,42 @@ fn bench_scene(
         camera: camera_kind,
         structures,
     })
+}
+
+/// The light of the shadow rays. Framed scenes: the default light. A BART scene: its first light,
+/// unless that leaves (nearly) every primary hit in shadow, as the robots' light does (it is above
+/// the roof of the box that encloses their city); then, as without a light, a light halfway
+/// between the camera and the point its central ray hits, which sees much of the image and
+/// leaves the rest in the shadow of what stands between.
+fn shadow_light(
+    oavm: &compare::OavmAccel,
+    camera: &Camera,
+    scene_light: Option<Option<[f32; 3]>>,
+    primary: &[Ray],
+    hits: &[Hit],
+    b: &Bounds,
+) -> [f32; 3] {
+    let Some(light) = scene_light else {
+        return rays::default_light(b);
+    };
+    if let Some(l) = light {
+        let shadow = rays::shadow_rays(primary, hits, l);
+        let mut occ = vec![0u8; shadow.len()];
+        compare::occluded_batch(oavm, &shadow, &mut occ);
+        let lit = occ.iter().filter(|&&o| o == 0).count();
+        if lit as f64 >= 0.01 * shadow.len() as f64 {
+            return l;
+        }
+    }
+    let eye = camera.eye.map(|c| c as f32);
+    let dir: [f32; 3] = std::array::from_fn(|k| (camera.target[k] - camera.eye[k]) as f32);
+    let centre = Ray::new(eye, dir, 0.0, f32::INFINITY);
+    let hit = oavm.intersect(&centre, &mut Counters::default());
+    if hit.is_hit() {
+        std::array::from_fn(|k| eye[k] + 0.5 * hit.t * dir[k])
+    } else {
+        eye
+    }
 }
 
 /// A scene's mesh, and for a BART AFF scene its own camera (the animated camera path at the
