@@ -413,6 +413,36 @@ pub struct TriRecord {
 }
 const _: () = assert!(std::mem::size_of::<TriRecord>() == 40);
 
+/// Spec §8: how a block's bytes are stored.
+pub const CODEC_RAW: u32 = 0;
+/// Spec §8: one zstd frame whose content is the block's raw bytes.
+pub const CODEC_ZSTD: u32 = 1;
+/// Spec §8: raw blocks start at multiples of this (a page), so that paging one block in or out
+/// never touches another's pages.
+pub const RAW_BLOCK_ALIGN: u64 = 4096;
+
+/// Spec §8: one entry of the block directory (48 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct BlockEntry {
+    /// Offset of the block's stored bytes in the file.
+    pub offset: u64,
+    /// Bytes stored in the file.
+    pub stored_len: u64,
+    /// Bytes of the block once decoded (`== stored_len` for a raw block).
+    pub raw_len: u64,
+    /// [`CODEC_RAW`] or [`CODEC_ZSTD`].
+    pub codec: u32,
+    /// Absolute level of the block's roots.
+    pub root_level: u32,
+    pub root_count: u32,
+    /// Triangle records in the block.
+    pub triangles: u32,
+    /// xxh3-64 of the `stored_len` stored bytes.
+    pub checksum: u64,
+}
+const _: () = assert!(std::mem::size_of::<BlockEntry>() == 48);
+
 /// Rounds `x` up to the next multiple of [`SECTION_ALIGN`].
 pub fn align_up(x: u64) -> u64 {
     x.div_ceil(SECTION_ALIGN) * SECTION_ALIGN

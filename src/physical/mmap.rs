@@ -1,4 +1,5 @@
-//! The crate's only `unsafe` code: mapping a file into memory.
+//! The crate's only `unsafe` code: mapping a file into memory, and telling the kernel to drop
+//! the pages of a range of it (the pager's eviction, the streaming pack's release-behind).
 //!
 //! Everything else reads the map through safe slices (`bytemuck` casts that fail on short or
 //! misaligned data), and treats every byte as untrusted.
@@ -6,12 +7,14 @@
 use std::fs::File;
 use std::path::Path;
 
-use memmap2::{Advice, Mmap};
+use memmap2::{Advice, Mmap, UncheckedAdvice};
 
 /// A read-only memory map of a whole file. An empty file maps to an empty slice (mapping zero
 /// bytes is an error on some platforms, so it is not mapped at all).
 pub struct MappedFile {
     map: Option<Mmap>,
+    /// Kept open for `posix_fadvise` (the map alone cannot drop page-cache pages).
+    file: Option<File>,
 }
 
 impl MappedFile {
@@ -32,7 +35,10 @@ impl MappedFile {
             ));
         }
         if meta.len() == 0 {
-            return Ok(MappedFile { map: None });
+            return Ok(MappedFile {
+                map: None,
+                file: None,
+            });
         }
         // SAFETY: the map is read-only and we only ever create `&[u8]` views of it. The one
         // hazard memmap2 documents is another process truncating or rewriting the file while it
@@ -41,7 +47,10 @@ impl MappedFile {
         // leaves existing maps of the old inode intact. Contents are never trusted, so bytes that
         // change are caught like any other corruption by the bounds checks of every reader.
         let map = unsafe { Mmap::map(&file)? };
-        Ok(MappedFile { map: Some(map) })
+        Ok(MappedFile {
+            map: Some(map),
+            file: Some(file),
+        })
     }
 
     /// Hints the kernel about the access pattern; failures are harmless and ignored.
@@ -50,6 +59,74 @@ impl MappedFile {
             let _ = map.advise(advice);
         }
     }
+
+    /// Hints the kernel about bytes `offset .. offset + len` (e.g. [`Advice::WillNeed`] to read
+    /// a block ahead in one request). The range is widened to whole pages and clipped to the
+    /// file; failures are harmless and ignored.
+    pub fn advise_range(&self, advice: Advice, offset: usize, len: usize) {
+        if let Some((map, start, len)) = self.page_range(offset, len, false) {
+            let _ = map.advise_range(advice, start, len);
+        }
+    }
+
+    /// Gives the pages wholly inside `offset .. offset + len` back to the kernel: unmapped from
+    /// this process (`MADV_DONTNEED`) and dropped from the page cache (`POSIX_FADV_DONTNEED`),
+    /// so that they stop counting against the process's memory and its cgroup's. The bytes stay
+    /// readable: the next access reads them from the file again. Pages shared with bytes
+    /// outside the range are kept. Failures are harmless and ignored (the memory is then simply
+    /// not released).
+    pub fn release(&self, offset: usize, len: usize) {
+        let Some((map, start, len)) = self.page_range(offset, len, true) else {
+            return;
+        };
+        // SAFETY: `MADV_DONTNEED` on a read-only shared file mapping only drops this process's
+        // page-table entries for the range; the next access faults the same file bytes back in
+        // from the page cache or the disk. Any `&[u8]` into the range therefore stays valid
+        // and keeps reading the same bytes (the file is never modified in place, see `open`).
+        // The range is inside the map (`page_range` clips it) and page-aligned.
+        let _ = unsafe { map.unchecked_advise_range(UncheckedAdvice::DontNeed, start, len) };
+        if let Some(file) = &self.file {
+            use std::os::fd::AsRawFd;
+            // SAFETY: a plain system call on a file descriptor we own, with integer arguments;
+            // it reads and writes no memory of ours. It only drops clean page-cache pages,
+            // which the kernel reads again from the file if they are needed.
+            let _ = unsafe {
+                libc::posix_fadvise(
+                    file.as_raw_fd(),
+                    start as libc::off_t,
+                    len as libc::off_t,
+                    libc::POSIX_FADV_DONTNEED,
+                )
+            };
+        }
+    }
+
+    /// The map and the page-aligned range covering `offset .. offset + len` (`inner`: only the
+    /// pages wholly inside it; the file's partial last page counts as inside), clipped to the
+    /// map, as `(map, start, len)`; `None` if that is empty.
+    fn page_range(&self, offset: usize, len: usize, inner: bool) -> Option<(&Mmap, usize, usize)> {
+        let map = self.map.as_ref()?;
+        let page = page_size();
+        let end = offset.saturating_add(len).min(map.len());
+        let (start, end) = if inner {
+            let end = if end == map.len() {
+                end
+            } else {
+                end / page * page
+            };
+            (offset.next_multiple_of(page), end)
+        } else {
+            (offset / page * page, end)
+        };
+        (start < end).then_some((map, start, end - start))
+    }
+}
+
+/// The size of a memory page (4096 where the system does not say).
+pub fn page_size() -> usize {
+    // SAFETY: `sysconf` reads a system constant; no memory of ours is involved.
+    let p = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    if p > 0 { p as usize } else { 4096 }
 }
 
 impl AsRef<[u8]> for MappedFile {
