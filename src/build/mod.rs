@@ -8,6 +8,7 @@
 //! building, flat records for traversal.
 
 pub mod merge;
+pub mod spill;
 pub mod subdivide;
 
 use std::collections::HashMap;

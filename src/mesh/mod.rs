@@ -15,6 +15,7 @@ mod error;
 pub mod kb;
 mod obj;
 mod ply;
+pub mod stream;
 
 use std::path::Path;
 

@@ -41,10 +41,90 @@ pub fn parse_ply(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
     };
     match header.format {
         Format::Ascii => read_ascii(&body, header.body_start, header.body_line, &mut out)?,
-        Format::BinaryLittleEndian => read_binary::<false>(&body, header.body_start, &mut out)?,
-        Format::BinaryBigEndian => read_binary::<true>(&body, header.body_start, &mut out)?,
+        Format::BinaryLittleEndian => {
+            read_binary::<false, _>(&body, header.body_start, &mut out)?;
+        }
+        Format::BinaryBigEndian => {
+            read_binary::<true, _>(&body, header.body_start, &mut out)?;
+        }
     }
     out.finish(name)
+}
+
+/// A binary PLY's header, checked and planned: what the streaming reader (`super::stream`)
+/// needs to read the body in several passes, each into its own [`Sink`].
+#[derive(Debug)]
+pub(crate) struct BinaryPly {
+    plans: Vec<Plan>,
+    big_endian: bool,
+    body_start: usize,
+    vertices: u64,
+    faces: u64,
+}
+
+impl BinaryPly {
+    /// Parses and plans the header of `bytes` (only the header is read), exactly as
+    /// [`parse_ply`] does; an ascii file is an error (at its `format` line) whose message
+    /// begins with `ascii_detail`.
+    pub(crate) fn new(bytes: &[u8], file: &str, ascii_detail: &str) -> Result<Self, MeshError> {
+        let header = parse_header(bytes, file)?;
+        let plans = plan(&header, file)?;
+        let big_endian = match header.format {
+            Format::Ascii => {
+                return Err(MeshError::Header {
+                    file: file.to_owned(),
+                    line: header.format_line,
+                    detail: ascii_detail.to_owned(),
+                });
+            }
+            Format::BinaryLittleEndian => false,
+            Format::BinaryBigEndian => true,
+        };
+        let count = |role| {
+            plans
+                .iter()
+                .find(|p: &&Plan| p.role == role)
+                .map_or(0, |p| p.count)
+        };
+        Ok(BinaryPly {
+            vertices: count(Role::Vertex),
+            faces: count(Role::Face),
+            plans,
+            big_endian,
+            body_start: header.body_start,
+        })
+    }
+
+    /// Records declared by the `vertex` element.
+    pub(crate) fn vertices(&self) -> u64 {
+        self.vertices
+    }
+
+    /// Records declared by the `face` element (polygons, before triangulation).
+    pub(crate) fn faces(&self) -> u64 {
+        self.faces
+    }
+
+    /// Reads the body of `bytes` (the bytes the header was read from) into `out`, with every
+    /// check of [`parse_ply`] but those of the sink's `finish` (index range, sizes); returns
+    /// the offset where reading ended.
+    pub(crate) fn read<S: Sink>(
+        &self,
+        bytes: &[u8],
+        file: &str,
+        out: &mut S,
+    ) -> Result<usize, S::Error> {
+        let body = Body {
+            bytes,
+            file,
+            plans: &self.plans,
+        };
+        if self.big_endian {
+            read_binary::<true, S>(&body, self.body_start, out)
+        } else {
+            read_binary::<false, S>(&body, self.body_start, out)
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -159,6 +239,8 @@ struct Header {
     body_start: usize,
     /// Line number of the first body line (for ascii).
     body_line: u64,
+    /// Line number of the `format` line.
+    format_line: u64,
 }
 
 fn show(name: &[u8]) -> String {
@@ -178,6 +260,7 @@ fn parse_header(bytes: &[u8], file: &str) -> Result<Header, MeshError> {
         ));
     }
     let mut format = None;
+    let mut format_line = 0;
     let mut elements: Vec<Element> = Vec::new();
     let mut pos = 0usize;
     let mut line = 0u64;
@@ -229,6 +312,7 @@ fn parse_header(bytes: &[u8], file: &str) -> Result<Header, MeshError> {
                     ));
                 }
                 format = Some(kind);
+                format_line = line;
             }
             Some(b"element") => {
                 let [name, count] = rest[..] else {
@@ -315,6 +399,7 @@ fn parse_header(bytes: &[u8], file: &str) -> Result<Header, MeshError> {
                     elements,
                     body_start: pos,
                     body_line: line + 1,
+                    format_line,
                 });
             }
             Some(other) => {
@@ -540,6 +625,49 @@ struct Body<'a> {
     plans: &'a [Plan],
 }
 
+/// Where the body reader puts what it reads. [`Builder`] collects a whole [`Mesh`]; the
+/// streaming reader (`super::stream`) has one sink per pass over a mapped file, so that both
+/// read the same bytes with the same code and the same errors.
+///
+/// The reader calls [`vertex`](Sink::vertex) for each vertex record and
+/// [`corner`](Sink::corner) for each vertex index of each face record, in file order, and
+/// [`reached`](Sink::reached) with the offset of each binary record before reading it (and of
+/// the end of each element it skips whole), so a sink can follow its progress through the file.
+pub(crate) trait Sink {
+    /// Errors of the sink's own (e.g. a consumer's), beside the reader's [`MeshError`]s.
+    type Error: From<MeshError>;
+    /// Whether vertex records are decoded and passed to [`vertex`](Sink::vertex). When false,
+    /// a vertex element of scalars only is skipped without reading its bytes (others are still
+    /// walked, since their records' sizes vary).
+    const VERTICES: bool = true;
+    /// Whether binary reading stops just after the vertex element, not looking at what follows
+    /// it (its elements, trailing bytes).
+    const STOP_AFTER_VERTICES: bool = false;
+
+    /// The vertex element declares `n` records (a count the bytes left can hold).
+    fn reserve_vertices(&mut self, _n: usize) {}
+    /// At least `n` triangles will follow (sized from the bytes left, see [`reservation`]).
+    fn reserve_triangles(&mut self, _n: usize) {}
+    /// Vertex record `vertex`, at `at`.
+    fn vertex(&mut self, xyz: [f32; 3], vertex: u64, at: Place, file: &str)
+    -> Result<(), Self::Error>;
+    /// Vertex index `index`, as written, of face record `face` (at `at`); `fan` is the face's
+    /// triangulation so far.
+    fn corner(
+        &mut self,
+        index: i64,
+        face: u64,
+        at: Place,
+        fan: &mut Fan,
+        file: &str,
+    ) -> Result<(), Self::Error>;
+    /// The binary reader is at byte `pos` and will not read before it again.
+    #[inline]
+    fn reached(&mut self, _pos: usize) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
 /// The largest vertex index seen, where; indices are checked against the vertex count once
 /// the whole body is read, since `face` may come before `vertex`.
 #[derive(Debug)]
@@ -549,15 +677,92 @@ struct MaxIndex {
     at: Place,
 }
 
+/// The checks of vertex indices, shared by every sink: a negative index is an error at once;
+/// an index beyond the vertex count is reported by [`IndexCheck::finish`], after the whole body
+/// (the largest index, at its first occurrence).
+#[derive(Debug, Default)]
+pub(crate) struct IndexCheck {
+    max: Option<MaxIndex>,
+}
+
+impl IndexCheck {
+    /// Checks `index` of face `face`; returns it as a `u32` (`u32::MAX` if it is beyond that,
+    /// which is out of range for any vertex count we accept; `finish` reports it).
+    #[inline]
+    pub(crate) fn corner(
+        &mut self,
+        index: i64,
+        face: u64,
+        at: Place,
+        file: &str,
+    ) -> Result<u32, MeshError> {
+        if index < 0 {
+            return Err(MeshError::NegativeIndex {
+                file: file.to_owned(),
+                at,
+                face,
+                index,
+            });
+        }
+        if self.max.as_ref().is_none_or(|m| index > m.index) {
+            self.max = Some(MaxIndex { index, face, at });
+        }
+        Ok(u32::try_from(index).unwrap_or(u32::MAX))
+    }
+
+    /// The error for the largest index, if it is not below `vertices`.
+    pub(crate) fn finish(&self, vertices: u64, file: &str) -> Result<(), MeshError> {
+        match &self.max {
+            Some(m) if m.index as u64 >= vertices => Err(MeshError::IndexOutOfRange {
+                file: file.to_owned(),
+                at: m.at,
+                face: m.face,
+                index: m.index,
+                vertices,
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// Checks a vertex's coordinates: all finite once rounded to `f32`.
+#[inline]
+pub(crate) fn check_vertex(
+    xyz: [f32; 3],
+    vertex: u64,
+    at: Place,
+    file: &str,
+) -> Result<(), MeshError> {
+    if xyz.iter().all(|c| c.is_finite()) {
+        Ok(())
+    } else {
+        Err(MeshError::NonFinite {
+            file: file.to_owned(),
+            at,
+            vertex,
+        })
+    }
+}
+
+/// The sink of [`parse_ply`]: the whole mesh in memory.
 #[derive(Debug, Default)]
 struct Builder {
     positions: Vec<[f32; 3]>,
     triangles: Vec<[u32; 3]>,
-    max_index: Option<MaxIndex>,
+    indices: IndexCheck,
 }
 
-impl Builder {
-    /// Records vertex index `index` of face `face`, then feeds it to `fan`.
+impl Sink for Builder {
+    type Error = MeshError;
+
+    fn reserve_vertices(&mut self, n: usize) {
+        self.positions.reserve(n);
+    }
+
+    fn reserve_triangles(&mut self, n: usize) {
+        self.triangles.reserve(n);
+    }
+
     #[inline]
     fn corner(
         &mut self,
@@ -567,22 +772,8 @@ impl Builder {
         fan: &mut Fan,
         file: &str,
     ) -> Result<(), MeshError> {
-        if index < 0 {
-            return Err(MeshError::NegativeIndex {
-                file: file.to_owned(),
-                at,
-                face,
-                index,
-            });
-        }
-        if self.max_index.as_ref().is_none_or(|m| index > m.index) {
-            self.max_index = Some(MaxIndex { index, face, at });
-        }
-        // An index beyond u32 is out of range for any vertex count we accept; `finish` reports it.
-        fan.push(
-            u32::try_from(index).unwrap_or(u32::MAX),
-            &mut self.triangles,
-        );
+        let index = self.indices.corner(index, face, at, file)?;
+        fan.push(index, &mut self.triangles);
         Ok(())
     }
 
@@ -594,30 +785,15 @@ impl Builder {
         at: Place,
         file: &str,
     ) -> Result<(), MeshError> {
-        if !xyz.iter().all(|c| c.is_finite()) {
-            return Err(MeshError::NonFinite {
-                file: file.to_owned(),
-                at,
-                vertex,
-            });
-        }
+        check_vertex(xyz, vertex, at, file)?;
         self.positions.push(xyz);
         Ok(())
     }
+}
 
+impl Builder {
     fn finish(self, file: &str) -> Result<Mesh, MeshError> {
-        let vertices = self.positions.len() as u64;
-        if let Some(m) = self.max_index
-            && m.index as u64 >= vertices
-        {
-            return Err(MeshError::IndexOutOfRange {
-                file: file.to_owned(),
-                at: m.at,
-                face: m.face,
-                index: m.index,
-                vertices,
-            });
-        }
+        self.indices.finish(self.positions.len() as u64, file)?;
         let mesh = Mesh {
             positions: self.positions,
             triangles: self.triangles,
@@ -969,15 +1145,21 @@ fn coord_at<const BIG: bool>(bytes: &[u8], ty: FloatType) -> Option<f32> {
     })
 }
 
-fn read_binary<const BIG: bool>(
+/// Reads the body from byte `start` into `out`; returns the offset where reading ended (the end
+/// of the file, or of the vertex element for a sink that stops there).
+fn read_binary<const BIG: bool, S: Sink>(
     body: &Body,
     start: usize,
-    out: &mut Builder,
-) -> Result<(), MeshError> {
+    out: &mut S,
+) -> Result<usize, S::Error> {
     let mut pos = start;
     for plan in body.plans {
-        pos = read_binary_element::<BIG>(body, plan, pos, out)?;
+        pos = read_binary_element::<BIG, S>(body, plan, pos, out)?;
+        if S::STOP_AFTER_VERTICES && plan.role == Role::Vertex {
+            return Ok(pos);
+        }
     }
+    out.reached(pos)?;
     if pos < body.bytes.len() {
         let last = body.plans.last().map_or("header", |p| p.name.as_str());
         return Err(MeshError::TrailingData {
@@ -987,18 +1169,19 @@ fn read_binary<const BIG: bool>(
                 "{} bytes after the last record of the last element (`{last}`)",
                 body.bytes.len() - pos
             ),
-        });
+        }
+        .into());
     }
-    Ok(())
+    Ok(pos)
 }
 
 /// Reads one element starting at byte `pos`; returns the offset just past it.
-fn read_binary_element<const BIG: bool>(
+fn read_binary_element<const BIG: bool, S: Sink>(
     body: &Body,
     plan: &Plan,
     pos: usize,
-    out: &mut Builder,
-) -> Result<usize, MeshError> {
+    out: &mut S,
+) -> Result<usize, S::Error> {
     let file = body.file;
     let bytes = body.bytes;
     let min_record: usize = plan.fields.iter().map(|f| f.min_binary_size()).sum();
@@ -1036,21 +1219,23 @@ fn read_binary_element<const BIG: bool>(
                     plan.count, plan.name, min_record, remaining
                 ),
             )
-        });
+        }
+        .into());
     }
     // `needed` fits in the file, so in usize.
     let count = plan.count as usize;
 
     if fixed {
         let end = pos + count * min_record;
-        if plan.role == Role::Vertex {
-            read_fixed_vertices::<BIG>(body, plan, pos, end, min_record, out)?;
+        if plan.role == Role::Vertex && S::VERTICES {
+            read_fixed_vertices::<BIG, S>(body, plan, pos, end, min_record, out)?;
         }
+        out.reached(end)?;
         return Ok(end);
     }
 
     match plan.role {
-        Role::Vertex => out.positions.reserve(count),
+        Role::Vertex => out.reserve_vertices(count),
         Role::Face => {
             // A face record yielding a triangle holds at least three indices.
             let corners: usize = plan
@@ -1061,14 +1246,14 @@ fn read_binary_element<const BIG: bool>(
                     _ => 0,
                 })
                 .sum();
-            out.triangles
-                .reserve(reservation(plan.count, remaining, min_record + corners));
+            out.reserve_triangles(reservation(plan.count, remaining, min_record + corners));
         }
         Role::Other => {}
     }
     let mut pos = pos;
     for record in 0..plan.count {
         let record_start = pos;
+        out.reached(record_start)?;
         let at = Place::Byte(record_start as u64);
         let ends = |_| {
             truncated(
@@ -1086,7 +1271,7 @@ fn read_binary_element<const BIG: bool>(
             match *field {
                 Field::Skip(ty) => {
                     if rest.len() < ty.size() {
-                        return Err(ends(()));
+                        return Err(ends(()).into());
                     }
                     pos += ty.size();
                 }
@@ -1121,7 +1306,7 @@ fn read_binary_element<const BIG: bool>(
                 }
             }
         }
-        if plan.role == Role::Vertex {
+        if plan.role == Role::Vertex && S::VERTICES {
             out.vertex(xyz, record, at, file)?;
         }
     }
@@ -1156,14 +1341,14 @@ fn list_length<const BIG: bool>(
 
 /// The vertex element when every property is a scalar: records of `stride` bytes in
 /// `bytes[start..end]`, whose length the caller checked.
-fn read_fixed_vertices<const BIG: bool>(
+fn read_fixed_vertices<const BIG: bool, S: Sink>(
     body: &Body,
     plan: &Plan,
     start: usize,
     end: usize,
     stride: usize,
-    out: &mut Builder,
-) -> Result<(), MeshError> {
+    out: &mut S,
+) -> Result<(), S::Error> {
     let mut offsets = [(0usize, FloatType::F32); 3];
     let mut offset = 0;
     for field in &plan.fields {
@@ -1172,15 +1357,16 @@ fn read_fixed_vertices<const BIG: bool>(
         }
         offset += field.min_binary_size();
     }
-    out.positions.reserve((end - start) / stride);
+    out.reserve_vertices((end - start) / stride);
     for (record, bytes) in body.bytes[start..end].chunks_exact(stride).enumerate() {
+        let at = start + record * stride;
+        out.reached(at)?;
         let mut xyz = [0f32; 3];
         for (c, &(offset, ty)) in xyz.iter_mut().zip(&offsets) {
             // `offset + size <= stride` by construction, so this never fails.
             *c = coord_at::<BIG>(&bytes[offset..], ty).unwrap_or(f32::NAN);
         }
-        let at = Place::Byte((start + record * stride) as u64);
-        out.vertex(xyz, record as u64, at, body.file)?;
+        out.vertex(xyz, record as u64, Place::Byte(at as u64), body.file)?;
     }
     Ok(())
 }
