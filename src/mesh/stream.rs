@@ -183,7 +183,8 @@ impl<'a> Behind<'a> {
             map,
             progress,
             released: 0,
-            next: RELEASE_EVERY,
+            // The first record read starts the read-ahead.
+            next: 0,
         }
     }
 
@@ -202,6 +203,10 @@ impl<'a> Behind<'a> {
             self.released = pos / page_size() * page_size();
         }
         self.next = pos.saturating_add(RELEASE_EVERY);
+        // Asks for the next two steps now, so that the disk reads them while we parse: the
+        // map's sequential advice alone reads ahead too little to keep up.
+        self.map
+            .advise_range(Advice::WillNeed, pos, 2 * RELEASE_EVERY);
         (self.progress)(pos as u64);
     }
 
