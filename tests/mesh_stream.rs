@@ -209,7 +209,11 @@ fn stream(path: &Path, batch: usize) -> Result<(Vec<[f32; 3]>, Vec<Tri>), String
     let mut tris = Vec::new();
     let n = s
         .for_each_triangle_batch(&positions, batch, &progress, &mut |b| {
-            assert!(!b.is_empty() && b.len() <= batch.max(1), "batch of {}", b.len());
+            assert!(
+                !b.is_empty() && b.len() <= batch.max(1),
+                "batch of {}",
+                b.len()
+            );
             for &(prim, t) in b {
                 assert_eq!(prim as usize, tris.len(), "primitive ids in order");
                 tris.push(t);
@@ -228,7 +232,9 @@ fn stream(path: &Path, batch: usize) -> Result<(Vec<[f32; 3]>, Vec<Tri>), String
 /// `parse_ply` on the bytes, the file named as `PlyStream` names it.
 fn in_memory(path: &Path, bytes: &[u8]) -> Result<(Vec<[f32; 3]>, Vec<Tri>), String> {
     let mesh = parse_ply(bytes, &path.display().to_string()).map_err(|e| e.to_string())?;
-    let tris = (0..mesh.triangles.len()).map(|i| mesh.triangle(i)).collect();
+    let tris = (0..mesh.triangles.len())
+        .map(|i| mesh.triangle(i))
+        .collect();
     Ok((mesh.positions, tris))
 }
 
@@ -542,7 +548,11 @@ fn every_truncation_and_trailing_bytes() {
         for face_first in [false, true] {
             let faces = vec![l(&[0.0, 1.0, 2.0, 3.0]), l(&[4.0, 5.0, 6.0])];
             let bytes = small(enc, faces, face_first);
-            let body = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+            let body = bytes
+                .windows(11)
+                .position(|w| w == b"end_header\n")
+                .unwrap()
+                + 11;
             for cut in body..bytes.len() {
                 let err = same(&dir, "cut.ply", &bytes[..cut]).unwrap_err();
                 assert!(err.contains("truncated"), "cut at {cut}: {err}");
@@ -551,6 +561,17 @@ fn every_truncation_and_trailing_bytes() {
             longer.extend_from_slice(b"xyz");
             let err = same(&dir, "long.ply", &longer).unwrap_err();
             assert!(err.contains("data after the last element"), "{err}");
+            // Counts beyond the file (and beyond u32 indices): truncated, both ways.
+            let text = String::from_utf8_lossy(&bytes[..body]).into_owned();
+            for (from, to) in [
+                ("element vertex 9", "element vertex 5000000000"),
+                ("element face 2", "element face 18446744073709551615"),
+            ] {
+                let mut huge = text.replace(from, to).into_bytes();
+                huge.extend_from_slice(&bytes[body..]);
+                let err = same(&dir, "huge.ply", &huge).unwrap_err();
+                assert!(err.contains("truncated"), "{err}");
+            }
             // Header-only damage: the header's own errors.
             for cut in [0, 3, 20, body - 1] {
                 same(&dir, "head.ply", &bytes[..cut]).unwrap_err();
@@ -606,7 +627,10 @@ fn missing_files_and_wrong_positions() {
     let (positions, faces) = grid(3);
     let path = dir.write(
         "g.ply",
-        &write_ply(Enc::Le, &[vertex_elem("float", &positions), face_elem(&faces)]),
+        &write_ply(
+            Enc::Le,
+            &[vertex_elem("float", &positions), face_elem(&faces)],
+        ),
     );
     let s = PlyStream::open(&path).unwrap();
     assert_eq!((s.vertex_count(), s.face_count()), (16, faces.len() as u64));
@@ -621,7 +645,10 @@ fn missing_files_and_wrong_positions() {
             Err(oavm::Error::Build("stop".into()))
         })
         .unwrap_err();
-    assert!(matches!(&err, oavm::Error::Build(m) if m == "stop"), "{err}");
+    assert!(
+        matches!(&err, oavm::Error::Build(m) if m == "stop"),
+        "{err}"
+    );
 }
 
 /// Random damage to small files: both readers agree, and neither panics.
@@ -650,7 +677,11 @@ fn mutated_files_give_the_same_result() {
     let (mut ok, mut err) = (0, 0);
     for round in 0..2000 {
         let mut bytes = sources[round % sources.len()].clone();
-        let body = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let body = bytes
+            .windows(11)
+            .position(|w| w == b"end_header\n")
+            .unwrap()
+            + 11;
         for _ in 0..1 + next() % 3 {
             // Mostly the body, sometimes the header's digits.
             let at = if next() % 8 == 0 || bytes.len() <= body {

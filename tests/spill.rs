@@ -52,7 +52,11 @@ fn run(buckets: usize, buffer_bytes: usize, n: u64, seed: u64) {
         let r = record(i);
         spill.push(b as u32, &r).unwrap();
         model[b].push(r);
-        assert!(spill.buffered_bytes() <= bound, "{} bytes buffered", spill.buffered_bytes());
+        assert!(
+            spill.buffered_bytes() <= bound,
+            "{} bytes buffered",
+            spill.buffered_bytes()
+        );
         if i % 5003 == 0 {
             // Readable while pushing, buffers included; the directory shows nothing.
             assert_eq!(spill.read(b as u32).unwrap(), model[b]);
@@ -68,7 +72,12 @@ fn run(buckets: usize, buffer_bytes: usize, n: u64, seed: u64) {
     for (b, want) in model.iter().enumerate() {
         assert_eq!(spill.len(b as u32), want.len() as u64);
         let got = spill.read(b as u32).unwrap();
-        assert!(got == *want, "bucket {b}: {} records, want {}", got.len(), want.len());
+        assert!(
+            got == *want,
+            "bucket {b}: {} records, want {}",
+            got.len(),
+            want.len()
+        );
     }
     assert!(entries(dir.path()).is_empty(), "{:?}", entries(dir.path()));
     drop(spill);
@@ -109,7 +118,10 @@ fn pushes_after_finish_and_empty_buckets() {
     for i in 25..30 {
         spill.push(1, &record(i)).unwrap();
     }
-    assert_eq!(spill.read(1).unwrap(), (0..30).map(record).collect::<Vec<_>>());
+    assert_eq!(
+        spill.read(1).unwrap(),
+        (0..30).map(record).collect::<Vec<_>>()
+    );
     spill.finish().unwrap();
     assert_eq!(spill.read(1).unwrap().len(), 30);
     assert_eq!(spill.len(0), 0);
@@ -134,7 +146,9 @@ fn bad_buckets_are_errors() {
 fn io_errors_name_the_directory() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("no-such-dir");
-    let err = SpillBuckets::new(&missing, 8, 4096).unwrap_err().to_string();
+    let err = SpillBuckets::new(&missing, 8, 4096)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("no-such-dir"), "{err}");
     assert!(err.contains("spill file"), "{err}");
 }

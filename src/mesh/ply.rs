@@ -16,6 +16,12 @@
 //! in `ply.c` (blank lines between records are allowed); an ascii line with too few or too many
 //! values is an error, not something to realign.
 //!
+//! The binary reader hands what it reads to a [`Sink`]: [`parse_ply`]'s sink builds the whole
+//! [`Mesh`]; the streaming reader ([`super::stream`]) reads a mapped file in passes, one sink
+//! per pass ([`BinaryPly`] is its way in). One parser, so one set of checks and error messages
+//! for both; the checks that need the whole body (vertex indices against the vertex count,
+//! [`IndexCheck`]; the sizes of `check_sizes`) are made by each sink at its end.
+//!
 //! Before reading an element we check that the bytes left can hold its declared records at their
 //! smallest (binary: the sum of scalar sizes and list-length sizes; ascii: two bytes per value,
 //! a digit and a separator), and every allocation is sized from counts that passed that check.
@@ -649,8 +655,13 @@ pub(crate) trait Sink {
     /// At least `n` triangles will follow (sized from the bytes left, see [`reservation`]).
     fn reserve_triangles(&mut self, _n: usize) {}
     /// Vertex record `vertex`, at `at`.
-    fn vertex(&mut self, xyz: [f32; 3], vertex: u64, at: Place, file: &str)
-    -> Result<(), Self::Error>;
+    fn vertex(
+        &mut self,
+        xyz: [f32; 3],
+        vertex: u64,
+        at: Place,
+        file: &str,
+    ) -> Result<(), Self::Error>;
     /// Vertex index `index`, as written, of face record `face` (at `at`); `fan` is the face's
     /// triangulation so far.
     fn corner(

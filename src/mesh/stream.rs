@@ -12,9 +12,9 @@
 //! the file named by its path as [`load`](super::load) names it. The two exceptions:
 //!
 //! - an ascii file is an error at [`PlyStream::open`] (ascii is read by `parse_ply` only);
-//! - a file declaring more vertices than `u32` indices can name is an error at
-//!   [`PlyStream::read_positions`], before the pass (`parse_ply` reports it after reading the
-//!   whole body, so it reports any other defect of the body first).
+//! - a file holding more vertices than `u32` indices can name (a file of more than 48 GiB) is
+//!   an error at [`PlyStream::read_positions`], before the pass (`parse_ply` reports it after
+//!   reading the whole body, so it reports any other defect of the body first).
 //!
 //! Mapped pages count in the process's memory (and in the page cache of its cgroup), so each
 //! pass gives back the pages behind it as it goes ([`MappedFile::release`]), every
@@ -88,7 +88,9 @@ impl PlyStream {
     /// the file, every [`RELEASE_EVERY`] bytes and at the end.
     pub fn read_positions(&self, progress: &dyn Fn(u64)) -> Result<Vec<[f32; 3]>, MeshError> {
         let vertices = self.vertex_count();
-        if vertices > u64::from(u32::MAX) + 1 {
+        // Only if the file can hold them (x, y, z take at least 12 bytes): otherwise the pass
+        // reports the truncation, as `parse_ply` does.
+        if vertices > u64::from(u32::MAX) + 1 && vertices.saturating_mul(12) <= self.file_len() {
             // The message of `check_sizes`, which `parse_ply` gives for such a file.
             return Err(MeshError::TooLarge {
                 file: self.name.clone(),
