@@ -684,7 +684,7 @@ fn mutated_files_give_the_same_result() {
             + 11;
         for _ in 0..1 + next() % 3 {
             // Mostly the body, sometimes the header's digits.
-            let at = if next() % 8 == 0 || bytes.len() <= body {
+            let at = if next().is_multiple_of(8) || bytes.len() <= body {
                 next() as usize % body.min(bytes.len())
             } else {
                 body + next() as usize % (bytes.len() - body)

@@ -44,7 +44,7 @@ fn run(buckets: usize, buffer_bytes: usize, n: u64, seed: u64) {
     let mut model: Vec<Vec<TriRecord>> = vec![Vec::new(); buckets];
     let mut rng = Rng(seed);
     for i in 0..n {
-        let b = if rng.next() % 4 == 0 {
+        let b = if rng.next().is_multiple_of(4) {
             (rng.next() % 3) as usize
         } else {
             (rng.next() % buckets as u64) as usize
@@ -57,7 +57,7 @@ fn run(buckets: usize, buffer_bytes: usize, n: u64, seed: u64) {
             "{} bytes buffered",
             spill.buffered_bytes()
         );
-        if i % 5003 == 0 {
+        if i.is_multiple_of(5003) {
             // Readable while pushing, buffers included; the directory shows nothing.
             assert_eq!(spill.read(b as u32).unwrap(), model[b]);
             assert!(entries(dir.path()).is_empty());
