@@ -7,7 +7,7 @@
 //! be run as often as the caller needs. Neither allocates anything proportional to the faces.
 //!
 //! Both passes run the body reader of [`parse_ply`](super::parse_ply) (the same code, through
-//! its [`Sink`] interface), so a file gives the same positions, the same triangles with the same
+//! its `Sink` interface), so a file gives the same positions, the same triangles with the same
 //! primitive ids, and the same error for the same defect as `parse_ply` does on its bytes, with
 //! the file named by its path as [`load`](super::load) names it. The two exceptions:
 //!
