@@ -261,8 +261,17 @@ pub struct Pager<'f, S: BlockSource> {
     block_slot: Vec<AtomicU32>,
     slots: Vec<RwLock<Slot>>,
     slot_referenced: Vec<AtomicBool>,
-    /// The slots' clock hand; held to assign a slot to a block.
-    hand: Mutex<usize>,
+    /// Held to assign a slot to a block.
+    hand: Mutex<Hand>,
+}
+
+/// The slots' CLOCK state.
+struct Hand {
+    /// The next slot the hand looks at.
+    at: usize,
+    /// Slots holding no block (never used, or freed by a failed decode), used before any slot
+    /// is taken from a block: an unlimited budget never evicts. Hints: checked when taken.
+    free: Vec<usize>,
 }
 
 impl<'f, S: BlockSource> Pager<'f, S> {
@@ -302,7 +311,10 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                 })
                 .collect(),
             slot_referenced: (0..slot_count).map(|_| AtomicBool::new(false)).collect(),
-            hand: Mutex::new(0),
+            hand: Mutex::new(Hand {
+                at: 0,
+                free: (0..slot_count as usize).rev().collect(),
+            }),
         }
     }
 
@@ -531,30 +543,52 @@ impl<'f, S: BlockSource> Pager<'f, S> {
         if self.block_slot[block as usize].load(Ordering::Acquire) != NO_SLOT {
             return None;
         }
+        while let Some(i) = hand.free.pop() {
+            if let Some(write) = self.try_write(i)
+                && write.block == NO_BLOCK
+            {
+                return Some(self.assign(block, i, write));
+            }
+        }
         let n = self.slots.len();
         for _ in 0..2 * n {
-            let i = *hand;
-            *hand = (i + 1) % n;
+            let i = hand.at;
+            hand.at = (i + 1) % n;
             if self.slot_referenced[i].load(Ordering::Relaxed) {
                 self.slot_referenced[i].store(false, Ordering::Relaxed);
                 continue;
             }
-            let mut write = match self.slots[i].try_write() {
-                Ok(w) => w,
-                Err(TryLockError::Poisoned(p)) => p.into_inner(),
-                Err(TryLockError::WouldBlock) => continue,
-            };
-            if let Some(old) = self.block_slot.get(write.block as usize) {
-                let _ =
-                    old.compare_exchange(i as u32, NO_SLOT, Ordering::Release, Ordering::Relaxed);
+            if let Some(write) = self.try_write(i) {
+                return Some(self.assign(block, i, write));
             }
-            write.block = block;
-            write.valid = false;
-            self.block_slot[block as usize].store(i as u32, Ordering::Release);
-            self.slot_referenced[i].store(true, Ordering::Relaxed);
-            return Some((i, write));
         }
         None
+    }
+
+    /// Slot `i` locked for writing, if nobody holds it.
+    fn try_write(&self, i: usize) -> Option<RwLockWriteGuard<'_, Slot>> {
+        match self.slots[i].try_write() {
+            Ok(w) => Some(w),
+            Err(TryLockError::Poisoned(p)) => Some(p.into_inner()),
+            Err(TryLockError::WouldBlock) => None,
+        }
+    }
+
+    /// Takes slot `i` (locked for writing, under the clock mutex) from its block for `block`.
+    fn assign<'p>(
+        &self,
+        block: u32,
+        i: usize,
+        mut write: RwLockWriteGuard<'p, Slot>,
+    ) -> (usize, RwLockWriteGuard<'p, Slot>) {
+        if let Some(old) = self.block_slot.get(write.block as usize) {
+            let _ = old.compare_exchange(i as u32, NO_SLOT, Ordering::Release, Ordering::Relaxed);
+        }
+        write.block = block;
+        write.valid = false;
+        self.block_slot[block as usize].store(i as u32, Ordering::Release);
+        self.slot_referenced[i].store(true, Ordering::Relaxed);
+        (i, write)
     }
 
     /// Fills a slot assigned to `block` (outside the clock mutex) and returns it locked for
@@ -584,6 +618,8 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                 write.len = 0;
                 self.block_slot[block as usize].store(NO_SLOT, Ordering::Release);
                 self.slot_referenced[slot].store(false, Ordering::Relaxed);
+                drop(write);
+                lock(&self.hand).free.push(slot);
                 Err(err)
             }
         }
