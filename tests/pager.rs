@@ -347,6 +347,33 @@ fn clock_gives_a_block_got_again_a_second_chance() {
     assert_eq!(p.resident_bytes(), 10_000);
 }
 
+#[test]
+fn a_slot_freed_by_a_failed_decode_is_used_before_any_blocks() {
+    // Zstd blocks A B C D X (X bad), three slots (budget 0, two threads).
+    let mut s = Synth::build(5, Mix::Zstd, 3000, 23);
+    let x = 4;
+    let off = s.dir[x].offset as usize;
+    s.file[off + 5] ^= 0xff;
+    let src = s.source();
+    let p = Pager::new(&src, &s.dir, s.opts(0, 2));
+    assert_eq!(p.slot_count(), 3);
+    let mut c = PageCounters::default();
+    let mut trace = String::new();
+    for b in [0, 1, 2, 3, x, 1, 2, 3] {
+        let before = c.misses;
+        if b == x {
+            assert!(p.get(b as u32, &mut c).is_err());
+            trace.push('E');
+            continue;
+        }
+        checked_get(&p, &s, b as u32, &mut c);
+        trace.push(if c.misses > before { 'M' } else { 'h' });
+    }
+    // D's sweep clears every bit and takes A's slot; X takes B's (unreferenced) and fails,
+    // freeing it; B comes back into that free slot, not C's (unreferenced too).
+    assert_eq!(trace, "MMMMEMhh");
+}
+
 /// The same blocks laid out again (after their bytes were changed).
 fn rebuild(s: &Synth) -> Synth {
     let mut file = vec![0x5a; 256];
