@@ -141,7 +141,10 @@ impl Synth {
 fn checked_get<S: BlockSource>(p: &Pager<S>, s: &Synth, b: u32, c: &mut PageCounters) {
     let before = *c;
     let bytes = p.get(b, c).unwrap_or_else(|e| panic!("{e}"));
-    assert!(bytes[..] == s.blocks[b as usize][..], "block {b}: wrong bytes");
+    assert!(
+        bytes[..] == s.blocks[b as usize][..],
+        "block {b}: wrong bytes"
+    );
     assert_eq!(bytes.as_ptr() as usize % 8, 0, "block {b}: not 8-aligned");
     let e = &s.dir[b as usize];
     match &bytes {
@@ -157,11 +160,18 @@ fn checked_get<S: BlockSource>(p: &Pager<S>, s: &Synth, b: u32, c: &mut PageCoun
     assert_eq!(c.requested - before.requested, 1);
     assert_eq!(hits + misses, 1, "block {b}: one get, one hit or miss");
     if misses == 1 {
-        assert_eq!(read, e.stored_len, "block {b}: a miss reads the stored bytes");
+        assert_eq!(
+            read, e.stored_len,
+            "block {b}: a miss reads the stored bytes"
+        );
         let raw = if e.codec == CODEC_ZSTD { e.raw_len } else { 0 };
         assert_eq!(decompressed, raw, "block {b}: a miss decodes a zstd block");
     } else {
-        assert_eq!((read, decompressed), (0, 0), "block {b}: a hit reads nothing");
+        assert_eq!(
+            (read, decompressed),
+            (0, 0),
+            "block {b}: a hit reads nothing"
+        );
     }
 }
 
@@ -178,7 +188,7 @@ fn run_threads<S: BlockSource>(
         .build()
         .unwrap();
     pool.broadcast(|ctx| {
-        let mut rng = Rng(seed ^ (ctx.index() as u64 + 1) * 0x1234_5678);
+        let mut rng = Rng(seed ^ ((ctx.index() as u64 + 1) * 0x1234_5678));
         let mut c = PageCounters::default();
         for _ in 0..gets {
             // Mostly a few hot blocks (hits), sometimes any block (misses).
@@ -200,9 +210,7 @@ fn sum(cs: &[PageCounters]) -> PageCounters {
 
 /// The bound of the module docs: the effective budget plus one block per thread in `get`.
 fn check_bound<S: BlockSource>(p: &Pager<S>, s: &Synth, threads: usize, what: &str) {
-    let bound = p
-        .budget()
-        .saturating_add(threads as u64 * s.max_raw_len);
+    let bound = p.budget().saturating_add(threads as u64 * s.max_raw_len);
     assert!(
         p.peak_resident_bytes() <= bound,
         "{what}: peak {} > budget {} + {threads} x {}",
@@ -236,12 +244,20 @@ fn every_block_reads_back_under_any_budget_and_threads() {
                 }
                 let per_thread = run_threads(&p, &s, threads, 4000 / threads, seed * 77);
                 let c = sum(&per_thread) + first;
-                assert_eq!(c.requested, 40 + (4000 / threads * threads) as u64, "{what}");
+                assert_eq!(
+                    c.requested,
+                    40 + (4000 / threads * threads) as u64,
+                    "{what}"
+                );
                 assert_eq!(c.requested, c.hits + c.misses, "{what}");
                 if budget == u64::MAX {
                     // Nothing is ever evicted: each block is read once.
                     assert_eq!(c.misses, 40, "{what}");
-                    assert_eq!(c.bytes_read, s.dir.iter().map(|e| e.stored_len).sum(), "{what}");
+                    assert_eq!(
+                        c.bytes_read,
+                        s.dir.iter().map(|e| e.stored_len).sum(),
+                        "{what}"
+                    );
                     assert_eq!(p.budget(), u64::MAX);
                 } else if budget <= 1 {
                     // A budget below one block: blocks are evicted and read again.
@@ -283,10 +299,17 @@ fn evicted_raw_blocks_are_released_whole_and_accounted() {
         };
         let budget = 3 * s.max_raw_len;
         let p = Pager::new(&src, &s.dir, s.opts(budget, threads));
-        assert_eq!(p.budget(), budget, "no zstd blocks, no slots: the budget as asked");
+        assert_eq!(
+            p.budget(),
+            budget,
+            "no zstd blocks, no slots: the budget as asked"
+        );
         let c = sum(&run_threads(&p, &s, threads, 3000 / threads, 5));
         let released = src.released.lock().unwrap().clone();
-        assert!(!released.is_empty(), "a budget of 3 blocks out of 30 evicts");
+        assert!(
+            !released.is_empty(),
+            "a budget of 3 blocks out of 30 evicts"
+        );
         for &(off, len) in &released {
             assert!(
                 s.dir
@@ -330,7 +353,13 @@ fn clock_gives_a_block_got_again_a_second_chance() {
     // 3 evicts 0 (all bits were set: the hand clears them, then takes the oldest); 1 is got
     // again, so 4 evicts 2, not 1; 2 comes back and evicts 3.
     assert_eq!(trace, "MMMMhMhhhM");
-    let released: Vec<u64> = src.released.lock().unwrap().iter().map(|&(off, _)| off as u64).collect();
+    let released: Vec<u64> = src
+        .released
+        .lock()
+        .unwrap()
+        .iter()
+        .map(|&(off, _)| off as u64)
+        .collect();
     let offsets: Vec<u64> = [0, 2, 3].iter().map(|&b| s.dir[b].offset).collect();
     assert_eq!(released, offsets);
     assert_eq!(p.resident_bytes(), 3000);
@@ -471,8 +500,10 @@ fn expect_bad(s: &Synth, b: u32, expect: &str) {
             let mut c = PageCounters::default();
             p.get(b, &mut c).err()
         });
-    assert!(errors.iter().all(|e| e.as_ref().is_some_and(|e| e.block == b
-        && e.what.contains(expect))));
+    assert!(errors.iter().all(|e| {
+        e.as_ref()
+            .is_some_and(|e| e.block == b && e.what.contains(expect))
+    }));
 }
 
 #[test]

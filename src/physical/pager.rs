@@ -21,53 +21,66 @@
 //! **Raw blocks** are returned as slices of the source, without a copy. Each block has an
 //! atomic state: cold, busy (being admitted or evicted), resident, resident and referenced, or
 //! bad. One thread admits a cold block (cold -> busy -> referenced); others asking for it wait
-//! (spin, then yield) and count a hit. Resident raw blocks are queued in a ring; when the
-//! resident bytes exceed the budget, the admitting thread evicts by CLOCK (second chance) from
-//! the ring: a referenced block loses its bit and goes round again, an unreferenced one is
-//! released ([`BlockSource::release`]: its pages are dropped from the process and the page
-//! cache) and made cold. **Eviction of a raw block is memory-safe while another thread reads
-//! it**: releasing drops pages, not the mapping, and a later access faults the same bytes back
-//! in from the file (see [`super::mmap::MappedFile::release`]). So a raw hit takes no pin and
-//! writes nothing unless it sets the referenced bit: one atomic load in the common case.
+//! (spin, then yield) and count a hit. Admitted blocks are queued, referenced, in a ring that
+//! CLOCK (Corbató 1968, the second-chance approximation of LRU) sweeps when the resident bytes
+//! exceed the budget: a referenced block loses its bit and goes round again, an unreferenced
+//! one is released ([`BlockSource::release`]: its pages are dropped from the process and the
+//! page cache) and made cold. A hit sets the bit of a block that lost it. One eviction clears
+//! bits for at most one pass over the ring, then evicts referenced blocks too, so hits racing
+//! the hand cannot keep it going round. **Eviction of a raw block is memory-safe while another
+//! thread reads it**: releasing drops pages, not the mapping, and a later access faults the
+//! same bytes back in from the file (see [`super::mmap::MappedFile::release`]). So a raw hit
+//! takes no pin, and writes nothing unless it sets the bit: one atomic load in the common case.
+//! The price is paid by budgets of a few blocks: a block evicted while its caller still walks
+//! it is read from the disk again.
 //!
 //! **Zstd blocks** are decompressed into slots, each an `RwLock` over an 8-aligned buffer
 //! (`Vec<u64>`, grown on a miss to the largest block it has held, never past `max_raw_len`). A
 //! hit reads the block's slot index (an atomic), takes that slot's read lock and checks that it
 //! holds the block: no global lock, no allocation. The guard is returned inside [`BlockBytes`],
 //! so a slot cannot be reused while a caller reads it. A miss takes the clock mutex, looks
-//! again (another thread may have just admitted the block), and picks a victim by CLOCK among
-//! the slots whose `try_write` succeeds (slots that nobody is reading). It assigns the slot to
-//! the block, releases the mutex, then verifies and decompresses into the slot under the write
-//! lock, and downgrades the write lock to the read lock it returns. Callers asking for the
-//! same block meanwhile find the slot assigned and wait on its read lock.
+//! again (another thread may have just admitted the block), and takes a slot that holds no
+//! block (never used, or freed by a failed decode) or else picks a victim by CLOCK among the
+//! slots whose `try_write` succeeds (slots that nobody is reading). It assigns the slot to the
+//! block, releases the mutex, then verifies and decompresses into the slot under the write
+//! lock, and downgrades the write lock to the read lock it returns (so no other miss can take
+//! the slot in between). Callers asking for the same block meanwhile find the slot assigned
+//! and wait on its read lock, then count a hit.
 //!
 //! **No deadlock.** The clock mutex is never held while waiting on a slot (only `try_write`),
-//! and a write lock is never held while taking the mutex. A caller holds at most one
+//! and a slot's write lock is never held while waiting on the mutex. A caller holds at most one
 //! [`BlockBytes`] at a time (the tracer drops a block before asking for the next), so a caller
 //! inside `get` holds no slot, and every slot's readers are callers outside `get` that will
-//! drop theirs. A sweep that finds no free slot drops the mutex, yields and tries again; with
-//! at least `threads + 1` slots and at most `threads` callers, one slot is always free of
-//! long-term readers, so the wait is short. The eviction mutex of raw blocks is held only while
-//! evicting, which waits on nothing but the ring's mutex (held for one push or pop).
+//! drop theirs: a sweep that finds no slot free drops the mutex, yields and tries again, and
+//! eventually finds one. With `threads + 1` slots and at most `threads` callers, one slot is
+//! always free of long-term readers, so that wait is short. (A caller holding two blocks while
+//! it asks for a third could wait for ever if every slot were held: do not.) A raw block is busy
+//! only while one thread admits or evicts it, which waits on nothing. The raw eviction mutex is
+//! held only while evicting, which waits on nothing but the ring's mutex (held for one push or
+//! pop).
 //!
 //! **Memory bound.** The slots number `max(budget / max_raw_len, threads + 1)` (no more than
 //! there are zstd blocks): at least `threads + 1`, so that a free slot exists. The *effective*
-//! budget ([`Pager::budget`]) is therefore raised to `slots * max_raw_len` when that is more than
-//! the budget asked for. Resident bytes count each resident raw block's `stored_len` and each
-//! slot's buffer. A thread that raises them past the effective budget (admitting a raw block,
-//! growing a slot) evicts raw blocks until they are back under it before its `get` returns (one
-//! thread evicts at a time; the others wait for it), and a block being admitted cannot be
-//! evicted, so at any time `resident <= budget + one block (max_raw_len) per thread inside
-//! get`. A budget of `u64::MAX` means unlimited: nothing is ever evicted.
+//! budget ([`Pager::budget`]) is therefore raised to `slots * max_raw_len` when that is more
+//! than the budget asked for (a file with no zstd block has no slots, and keeps its budget).
+//! Resident bytes count each resident raw block's `stored_len` and each slot's buffer. A thread
+//! that raises them past the effective budget (admitting a raw block, growing a slot) evicts
+//! raw blocks until they are back under it before its `get` returns (one thread evicts at a
+//! time; the others wait for it, then evict what is still over), and a block is queued for
+//! eviction only once its bytes are counted, so at any time `resident <= budget + one block
+//! (max_raw_len) per thread inside get`; once the gets return, `resident <= budget`. Slot
+//! buffers are never evicted (they are the budget's zstd share). A budget of `u64::MAX` means
+//! unlimited: nothing is ever evicted, and each zstd block gets a slot of its own.
 //!
 //! **Counters.** [`PageCounters`] belong to the caller (one per thread, summed at the end), so a
 //! hit touches no shared counter; resident bytes and their peak are shared atomics, changed on
 //! admission and eviction only. They count the gets that succeeded: `requested = hits +
-//! misses`; a get that returns an error counts nothing.
+//! misses`, a miss adds its block's `stored_len` to `bytes_read` and (zstd) its `raw_len` to
+//! `bytes_decompressed`; a get that returns an error counts nothing.
 //!
-//! **Cost of eviction.** Raw eviction pops the ring in O(1) per block looked at; a sweep of the
-//! slots looks at each slot at most twice. `Pager::new` allocates a few bytes of state per
-//! block and reads the directory, never the blocks.
+//! **Cost.** A raw eviction pops the ring, O(1) per block looked at; a slot sweep looks at each
+//! slot at most twice. `Pager::new` allocates a few bytes of state per block and reads the
+//! directory's codecs, never the blocks.
 
 use std::collections::{HashMap, VecDeque};
 use std::ops::Deref;
@@ -282,9 +295,11 @@ impl<'f, S: BlockSource> Pager<'f, S> {
         let max_raw_len = opts.max_raw_len.max(1);
         let threads = opts.threads.max(1) as u64;
         let zstd_blocks = directory.iter().filter(|e| e.codec == CODEC_ZSTD).count() as u64;
+        // (Slot indices are stored as u32s, NO_SLOT excluded.)
         let slot_count = (opts.budget / max_raw_len)
             .max(threads + 1)
-            .min(zstd_blocks);
+            .min(zstd_blocks)
+            .min(u64::from(NO_SLOT) - 1);
         let budget = opts.budget.max(slot_count.saturating_mul(max_raw_len));
         Pager {
             source,
@@ -380,7 +395,12 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                 RESIDENT => {
                     // Fails only if an evictor took it meanwhile: look again.
                     if state
-                        .compare_exchange(RESIDENT, REFERENCED, Ordering::Acquire, Ordering::Relaxed)
+                        .compare_exchange(
+                            RESIDENT,
+                            REFERENCED,
+                            Ordering::Acquire,
+                            Ordering::Relaxed,
+                        )
                         .is_ok()
                     {
                         break;
@@ -477,7 +497,8 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                         .is_ok()
                     {
                         let e = &self.directory[b as usize];
-                        self.source.release(e.offset as usize, e.stored_len as usize);
+                        self.source
+                            .release(e.offset as usize, e.stored_len as usize);
                         self.resident.fetch_sub(e.stored_len, Ordering::SeqCst);
                         state.store(COLD, Ordering::Release);
                         break;
