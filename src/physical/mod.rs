@@ -4,6 +4,7 @@
 pub mod file;
 pub mod format;
 pub mod mmap;
+pub mod pager;
 pub mod verify;
 pub mod writer;
 

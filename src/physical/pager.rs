@@ -1,0 +1,846 @@
+//! The pager: the only way the tracer reaches a block's bytes (format-spec.md, version 2: the
+//! block directory and the blocks region; [`BlockEntry`]).
+//!
+//! A file's tree is split into *blocks*, self-contained subtrees whose bytes are stored either
+//! raw or as one zstd frame. [`Pager::get`] turns a block id into the block's decoded bytes, and
+//! keeps the memory those bytes take within a budget: raw blocks are pages of the map, given
+//! back to the kernel when evicted; zstd blocks are decompressed into a fixed set of cache slots.
+//!
+//! **Admission.** The directory is cast from the file, so it is untrusted. The first `get` of a
+//! block since it was last evicted (a *miss*) checks its entry: the id is in range, the stored
+//! bytes lie inside the file, the codec is known, `raw_len <= max_raw_len`, and a raw block has
+//! `raw_len == stored_len` and starts at a multiple of [`RAW_BLOCK_ALIGN`] (so its bytes are
+//! 8-aligned and its pages are its own). It then hints the kernel to read the range
+//! ([`BlockSource::prefetch`]) and checks the xxh3 of the stored bytes, which reads the block
+//! from the disk. A zstd frame must record either no content size or exactly `raw_len`, and
+//! must decode to exactly `raw_len` bytes, into a buffer of exactly that size: a frame claiming
+//! more cannot make the pager allocate or write more. Any failure is a [`PageError`] naming the
+//! block, and the block is remembered as bad: later gets fail at once with the same error. No
+//! bytes of the file can make the pager panic or allocate more than `max_raw_len` per slot.
+//!
+//! **Raw blocks** are returned as slices of the source, without a copy. Each block has an
+//! atomic state: cold, busy (being admitted or evicted), resident, resident and referenced, or
+//! bad. One thread admits a cold block (cold -> busy -> referenced); others asking for it wait
+//! (spin, then yield) and count a hit. Admitted blocks are queued, referenced, in a ring that
+//! CLOCK (Corbató 1968, the second-chance approximation of LRU) sweeps when the resident bytes
+//! exceed the budget: a referenced block loses its bit and goes round again, an unreferenced
+//! one is released ([`BlockSource::release`]: its pages are dropped from the process and the
+//! page cache) and made cold. A hit sets the bit of a block that lost it. One eviction clears
+//! bits for at most one pass over the ring, then evicts referenced blocks too, so hits racing
+//! the hand cannot keep it going round. **Eviction of a raw block is memory-safe while another
+//! thread reads it**: releasing drops pages, not the mapping, and a later access faults the
+//! same bytes back in from the file (see [`super::mmap::MappedFile::release`]). So a raw hit
+//! takes no pin, and writes nothing unless it sets the bit: one atomic load in the common case.
+//! The price is paid by budgets of a few blocks: a block evicted while its caller still walks
+//! it is read from the disk again.
+//!
+//! **Zstd blocks** are decompressed into slots, each an `RwLock` over an 8-aligned buffer
+//! (`Vec<u64>`, grown on a miss to the largest block it has held, never past `max_raw_len`). A
+//! hit reads the block's slot index (an atomic), takes that slot's read lock and checks that it
+//! holds the block: no global lock, no allocation. The guard is returned inside [`BlockBytes`],
+//! so a slot cannot be reused while a caller reads it. A miss takes the clock mutex, looks
+//! again (another thread may have just admitted the block), and takes a slot that holds no
+//! block (never used, or freed by a failed decode) or else picks a victim by CLOCK among the
+//! slots whose `try_write` succeeds (slots that nobody is reading). It assigns the slot to the
+//! block, releases the mutex, then verifies and decompresses into the slot under the write
+//! lock, and downgrades the write lock to the read lock it returns (so no other miss can take
+//! the slot in between). Callers asking for the same block meanwhile find the slot assigned
+//! and wait on its read lock, then count a hit.
+//!
+//! **No deadlock.** The clock mutex is never held while waiting on a slot (only `try_write`),
+//! and a slot's write lock is never held while waiting on the mutex. A caller holds at most one
+//! [`BlockBytes`] at a time (the tracer drops a block before asking for the next), so a caller
+//! inside `get` holds no slot, and every slot's readers are callers outside `get` that will
+//! drop theirs: a sweep that finds no slot free drops the mutex, yields and tries again, and
+//! eventually finds one. With `threads + 1` slots and at most `threads` callers, one slot is
+//! always free of long-term readers, so that wait is short. (A caller holding two blocks while
+//! it asks for a third could wait for ever if every slot were held: do not.) A raw block is busy
+//! only while one thread admits or evicts it, which waits on nothing. The raw eviction mutex is
+//! held only while evicting, which waits on nothing but the ring's mutex (held for one push or
+//! pop).
+//!
+//! **Memory bound.** The slots number `max(budget / max_raw_len, threads + 1)` (no more than
+//! there are zstd blocks): at least `threads + 1`, so that a free slot exists. The *effective*
+//! budget ([`Pager::budget`]) is therefore raised to `slots * max_raw_len` when that is more
+//! than the budget asked for (a file with no zstd block has no slots, and keeps its budget).
+//! Resident bytes count each resident raw block's `stored_len` and each slot's buffer. A thread
+//! that raises them past the effective budget (admitting a raw block, growing a slot) evicts
+//! raw blocks until they are back under it before its `get` returns (one thread evicts at a
+//! time; the others wait for it, then evict what is still over), and a block is queued for
+//! eviction only once its bytes are counted, so at any time `resident <= budget + one block
+//! (max_raw_len) per thread inside get`; once the gets return, `resident <= budget`. Slot
+//! buffers are never evicted (they are the budget's zstd share). A budget of `u64::MAX` means
+//! unlimited: nothing is ever evicted, and each zstd block gets a slot of its own.
+//!
+//! **Counters.** [`PageCounters`] belong to the caller (one per thread, summed at the end), so a
+//! hit touches no shared counter; resident bytes and their peak are shared atomics, changed on
+//! admission and eviction only. They count the gets that succeeded: `requested = hits +
+//! misses`, a miss adds its block's `stored_len` to `bytes_read` and (zstd) its `raw_len` to
+//! `bytes_decompressed`; a get that returns an error counts nothing.
+//!
+//! **Cost.** A raw eviction pops the ring, O(1) per block looked at; a slot sweep looks at each
+//! slot at most twice. `Pager::new` allocates a few bytes of state per block and reads the
+//! directory's codecs, never the blocks.
+
+use std::collections::{HashMap, VecDeque};
+use std::ops::Deref;
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard, TryLockError};
+
+use super::file::AlignedBytes;
+use super::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD, RAW_BLOCK_ALIGN, checksum};
+use super::mmap::MappedFile;
+
+/// Where the pager reads blocks from: the whole file's bytes, with hints for the kernel.
+///
+/// Production uses a [`MappedFile`] (a prefetch is `madvise(WILLNEED)`, a release gives the
+/// pages back); tests use an [`AlignedBytes`] buffer, whose hints do nothing.
+pub trait BlockSource: Sync {
+    /// The whole file.
+    fn bytes(&self) -> &[u8];
+    /// The bytes `off .. off + len` are about to be read.
+    fn prefetch(&self, _off: usize, _len: usize) {}
+    /// The bytes `off .. off + len` will not be needed for a while: their memory may be given
+    /// back. They must stay readable (a later read may be slower, never wrong).
+    fn release(&self, _off: usize, _len: usize) {}
+}
+
+impl BlockSource for MappedFile {
+    fn bytes(&self) -> &[u8] {
+        self.as_ref()
+    }
+    fn prefetch(&self, off: usize, len: usize) {
+        self.advise_range(memmap2::Advice::WillNeed, off, len);
+    }
+    fn release(&self, off: usize, len: usize) {
+        MappedFile::release(self, off, len);
+    }
+}
+
+impl BlockSource for AlignedBytes {
+    fn bytes(&self) -> &[u8] {
+        self.as_ref()
+    }
+}
+
+/// How much memory the pager may keep, and for how many threads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PagerOptions {
+    /// Bytes of decoded blocks kept resident; `u64::MAX` for no limit. Raised to the minimum
+    /// the zstd slots need (see [`Pager::budget`]).
+    pub budget: u64,
+    /// The number of threads that call [`Pager::get`] at the same time (at least 1).
+    pub threads: usize,
+    /// The largest `raw_len` accepted (the header's `max_block_raw_len`): the size of a slot,
+    /// and the bound on what one block may make the pager allocate.
+    pub max_raw_len: u64,
+}
+
+/// What the caller's gets cost (summed over them). See the module docs for what counts.
+#[derive(Clone, Copy, Default, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct PageCounters {
+    /// Successful gets.
+    pub requested: u64,
+    /// Gets answered from a resident block (including waiting for another thread's admission).
+    pub hits: u64,
+    /// Gets that admitted the block: read (and for zstd, decompressed) it.
+    pub misses: u64,
+    /// Stored bytes read and checksummed by misses.
+    pub bytes_read: u64,
+    /// Bytes produced by decompressing zstd blocks on misses.
+    pub bytes_decompressed: u64,
+}
+
+impl std::ops::AddAssign for PageCounters {
+    fn add_assign(&mut self, o: PageCounters) {
+        self.requested += o.requested;
+        self.hits += o.hits;
+        self.misses += o.misses;
+        self.bytes_read += o.bytes_read;
+        self.bytes_decompressed += o.bytes_decompressed;
+    }
+}
+
+impl std::ops::Add for PageCounters {
+    type Output = PageCounters;
+    fn add(mut self, o: PageCounters) -> PageCounters {
+        self += o;
+        self
+    }
+}
+
+/// A block that cannot be read: a bad directory entry, a checksum mismatch, a frame that does
+/// not decode to its block.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PageError {
+    pub block: u32,
+    pub what: String,
+}
+
+impl std::fmt::Display for PageError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "block {}: {}", self.block, self.what)
+    }
+}
+
+impl std::error::Error for PageError {}
+
+/// A block's decoded bytes (8-aligned), borrowed from the pager. Drop it before asking for the
+/// next block (see the module docs: a caller holds at most one).
+pub enum BlockBytes<'p> {
+    /// A raw block: a slice of the source.
+    Raw(&'p [u8]),
+    /// A zstd block, decompressed into a slot that stays locked for reading while this lives.
+    Decoded(SlotGuard<'p>),
+}
+
+impl Deref for BlockBytes<'_> {
+    type Target = [u8];
+    #[inline]
+    fn deref(&self) -> &[u8] {
+        match self {
+            BlockBytes::Raw(bytes) => bytes,
+            BlockBytes::Decoded(guard) => guard,
+        }
+    }
+}
+
+/// The read lock on a slot holding a decoded zstd block.
+pub struct SlotGuard<'p>(RwLockReadGuard<'p, Slot>);
+
+impl Deref for SlotGuard<'_> {
+    type Target = [u8];
+    #[inline]
+    fn deref(&self) -> &[u8] {
+        self.0.bytes()
+    }
+}
+
+/// A cache slot for one decoded zstd block.
+pub struct Slot {
+    /// The block it holds, or [`NO_BLOCK`].
+    block: u32,
+    /// Whether `words` holds the block's decoded bytes (false while decoding, after a failure).
+    valid: bool,
+    /// The decoded bytes, `len` of them, in `u64`s for alignment.
+    words: Vec<u64>,
+    len: usize,
+    /// Bytes counted in the pager's resident bytes for this slot (the largest block it held).
+    accounted: u64,
+    /// Kept with the slot so that a miss allocates no decompression context.
+    dctx: Option<zstd::bulk::Decompressor<'static>>,
+}
+
+impl Slot {
+    fn bytes(&self) -> &[u8] {
+        bytemuck::cast_slice::<u64, u8>(&self.words)
+            .get(..self.len)
+            .unwrap_or(&[])
+    }
+}
+
+const NO_BLOCK: u32 = u32::MAX;
+const NO_SLOT: u32 = u32::MAX;
+
+// Raw block states (`Pager::state`). Zstd blocks use only COLD and BAD.
+const COLD: u8 = 0;
+/// Being admitted or evicted by one thread; others wait.
+const BUSY: u8 = 1;
+const RESIDENT: u8 = 2;
+const REFERENCED: u8 = 3;
+const BAD: u8 = 4;
+
+/// Spins before a waiting thread starts yielding.
+const SPINS: u32 = 64;
+
+/// Reads blocks for the tracer within a memory budget. See the module docs.
+pub struct Pager<'f, S: BlockSource> {
+    source: &'f S,
+    directory: &'f [BlockEntry],
+    max_raw_len: u64,
+    /// The effective budget.
+    budget: u64,
+    /// Per block: COLD, BUSY, RESIDENT, REFERENCED or BAD.
+    state: Vec<AtomicU8>,
+    /// Why each bad block is bad (filled on the error path only).
+    bad: Mutex<HashMap<u32, String>>,
+    resident: AtomicU64,
+    peak: AtomicU64,
+    /// Raw blocks that are resident, in CLOCK order; each at most once.
+    ring: Mutex<VecDeque<u32>>,
+    /// Held by the one thread evicting raw blocks.
+    evicting: Mutex<()>,
+    /// Per block: the slot holding (or being filled with) it, or NO_SLOT.
+    block_slot: Vec<AtomicU32>,
+    slots: Vec<RwLock<Slot>>,
+    slot_referenced: Vec<AtomicBool>,
+    /// Held to assign a slot to a block.
+    hand: Mutex<Hand>,
+}
+
+/// The slots' CLOCK state.
+struct Hand {
+    /// The next slot the hand looks at.
+    at: usize,
+    /// Slots holding no block (never used, or freed by a failed decode), used before any slot
+    /// is taken from a block: an unlimited budget never evicts. Hints: checked when taken.
+    free: Vec<usize>,
+}
+
+impl<'f, S: BlockSource> Pager<'f, S> {
+    /// A pager over `directory` (cast from the file, untrusted: each entry is checked when its
+    /// block is first admitted). Reads the directory's codecs to size the slot set, never the
+    /// blocks; allocates a few bytes per block, and no slot buffer until a zstd miss needs it.
+    pub fn new(source: &'f S, directory: &'f [BlockEntry], opts: PagerOptions) -> Pager<'f, S> {
+        let max_raw_len = opts.max_raw_len.max(1);
+        let threads = opts.threads.max(1) as u64;
+        let zstd_blocks = directory.iter().filter(|e| e.codec == CODEC_ZSTD).count() as u64;
+        // (Slot indices are stored as u32s, NO_SLOT excluded.)
+        let slot_count = (opts.budget / max_raw_len)
+            .max(threads + 1)
+            .min(zstd_blocks)
+            .min(u64::from(NO_SLOT) - 1);
+        let budget = opts.budget.max(slot_count.saturating_mul(max_raw_len));
+        Pager {
+            source,
+            directory,
+            max_raw_len,
+            budget,
+            state: directory.iter().map(|_| AtomicU8::new(COLD)).collect(),
+            bad: Mutex::new(HashMap::new()),
+            resident: AtomicU64::new(0),
+            peak: AtomicU64::new(0),
+            ring: Mutex::new(VecDeque::new()),
+            evicting: Mutex::new(()),
+            block_slot: directory.iter().map(|_| AtomicU32::new(NO_SLOT)).collect(),
+            slots: (0..slot_count)
+                .map(|_| {
+                    RwLock::new(Slot {
+                        block: NO_BLOCK,
+                        valid: false,
+                        words: Vec::new(),
+                        len: 0,
+                        accounted: 0,
+                        dctx: None,
+                    })
+                })
+                .collect(),
+            slot_referenced: (0..slot_count).map(|_| AtomicBool::new(false)).collect(),
+            hand: Mutex::new(Hand {
+                at: 0,
+                free: (0..slot_count as usize).rev().collect(),
+            }),
+        }
+    }
+
+    /// The decoded bytes of `block`, admitting it if it is not resident; adds to `c`.
+    pub fn get(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError> {
+        let Some(entry) = self.directory.get(block as usize) else {
+            return Err(PageError {
+                block,
+                what: format!(
+                    "no such block (the directory has {} blocks)",
+                    self.directory.len()
+                ),
+            });
+        };
+        let bytes = match entry.codec {
+            CODEC_RAW => self.get_raw(block, entry, c)?,
+            CODEC_ZSTD => self.get_zstd(block, entry, c)?,
+            codec => {
+                let what = match self.check_entry(entry) {
+                    Err(what) => what,
+                    Ok(()) => format!("unknown codec {codec}"),
+                };
+                return Err(self.fail(block, what));
+            }
+        };
+        c.requested += 1;
+        Ok(bytes)
+    }
+
+    /// Bytes of decoded blocks resident now.
+    pub fn resident_bytes(&self) -> u64 {
+        self.resident.load(Ordering::Relaxed)
+    }
+
+    /// The most bytes resident at any time so far.
+    pub fn peak_resident_bytes(&self) -> u64 {
+        self.peak.load(Ordering::Relaxed)
+    }
+
+    /// The effective budget: the one asked for, raised to `slots * max_raw_len` if the zstd
+    /// slots need more (see the module docs). Resident bytes stay within it plus one block per
+    /// thread inside `get`.
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// The number of zstd cache slots.
+    pub fn slot_count(&self) -> usize {
+        self.slots.len()
+    }
+
+    fn get_raw(
+        &self,
+        block: u32,
+        entry: &BlockEntry,
+        c: &mut PageCounters,
+    ) -> Result<BlockBytes<'_>, PageError> {
+        let state = &self.state[block as usize];
+        let mut spins = 0;
+        loop {
+            match state.load(Ordering::Acquire) {
+                REFERENCED => break,
+                RESIDENT => {
+                    // Fails only if an evictor took it meanwhile: look again.
+                    if state
+                        .compare_exchange(
+                            RESIDENT,
+                            REFERENCED,
+                            Ordering::Acquire,
+                            Ordering::Relaxed,
+                        )
+                        .is_ok()
+                    {
+                        break;
+                    }
+                }
+                COLD => {
+                    if state
+                        .compare_exchange(COLD, BUSY, Ordering::Acquire, Ordering::Relaxed)
+                        .is_ok()
+                    {
+                        return self.admit_raw(block, entry, c);
+                    }
+                }
+                BAD => return Err(self.remembered(block)),
+                _ => wait(&mut spins),
+            }
+        }
+        c.hits += 1;
+        Ok(BlockBytes::Raw(self.raw_slice(block, entry)?))
+    }
+
+    /// Admits a raw block this thread has made BUSY.
+    fn admit_raw(
+        &self,
+        block: u32,
+        entry: &BlockEntry,
+        c: &mut PageCounters,
+    ) -> Result<BlockBytes<'_>, PageError> {
+        let state = &self.state[block as usize];
+        let checked = self.check_entry(entry).and_then(|()| {
+            let (off, len) = (entry.offset as usize, entry.stored_len as usize);
+            self.source.prefetch(off, len);
+            self.check_sum(entry, self.stored(entry))
+        });
+        if let Err(what) = checked {
+            return Err(self.fail(block, what));
+        }
+        self.add_resident(entry.stored_len);
+        state.store(REFERENCED, Ordering::Release);
+        lock(&self.ring).push_back(block);
+        c.misses += 1;
+        c.bytes_read += entry.stored_len;
+        self.evict_raw();
+        Ok(BlockBytes::Raw(self.raw_slice(block, entry)?))
+    }
+
+    /// A raw block's bytes (its entry was checked on admission; checked again for free).
+    fn raw_slice(&self, block: u32, entry: &BlockEntry) -> Result<&'f [u8], PageError> {
+        let source: &'f S = self.source;
+        let off = entry.offset as usize;
+        source
+            .bytes()
+            .get(off..off.saturating_add(entry.stored_len as usize))
+            .ok_or_else(|| PageError {
+                block,
+                what: "outside the file".into(),
+            })
+    }
+
+    /// Evicts raw blocks by CLOCK until the resident bytes are within the budget or no raw
+    /// block is left to evict. One thread evicts at a time; the others wait for it, then evict
+    /// what is still over (so that no thread returns with the budget exceeded by more than the
+    /// blocks other threads are admitting).
+    fn evict_raw(&self) {
+        if self.resident.load(Ordering::SeqCst) <= self.budget {
+            return;
+        }
+        let _evicting = lock(&self.evicting);
+        // The first pass over the blocks queued now clears referenced bits; after it, a
+        // referenced block is evicted too, so that hits racing the hand cannot keep it going
+        // round for ever. Blocks queued meanwhile are evicted by their own threads, or here.
+        let first_pass = lock(&self.ring).len();
+        let mut step = 0;
+        while self.resident.load(Ordering::SeqCst) > self.budget {
+            let Some(b) = lock(&self.ring).pop_front() else {
+                break;
+            };
+            let second_chance = step < first_pass;
+            step += 1;
+            let state = &self.state[b as usize];
+            loop {
+                let s = state.load(Ordering::Relaxed);
+                if s == REFERENCED && second_chance {
+                    if state
+                        .compare_exchange(s, RESIDENT, Ordering::Relaxed, Ordering::Relaxed)
+                        .is_ok()
+                    {
+                        lock(&self.ring).push_back(b);
+                        break;
+                    }
+                } else if s == REFERENCED || s == RESIDENT {
+                    if state
+                        .compare_exchange(s, BUSY, Ordering::Acquire, Ordering::Relaxed)
+                        .is_ok()
+                    {
+                        let e = &self.directory[b as usize];
+                        self.source
+                            .release(e.offset as usize, e.stored_len as usize);
+                        self.resident.fetch_sub(e.stored_len, Ordering::SeqCst);
+                        state.store(COLD, Ordering::Release);
+                        break;
+                    }
+                } else {
+                    // Not reached: a queued block is resident until popped and evicted.
+                    break;
+                }
+                // A hit set the bit between the load and the exchange: look again.
+            }
+        }
+    }
+
+    fn get_zstd(
+        &self,
+        block: u32,
+        entry: &BlockEntry,
+        c: &mut PageCounters,
+    ) -> Result<BlockBytes<'_>, PageError> {
+        let mut spins = 0;
+        loop {
+            if self.state[block as usize].load(Ordering::Acquire) == BAD {
+                return Err(self.remembered(block));
+            }
+            if let Some(guard) = self.zstd_hit(block) {
+                c.hits += 1;
+                return Ok(BlockBytes::Decoded(SlotGuard(guard)));
+            }
+            self.check_entry(entry)
+                .map_err(|what| self.fail(block, what))?;
+            let Some((slot, write)) = self.assign_slot(block) else {
+                // Admitted by another thread meanwhile (look again), or no slot free of
+                // readers yet (wait for one).
+                wait(&mut spins);
+                continue;
+            };
+            return self.admit_zstd(block, entry, slot, write, c);
+        }
+    }
+
+    /// The slot holding `block`, locked for reading, if it holds it (waits while it is being
+    /// filled).
+    fn zstd_hit(&self, block: u32) -> Option<RwLockReadGuard<'_, Slot>> {
+        let s = self.block_slot[block as usize].load(Ordering::Acquire);
+        let slot = self.slots.get(s as usize)?;
+        let guard = slot.read().unwrap_or_else(|p| p.into_inner());
+        if guard.block != block || !guard.valid {
+            return None;
+        }
+        let referenced = &self.slot_referenced[s as usize];
+        if !referenced.load(Ordering::Relaxed) {
+            referenced.store(true, Ordering::Relaxed);
+        }
+        Some(guard)
+    }
+
+    /// Under the clock mutex: a slot for `block`, chosen by CLOCK among the slots nobody
+    /// reads, locked for writing and assigned to the block. `None` if the block has a slot
+    /// already, or if no slot is free of readers.
+    fn assign_slot(&self, block: u32) -> Option<(usize, RwLockWriteGuard<'_, Slot>)> {
+        let mut hand = lock(&self.hand);
+        // (`new` gives at least one slot when a zstd block exists, so `n > 0` below.)
+        if self.block_slot[block as usize].load(Ordering::Acquire) != NO_SLOT {
+            return None;
+        }
+        while let Some(i) = hand.free.pop() {
+            if let Some(write) = self.try_write(i)
+                && write.block == NO_BLOCK
+            {
+                return Some(self.assign(block, i, write));
+            }
+        }
+        let n = self.slots.len();
+        for _ in 0..2 * n {
+            let i = hand.at;
+            hand.at = (i + 1) % n;
+            if self.slot_referenced[i].load(Ordering::Relaxed) {
+                self.slot_referenced[i].store(false, Ordering::Relaxed);
+                continue;
+            }
+            if let Some(write) = self.try_write(i) {
+                return Some(self.assign(block, i, write));
+            }
+        }
+        None
+    }
+
+    /// Slot `i` locked for writing, if nobody holds it.
+    fn try_write(&self, i: usize) -> Option<RwLockWriteGuard<'_, Slot>> {
+        match self.slots[i].try_write() {
+            Ok(w) => Some(w),
+            Err(TryLockError::Poisoned(p)) => Some(p.into_inner()),
+            Err(TryLockError::WouldBlock) => None,
+        }
+    }
+
+    /// Takes slot `i` (locked for writing, under the clock mutex) from its block for `block`.
+    fn assign<'p>(
+        &self,
+        block: u32,
+        i: usize,
+        mut write: RwLockWriteGuard<'p, Slot>,
+    ) -> (usize, RwLockWriteGuard<'p, Slot>) {
+        if let Some(old) = self.block_slot.get(write.block as usize) {
+            let _ = old.compare_exchange(i as u32, NO_SLOT, Ordering::Release, Ordering::Relaxed);
+        }
+        write.block = block;
+        write.valid = false;
+        self.block_slot[block as usize].store(i as u32, Ordering::Release);
+        self.slot_referenced[i].store(true, Ordering::Relaxed);
+        (i, write)
+    }
+
+    /// Fills a slot assigned to `block` (outside the clock mutex) and returns it locked for
+    /// reading.
+    fn admit_zstd<'p>(
+        &'p self,
+        block: u32,
+        entry: &BlockEntry,
+        slot: usize,
+        mut write: RwLockWriteGuard<'p, Slot>,
+        c: &mut PageCounters,
+    ) -> Result<BlockBytes<'p>, PageError> {
+        match self.decode(entry, &mut write) {
+            Ok(()) => {
+                write.valid = true;
+                let read = RwLockWriteGuard::downgrade(write);
+                c.misses += 1;
+                c.bytes_read += entry.stored_len;
+                c.bytes_decompressed += entry.raw_len;
+                self.evict_raw();
+                Ok(BlockBytes::Decoded(SlotGuard(read)))
+            }
+            Err(what) => {
+                let err = self.fail(block, what);
+                write.block = NO_BLOCK;
+                write.valid = false;
+                write.len = 0;
+                self.block_slot[block as usize].store(NO_SLOT, Ordering::Release);
+                self.slot_referenced[slot].store(false, Ordering::Relaxed);
+                drop(write);
+                lock(&self.hand).free.push(slot);
+                Err(err)
+            }
+        }
+    }
+
+    /// Verifies a zstd block's stored bytes and decompresses them into `slot`.
+    fn decode(&self, entry: &BlockEntry, slot: &mut Slot) -> Result<(), String> {
+        let stored = self.stored(entry);
+        self.source.prefetch(entry.offset as usize, stored.len());
+        self.check_sum(entry, stored)?;
+        let raw_len = entry.raw_len as usize;
+        match zstd::zstd_safe::get_frame_content_size(stored) {
+            Ok(Some(n)) if n != entry.raw_len => {
+                return Err(format!(
+                    "the zstd frame's content size is {n} bytes, the directory says raw_len {}",
+                    entry.raw_len
+                ));
+            }
+            Ok(_) => {}
+            Err(_) => return Err("not a zstd frame (bad frame header)".into()),
+        }
+        let words = raw_len.div_ceil(8);
+        if slot.words.len() < words {
+            slot.words
+                .try_reserve_exact(words - slot.words.len())
+                .map_err(|_| format!("cannot allocate {raw_len} bytes to decode it"))?;
+            slot.words.resize(words, 0);
+        }
+        if (raw_len as u64) > slot.accounted {
+            self.add_resident(raw_len as u64 - slot.accounted);
+            slot.accounted = raw_len as u64;
+        }
+        slot.len = 0;
+        let dctx = match &mut slot.dctx {
+            Some(d) => d,
+            none => none.insert(
+                zstd::bulk::Decompressor::new()
+                    .map_err(|e| format!("cannot create a zstd decompressor: {e}"))?,
+            ),
+        };
+        let out = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut slot.words)[..raw_len];
+        let n = dctx
+            .decompress_to_buffer(stored, out)
+            .map_err(|e| format!("zstd: {e} (raw_len {raw_len})"))?;
+        if n != raw_len {
+            return Err(format!(
+                "the zstd frame decodes to {n} bytes, the directory says raw_len {raw_len}"
+            ));
+        }
+        slot.len = raw_len;
+        Ok(())
+    }
+
+    /// Checks an entry without reading its block (see the module docs).
+    fn check_entry(&self, e: &BlockEntry) -> Result<(), String> {
+        let file_len = self.source.bytes().len() as u64;
+        match e.offset.checked_add(e.stored_len) {
+            Some(end) if end <= file_len => {}
+            _ => {
+                return Err(format!(
+                    "stored bytes {}..{}+{} lie outside the file ({file_len} bytes)",
+                    e.offset, e.offset, e.stored_len
+                ));
+            }
+        }
+        if e.raw_len > self.max_raw_len {
+            return Err(format!(
+                "raw_len {} exceeds the largest block, {} bytes",
+                e.raw_len, self.max_raw_len
+            ));
+        }
+        match e.codec {
+            CODEC_RAW => {
+                if e.raw_len != e.stored_len {
+                    return Err(format!(
+                        "raw block with raw_len {} != stored_len {}",
+                        e.raw_len, e.stored_len
+                    ));
+                }
+                if !e.offset.is_multiple_of(RAW_BLOCK_ALIGN) {
+                    return Err(format!(
+                        "raw block at offset {}, not a multiple of {RAW_BLOCK_ALIGN}",
+                        e.offset
+                    ));
+                }
+                let base = self.source.bytes().as_ptr() as usize;
+                if !base.is_multiple_of(std::mem::align_of::<u64>()) {
+                    return Err("the file's buffer is not 8-aligned".into());
+                }
+                Ok(())
+            }
+            CODEC_ZSTD => Ok(()),
+            codec => Err(format!("unknown codec {codec}")),
+        }
+    }
+
+    /// A block's stored bytes (its entry checked).
+    fn stored(&self, e: &BlockEntry) -> &[u8] {
+        let off = e.offset as usize;
+        self.source
+            .bytes()
+            .get(off..off.saturating_add(e.stored_len as usize))
+            .unwrap_or(&[])
+    }
+
+    fn check_sum(&self, e: &BlockEntry, stored: &[u8]) -> Result<(), String> {
+        let computed = checksum(stored);
+        if computed != e.checksum {
+            return Err(format!(
+                "checksum mismatch (stored {:#018x}, computed {computed:#018x}): the file is \
+                 corrupt",
+                e.checksum
+            ));
+        }
+        Ok(())
+    }
+
+    fn add_resident(&self, bytes: u64) {
+        let now = self.resident.fetch_add(bytes, Ordering::SeqCst) + bytes;
+        self.peak.fetch_max(now, Ordering::Relaxed);
+    }
+
+    /// Remembers `block` as bad, for `what`, and returns the error.
+    fn fail(&self, block: u32, what: String) -> PageError {
+        lock(&self.bad).entry(block).or_insert_with(|| what.clone());
+        self.state[block as usize].store(BAD, Ordering::Release);
+        PageError { block, what }
+    }
+
+    /// The error a bad block was remembered with.
+    fn remembered(&self, block: u32) -> PageError {
+        let what = lock(&self.bad)
+            .get(&block)
+            .cloned()
+            .unwrap_or_else(|| "bad block".into());
+        PageError { block, what }
+    }
+}
+
+/// Locks a mutex, ignoring poisoning (every structure it guards stays consistent at each
+/// step).
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Waits a little for another thread: spins, then yields.
+fn wait(spins: &mut u32) {
+    if *spins < SPINS {
+        *spins += 1;
+        std::hint::spin_loop();
+    } else {
+        std::thread::yield_now();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_send_sync<T: Send + Sync>() {}
+
+    #[test]
+    fn pager_is_send_and_sync() {
+        assert_send_sync::<Pager<'static, AlignedBytes>>();
+        assert_send_sync::<Pager<'static, MappedFile>>();
+    }
+
+    #[test]
+    fn slots_and_effective_budget() {
+        let bytes = AlignedBytes::from_slice(&[0u8; 64]);
+        let zstd = BlockEntry {
+            offset: 0,
+            stored_len: 0,
+            raw_len: 0,
+            codec: CODEC_ZSTD,
+            root_level: 0,
+            root_count: 0,
+            triangles: 0,
+            checksum: 0,
+        };
+        let dir = vec![zstd; 10];
+        let opts = |budget, threads| PagerOptions {
+            budget,
+            threads,
+            max_raw_len: 1000,
+        };
+        // Tiny budget: threads + 1 slots, budget raised to them.
+        let p = Pager::new(&bytes, &dir, opts(10, 3));
+        assert_eq!((p.slot_count(), p.budget()), (4, 4000));
+        // Large budget: budget / max_raw_len slots, capped by the zstd blocks.
+        let p = Pager::new(&bytes, &dir, opts(7500, 1));
+        assert_eq!((p.slot_count(), p.budget()), (7, 7500));
+        let p = Pager::new(&bytes, &dir, opts(u64::MAX, 1));
+        assert_eq!((p.slot_count(), p.budget()), (10, u64::MAX));
+        // No zstd blocks: no slots, the budget as asked.
+        let raw = [BlockEntry {
+            codec: CODEC_RAW,
+            ..zstd
+        }];
+        let p = Pager::new(&bytes, &raw, opts(10, 3));
+        assert_eq!((p.slot_count(), p.budget()), (0, 10));
+    }
+}
