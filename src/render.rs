@@ -10,8 +10,8 @@ use serde::Serialize;
 
 use crate::error::Error;
 use crate::geom::Ray;
+use crate::logical::TraceError;
 use crate::logical::{Counters, Scene};
-use crate::mapping::Corruption;
 use crate::rays::{Camera, cross, normalize, shadow_ray, sub};
 
 #[derive(Clone, Copy, Debug)]
@@ -42,7 +42,7 @@ pub struct Image {
 
 /// Renders `scene`: Lambert shading from a point light (two-sided), shadows by one any-hit ray per
 /// visible point, a soft ambient term, a vertical gradient for the background.
-pub fn render<D: AsRef<[u8]> + Sync>(
+pub fn render<D: AsRef<[u8]> + crate::physical::pager::BlockSource>(
     scene: &Scene<D>,
     opts: &RenderOptions,
 ) -> Result<(Image, RenderStats), Error> {
@@ -80,7 +80,7 @@ pub fn render<D: AsRef<[u8]> + Sync>(
             a.shadowed += b.shadowed;
             Ok(a)
         })
-        .map_err(|e: Corruption| Error::format(scene.path(), e.into()))?;
+        .map_err(|e: TraceError| Error::format(scene.path(), e.into()))?;
     let stats = RenderStats {
         width: opts.width,
         height: opts.height,
@@ -103,15 +103,12 @@ fn shade(
     ray: &Ray,
     light: [f32; 3],
     s: &mut RenderStats,
-) -> Result<Option<[f64; 3]>, Corruption> {
+) -> Result<Option<[f64; 3]>, TraceError> {
     let Some(hit) = tree.intersect(ray, &mut s.primary)? else {
         return Ok(None);
     };
     s.hits += 1;
-    let Some(tri) = tree.triangle(hit.tri) else {
-        return Ok(None);
-    };
-    let v = tri.v.map(|p| p.map(|c| c as f64));
+    let v = hit.v.map(|p| p.map(|c| c as f64));
     let mut n = normalize(cross(sub(v[1], v[0]), sub(v[2], v[0])));
     let d = ray.dir.map(|c| c as f64);
     if n[0] * d[0] + n[1] * d[1] + n[2] * d[2] > 0.0 {

@@ -785,16 +785,19 @@ fn trace_rejects_bad_files_clearly() {
     let err = batch_fails(&bunny_ply(), &rays_path, &bunny_ply());
     assert!(err.contains("not an .oavm file"), "{err}");
 
-    // Another format version: the version is checked before the header checksum, and the
-    // message says what to do.
-    let v2 = d.join("v2.oavm");
-    let mut b = bytes.clone();
-    b[8..12].copy_from_slice(&2u32.to_le_bytes());
-    fs::write(&v2, &b).unwrap();
-    let err = batch_fails(&v2, &rays_path, &v2);
-    assert!(err.contains("version 2"), "{err}");
-    assert!(err.contains("repack"), "{err}");
-    assert!(!err.contains("checksum"), "{err}");
+    // Another format version (the previous one, 1, or a future one): the version is checked
+    // before the header checksum, and the message says what to do.
+    for version in [1u32, 3] {
+        let other = d.join(format!("v{version}.oavm"));
+        let mut b = bytes.clone();
+        b[8..12].copy_from_slice(&version.to_le_bytes());
+        fs::write(&other, &b).unwrap();
+        let err = batch_fails(&other, &rays_path, &other);
+        assert!(err.contains(&format!("version {version}")), "{err}");
+        assert!(err.contains("reads version 2"), "{err}");
+        assert!(err.contains("repack"), "{err}");
+        assert!(!err.contains("checksum"), "{err}");
+    }
 
     // A header bit flipped elsewhere: the header checksum.
     let flipped = d.join("flipped-header.oavm");

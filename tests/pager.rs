@@ -136,9 +136,37 @@ impl Synth {
     }
 }
 
+/// A pager with the file it reads (the pager itself keeps no reference to it).
+struct Bound<'a, S: BlockSource> {
+    pager: Pager,
+    src: &'a S,
+    dir: &'a [BlockEntry],
+}
+
+impl<'a, S: BlockSource> Bound<'a, S> {
+    fn new(src: &'a S, dir: &'a [BlockEntry], opts: PagerOptions) -> Self {
+        Bound {
+            pager: Pager::new(dir, opts),
+            src,
+            dir,
+        }
+    }
+
+    fn get(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError> {
+        self.pager.get(self.src, self.dir, block, c)
+    }
+}
+
+impl<S: BlockSource> std::ops::Deref for Bound<'_, S> {
+    type Target = Pager;
+    fn deref(&self) -> &Pager {
+        &self.pager
+    }
+}
+
 /// One get, checked: the bytes are the block's and 8-aligned, and the counters moved by
 /// exactly one hit, or one miss that read (and decompressed) exactly this block.
-fn checked_get<S: BlockSource>(p: &Pager<S>, s: &Synth, b: u32, c: &mut PageCounters) {
+fn checked_get<S: BlockSource>(p: &Bound<S>, s: &Synth, b: u32, c: &mut PageCounters) {
     let before = *c;
     let bytes = p.get(b, c).unwrap_or_else(|e| panic!("{e}"));
     assert!(
@@ -177,7 +205,7 @@ fn checked_get<S: BlockSource>(p: &Pager<S>, s: &Synth, b: u32, c: &mut PageCoun
 
 /// `gets` random gets on each of `threads` threads of a local pool; the counters of each.
 fn run_threads<S: BlockSource>(
-    p: &Pager<S>,
+    p: &Bound<S>,
     s: &Synth,
     threads: usize,
     gets: usize,
@@ -209,7 +237,7 @@ fn sum(cs: &[PageCounters]) -> PageCounters {
 }
 
 /// The bound of the module docs: the effective budget plus one block per thread in `get`.
-fn check_bound<S: BlockSource>(p: &Pager<S>, s: &Synth, threads: usize, what: &str) {
+fn check_bound<S: BlockSource>(p: &Bound<S>, s: &Synth, threads: usize, what: &str) {
     let bound = p.budget().saturating_add(threads as u64 * s.max_raw_len);
     assert!(
         p.peak_resident_bytes() <= bound,
@@ -236,7 +264,7 @@ fn every_block_reads_back_under_any_budget_and_threads() {
         for budget in [u64::MAX, total / 4, 1, 0] {
             for threads in [1, 2, 4, 8] {
                 let what = format!("{mix:?}, budget {budget}, {threads} threads");
-                let p = Pager::new(&src, &s.dir, s.opts(budget, threads));
+                let p = Bound::new(&src, &s.dir, s.opts(budget, threads));
                 // Every block once, in order, then random gets on all the threads.
                 let mut first = PageCounters::default();
                 for b in 0..s.blocks.len() as u32 {
@@ -298,7 +326,7 @@ fn evicted_raw_blocks_are_released_whole_and_accounted() {
             released: Mutex::new(Vec::new()),
         };
         let budget = 3 * s.max_raw_len;
-        let p = Pager::new(&src, &s.dir, s.opts(budget, threads));
+        let p = Bound::new(&src, &s.dir, s.opts(budget, threads));
         assert_eq!(
             p.budget(),
             budget,
@@ -342,7 +370,7 @@ fn clock_gives_a_block_got_again_a_second_chance() {
         prefetched: Mutex::new(Vec::new()),
         released: Mutex::new(Vec::new()),
     };
-    let p = Pager::new(&src, &s.dir, s.opts(3000, 1));
+    let p = Bound::new(&src, &s.dir, s.opts(3000, 1));
     let mut c = PageCounters::default();
     let mut trace = String::new();
     for b in [0, 1, 2, 3, 1, 4, 1, 3, 4, 2] {
@@ -365,7 +393,7 @@ fn clock_gives_a_block_got_again_a_second_chance() {
     assert_eq!(p.resident_bytes(), 3000);
     assert_eq!(p.peak_resident_bytes(), 4000);
 
-    let p = Pager::new(&src, &s.dir, s.opts(u64::MAX, 1));
+    let p = Bound::new(&src, &s.dir, s.opts(u64::MAX, 1));
     let mut c = PageCounters::default();
     for _ in 0..3 {
         for b in 0..10 {
@@ -384,7 +412,7 @@ fn a_slot_freed_by_a_failed_decode_is_used_before_any_blocks() {
     let off = s.dir[x].offset as usize;
     s.file[off + 5] ^= 0xff;
     let src = s.source();
-    let p = Pager::new(&src, &s.dir, s.opts(0, 2));
+    let p = Bound::new(&src, &s.dir, s.opts(0, 2));
     assert_eq!(p.slot_count(), 3);
     let mut c = PageCounters::default();
     let mut trace = String::new();
@@ -433,7 +461,7 @@ fn zstd_slots_hold_at_most_their_share() {
     let s = Synth::build(40, Mix::Zstd, 20_000, 31);
     let src = s.source();
     for (budget, threads) in [(0, 1), (0, 8), (5 * s.max_raw_len, 2), (u64::MAX, 4)] {
-        let p = Pager::new(&src, &s.dir, s.opts(budget, threads));
+        let p = Bound::new(&src, &s.dir, s.opts(budget, threads));
         let slots = if budget == u64::MAX {
             40
         } else {
@@ -459,7 +487,7 @@ fn zstd_slots_hold_at_most_their_share() {
 fn expect_bad(s: &Synth, b: u32, expect: &str) {
     let src = s.source();
     for budget in [u64::MAX, 0] {
-        let p = Pager::new(&src, &s.dir, s.opts(budget, 2));
+        let p = Bound::new(&src, &s.dir, s.opts(budget, 2));
         let mut c = PageCounters::default();
         let first = p.get(b, &mut c).err().expect("a bad block gives an error");
         assert_eq!(first.block, b);
@@ -491,7 +519,7 @@ fn expect_bad(s: &Synth, b: u32, expect: &str) {
         assert!(errors.iter().all(|e| e.as_ref() == Some(&first)));
     }
     // And a fresh pager, on 4 threads at once: every thread gets the error.
-    let p = Pager::new(&src, &s.dir, s.opts(0, 4));
+    let p = Bound::new(&src, &s.dir, s.opts(0, 4));
     let errors: Vec<Option<PageError>> = rayon::ThreadPoolBuilder::new()
         .num_threads(4)
         .build()
@@ -554,7 +582,7 @@ fn directory_entries_outside_the_file_or_misaligned_are_errors() {
     expect_bad(&bad, b as u32, "unknown codec 7");
     // Blocks the directory does not have.
     let src = s.source();
-    let p = Pager::new(&src, &s.dir, s.opts(0, 1));
+    let p = Bound::new(&src, &s.dir, s.opts(0, 1));
     for b in [12, 1000, u32::MAX] {
         let e = p.get(b, &mut PageCounters::default()).err().unwrap();
         assert_eq!(e.block, b);
@@ -656,7 +684,7 @@ fn eight_threads_on_the_fewest_slots_finish() {
         let s = Synth::build(48, Mix::Mixed, 6000, 81);
         let src = s.source();
         // Budget 0: nine slots for eight threads, and raw blocks evicted after every use.
-        let p = Pager::new(&src, &s.dir, s.opts(0, 8));
+        let p = Bound::new(&src, &s.dir, s.opts(0, 8));
         assert_eq!(p.slot_count(), 9);
         let c = sum(&run_threads(&p, &s, 8, 100_000 / 8, 91));
         assert_eq!(c.requested, 100_000);
@@ -677,7 +705,7 @@ fn a_mapped_file_pages_in_and_out() {
     assert_eq!(map.bytes(), &s.file[..]);
     for threads in [1, 4] {
         // A budget below one block (raised to the zstd slots'): raw blocks are released.
-        let p = Pager::new(&map, &s.dir, s.opts(1000, threads));
+        let p = Bound::new(&map, &s.dir, s.opts(1000, threads));
         let mut c = sum(&run_threads(&p, &s, threads, 1500, 103));
         for b in 0..40 {
             checked_get(&p, &s, b, &mut c);
@@ -693,7 +721,7 @@ fn a_mapped_file_pages_in_and_out() {
     let path = dir.path().join("bad.bin");
     std::fs::write(&path, &bad).unwrap();
     let map = MappedFile::open(&path).unwrap();
-    let p = Pager::new(&map, &s.dir, s.opts(1000, 1));
+    let p = Bound::new(&map, &s.dir, s.opts(1000, 1));
     let e = p.get(b as u32, &mut PageCounters::default()).err().unwrap();
     assert!(e.to_string().contains("checksum mismatch"), "{e}");
     checked_get(&p, &s, (b + 1) as u32, &mut PageCounters::default());

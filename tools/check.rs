@@ -178,7 +178,10 @@ fn parse_args(args: impl Iterator<Item = String>) -> Result<Option<Config>, Stri
 /// One kind of answer (closest hit or any hit), from each of the three tracers.
 trait Answer: Copy + PartialEq + Send + Sync {
     const QUERY: &'static str;
-    fn oavm<D: AsRef<[u8]> + Sync>(scene: &Scene<D>, rays: &[Ray]) -> Result<Vec<Self>, String>;
+    fn oavm<D: AsRef<[u8]> + oavm::physical::pager::BlockSource>(
+        scene: &Scene<D>,
+        rays: &[Ray],
+    ) -> Result<Vec<Self>, String>;
     fn brute(mesh: &Mesh, ray: &Ray) -> Self;
     /// Brute force in f64 ([`exact_hit`]): shares no code with OAVM, for judging disagreements.
     fn exact(mesh: &Mesh, ray: &Ray) -> Self;
@@ -193,7 +196,10 @@ trait Answer: Copy + PartialEq + Send + Sync {
 
 impl Answer for Hit {
     const QUERY: &'static str = "closest";
-    fn oavm<D: AsRef<[u8]> + Sync>(scene: &Scene<D>, rays: &[Ray]) -> Result<Vec<Hit>, String> {
+    fn oavm<D: AsRef<[u8]> + oavm::physical::pager::BlockSource>(
+        scene: &Scene<D>,
+        rays: &[Ray],
+    ) -> Result<Vec<Hit>, String> {
         let mut out = vec![Hit::MISS; rays.len()];
         scene
             .intersect_batch(rays, &mut out)
@@ -230,7 +236,10 @@ impl Answer for Hit {
 
 impl Answer for bool {
     const QUERY: &'static str = "any";
-    fn oavm<D: AsRef<[u8]> + Sync>(scene: &Scene<D>, rays: &[Ray]) -> Result<Vec<bool>, String> {
+    fn oavm<D: AsRef<[u8]> + oavm::physical::pager::BlockSource>(
+        scene: &Scene<D>,
+        rays: &[Ray],
+    ) -> Result<Vec<bool>, String> {
         let mut out = vec![0u8; rays.len()];
         scene
             .occluded_batch(rays, &mut out)
@@ -348,7 +357,7 @@ fn stride_for(len: usize, want: usize) -> usize {
 
 /// Compares `ours[i]` with `theirs[j]` for the pairs `(i, j)` of `pairs`.
 fn compare<A: Answer>(
-    ctx: &Ctx<'_, impl AsRef<[u8]> + Sync>,
+    ctx: &Ctx<'_, impl AsRef<[u8]> + oavm::physical::pager::BlockSource>,
     rays: &[Ray],
     ours: &[A],
     pairs: impl Iterator<Item = (usize, A)>,
@@ -534,7 +543,7 @@ struct SetReport {
 
 /// Traces `rays` with OAVM and compares with brute force (strided subset) and obvhs (every ray).
 fn check_set<A: Answer>(
-    ctx: &Ctx<'_, impl AsRef<[u8]> + Sync>,
+    ctx: &Ctx<'_, impl AsRef<[u8]> + oavm::physical::pager::BlockSource>,
     name: &'static str,
     rays: &[Ray],
 ) -> Result<(SetReport, Vec<A>), String> {

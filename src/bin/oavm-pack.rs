@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use oavm::build::{self, BuildOptions, PackReport};
 use oavm::cli::{Progress, main_with, with_threads};
+use oavm::physical::writer::BlockOptions;
 
 /// Packs a triangle mesh (PLY, OBJ, or a BART AFF scene posed at one time) into an .oavm file: a Morton-ordered octree with merged
 /// empty volumes, ready to be memory-mapped and traced by oavm-trace.
@@ -30,6 +31,14 @@ struct Args {
     /// for other formats.
     #[arg(long, value_name = "T", allow_negative_numbers = true)]
     time: Option<f64>,
+    /// Target size of a block (the unit of paging), e.g. 256K or 1M.
+    #[arg(long, value_name = "SIZE", value_parser = oavm::cli::parse_bytes, default_value = "256K")]
+    block_size: u64,
+    /// Store blocks zstd-compressed, at LEVEL (default 3; 1-22, higher is smaller and slower
+    /// to pack; tracing speed hardly depends on it). A block that does not shrink stays raw.
+    #[arg(long, value_name = "LEVEL", num_args = 0..=1, require_equals = true,
+          default_missing_value = "3", allow_negative_numbers = true)]
+    compress: Option<i32>,
     /// Print the report as one JSON object.
     #[arg(long)]
     json: bool,
@@ -47,9 +56,14 @@ fn main() -> ExitCode {
             merge: !args.no_merge,
         };
         opts.validate()?;
+        let blocks = BlockOptions {
+            block_size: args.block_size,
+            compress: args.compress,
+        };
+        blocks.validate()?;
         let progress = Progress::new(std::io::stderr().is_terminal());
         let report = with_threads(args.threads, || {
-            build::pack_at(&args.mesh, args.time, &args.out, &opts, &|m| {
+            build::pack_with(&args.mesh, args.time, &args.out, &opts, &blocks, &|m| {
                 progress.set(m)
             })
         })?;
@@ -138,6 +152,18 @@ fn human(r: &PackReport) -> String {
         format!(
             "{} ({} bytes, {:.1} bytes per triangle)",
             r.output, r.file_bytes, r.bytes_per_triangle
+        ),
+    );
+    line(
+        "blocks",
+        format!(
+            "{} of about {} KiB, {}",
+            r.block_count,
+            r.blocks.block_size >> 10,
+            match r.blocks.compress {
+                Some(level) => format!("zstd level {level}"),
+                None => "raw".to_string(),
+            }
         ),
     );
     line(

@@ -24,7 +24,7 @@ use crate::physical::format::{
     LeafBounds, LevelEntry, MAX_INLINE_REFS, NodeRecord, RankWord, TriRecord, VolumeRecord,
     VolumeShape,
 };
-use crate::physical::writer::TreeParts;
+use crate::physical::writer::{BlockOptions, TreeParts};
 use subdivide::{BuildLevel, BuildNode, LatticeTri, SubdivideParams};
 
 /// Build options. The defaults were chosen by measurement (see `tools/tune.rs` and the README).
@@ -548,6 +548,10 @@ pub struct PackReport {
     pub write_seconds: f64,
     pub file_bytes: u64,
     pub bytes_per_triangle: f64,
+    /// How blocks were made, and how many.
+    #[serde(rename = "block_options")]
+    pub blocks: BlockOptions,
+    pub block_count: u32,
     pub total_seconds: f64,
 }
 
@@ -571,7 +575,27 @@ pub fn pack_at(
     opts: &BuildOptions,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<PackReport, Error> {
+    pack_with(
+        mesh_path,
+        time,
+        out,
+        opts,
+        &BlockOptions::default(),
+        progress,
+    )
+}
+
+/// [`pack_at`] with the file's blocks made and stored as `blocks` says.
+pub fn pack_with(
+    mesh_path: &std::path::Path,
+    time: Option<f64>,
+    out: &std::path::Path,
+    opts: &BuildOptions,
+    blocks: &BlockOptions,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<PackReport, Error> {
     opts.validate()?;
+    blocks.validate()?;
     let t0 = Instant::now();
     progress("parsing the mesh");
     let mesh_bytes = std::fs::metadata(mesh_path).map(|m| m.len()).unwrap_or(0);
@@ -583,11 +607,9 @@ pub fn pack_at(
 
     progress("writing");
     let t1 = Instant::now();
-    let bytes = crate::physical::writer::encode(&parts);
+    let (file_bytes, block_count) = crate::physical::writer::write_file(out, &parts, blocks)?;
     drop(parts);
-    crate::physical::writer::write_atomic(out, bytes.as_ref())?;
     let write_seconds = t1.elapsed().as_secs_f64();
-    let file_bytes = bytes.as_ref().len() as u64;
     Ok(PackReport {
         mesh: mesh_path.display().to_string(),
         time,
@@ -600,6 +622,8 @@ pub fn pack_at(
         stats,
         write_seconds,
         file_bytes,
+        blocks: *blocks,
+        block_count,
         total_seconds: t0.elapsed().as_secs_f64(),
     })
 }

@@ -9,34 +9,89 @@ use rayon::prelude::*;
 
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
-use crate::mapping::Corruption;
+use crate::mapping::TreeMap;
+use crate::physical::format::SectionKind;
+use crate::physical::pager::{
+    BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions,
+};
 use crate::physical::verify::VerifyReport;
 use crate::physical::{MappedFile, OavmFile};
-pub use trace::{Counters, HitInfo, Tree};
+pub use trace::{BlockFetch, Counters, HitInfo, TraceError, Tree};
 
-/// An opened `.oavm` file, ready to trace. Opening reads the header, section table and level
-/// table only: its cost does not grow with the file.
-pub struct Scene<D = MappedFile> {
-    file: OavmFile<D>,
-    path: PathBuf,
+/// How an opened file is traced.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneOptions {
+    /// Bytes of decoded blocks the pager may keep resident (`u64::MAX`: no limit). The top tree
+    /// and block directory are not counted (they are small and always resident).
+    pub mem_budget: u64,
+    /// Threads that will trace at once (the pager keeps at least one cache slot per thread, plus
+    /// one); 0: rayon's current pool size.
+    pub threads: usize,
 }
 
-impl Scene<MappedFile> {
-    /// Maps and opens the file at `path`.
-    pub fn open(path: impl AsRef<Path>) -> Result<Scene<MappedFile>, Error> {
-        let path = path.as_ref();
-        let map = MappedFile::open(path).map_err(|e| Error::io(path, e))?;
-        map.advise(memmap2::Advice::Random);
-        Scene::from_bytes(map, path)
+impl Default for SceneOptions {
+    fn default() -> Self {
+        SceneOptions {
+            mem_budget: u64::MAX,
+            threads: 0,
+        }
     }
 }
 
-impl<D: AsRef<[u8]>> Scene<D> {
+/// An opened `.oavm` file, ready to trace. Opening reads the header, section table and top
+/// tree's level table only, and sets up the pager: its cost does not grow with the file.
+pub struct Scene<D = MappedFile> {
+    file: OavmFile<D>,
+    path: PathBuf,
+    pager: Pager,
+}
+
+impl Scene<MappedFile> {
+    /// Maps and opens the file at `path`, with no memory budget.
+    pub fn open(path: impl AsRef<Path>) -> Result<Scene<MappedFile>, Error> {
+        Self::open_with(path, &SceneOptions::default())
+    }
+
+    /// Maps and opens the file at `path`.
+    pub fn open_with(
+        path: impl AsRef<Path>,
+        opts: &SceneOptions,
+    ) -> Result<Scene<MappedFile>, Error> {
+        let path = path.as_ref();
+        let map = MappedFile::open(path).map_err(|e| Error::io(path, e))?;
+        map.advise(memmap2::Advice::Random);
+        Scene::from_bytes_with(map, path, opts)
+    }
+}
+
+impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     /// Opens `data` as an `.oavm` file; `path` names it in errors.
     pub fn from_bytes(data: D, path: impl Into<PathBuf>) -> Result<Scene<D>, Error> {
+        Self::from_bytes_with(data, path, &SceneOptions::default())
+    }
+
+    /// Opens `data` as an `.oavm` file with `opts`; `path` names it in errors.
+    pub fn from_bytes_with(
+        data: D,
+        path: impl Into<PathBuf>,
+        opts: &SceneOptions,
+    ) -> Result<Scene<D>, Error> {
         let path = path.into();
         let file = OavmFile::open(data).map_err(|e| Error::format(&path, e))?;
-        Ok(Scene { file, path })
+        let threads = if opts.threads == 0 {
+            rayon::current_num_threads()
+        } else {
+            opts.threads
+        };
+        let pager = Pager::new(
+            file.directory(),
+            PagerOptions {
+                budget: opts.mem_budget,
+                threads,
+                max_raw_len: file.header().max_block_raw_len,
+            },
+        );
+        Ok(Scene { file, path, pager })
     }
 
     pub fn file(&self) -> &OavmFile<D> {
@@ -47,8 +102,19 @@ impl<D: AsRef<[u8]>> Scene<D> {
         &self.path
     }
 
+    /// The pager (for its resident-bytes figures).
+    pub fn pager(&self) -> &Pager {
+        &self.pager
+    }
+
     pub fn tree(&self) -> Tree<'_> {
-        Tree::new(&self.file)
+        let h = self.file.header();
+        let top = TreeMap::new(
+            self.file.levels(),
+            self.file.records(SectionKind::Nodes),
+            self.file.records(SectionKind::Ranks),
+        );
+        Tree::new(top, self.file.directory(), self, h.root_min, h.root_size)
     }
 
     /// Checks every section and checksum (see [`crate::physical::verify`]).
@@ -56,7 +122,7 @@ impl<D: AsRef<[u8]>> Scene<D> {
         crate::physical::verify::verify(&self.file)
     }
 
-    fn corrupt(&self, e: impl Into<FormatError>) -> Error {
+    pub fn corrupt(&self, e: impl Into<FormatError>) -> Error {
         Error::format(&self.path, e.into())
     }
 
@@ -82,7 +148,7 @@ impl<D: AsRef<[u8]>> Scene<D> {
         &self,
         rays: &[Ray],
         out: &mut [T],
-        answer: impl Fn(&Ray, &mut Counters) -> Result<T, Corruption> + Sync,
+        answer: impl Fn(&Ray, &mut Counters) -> Result<T, TraceError> + Sync,
     ) -> Result<Counters, Error> {
         if rays.len() != out.len() {
             return Err(Error::Invalid(format!(
@@ -100,7 +166,14 @@ impl<D: AsRef<[u8]>> Scene<D> {
                 Ok(c)
             })
             .try_reduce(Counters::default, |a, b| Ok(a + b))
-            .map_err(|e: Corruption| self.corrupt(e))
+            .map_err(|e: TraceError| self.corrupt(e))
+    }
+}
+
+impl<D: AsRef<[u8]> + BlockSource> BlockFetch for Scene<D> {
+    fn fetch(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError> {
+        self.pager
+            .get(self.file.data(), self.file.directory(), block, c)
     }
 }
 

@@ -39,8 +39,9 @@ use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
-use crate::physical::file::OavmFile;
-use crate::physical::format::{CELL_MARGIN, SectionKind, TriRecord, leaf_refs};
+use crate::physical::file::{BlockView, block_view};
+use crate::physical::format::{BlockEntry, CELL_MARGIN, TriRecord, leaf_refs};
+use crate::physical::pager::{BlockBytes, PageCounters, PageError};
 
 /// Work counters of a batch of rays (summed over its rays).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -56,6 +57,10 @@ pub struct Counters {
     pub leaves_culled: u64,
     /// Ray–triangle tests.
     pub triangles_tested: u64,
+    /// Blocks asked of the pager (each time a walk moves into another block), with its hits,
+    /// misses and bytes.
+    #[serde(flatten)]
+    pub page: PageCounters,
 }
 
 impl std::ops::AddAssign for Counters {
@@ -66,6 +71,7 @@ impl std::ops::AddAssign for Counters {
         self.volumes_crossed += o.volumes_crossed;
         self.leaves_culled += o.leaves_culled;
         self.triangles_tested += o.triangles_tested;
+        self.page += o.page;
     }
 }
 
@@ -77,59 +83,156 @@ impl std::ops::Add for Counters {
     }
 }
 
-/// A closest hit, with the index of the triangle record hit (for shading).
+/// A closest hit, with the triangle hit (for shading).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HitInfo {
     pub t: f32,
     pub prim: u32,
-    /// Index of the triangle in the file's triangles section.
-    pub tri: u32,
+    /// The corners of the triangle hit.
+    pub v: [[f32; 3]; 3],
 }
 
-/// A read-only view of a file's tree, ready for tracing. Cheap to make (no allocation, no scan).
+/// Why a walk stopped short: bytes that break the format, or a block the pager could not give.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TraceError {
+    Corrupt(Corruption),
+    Page(PageError),
+}
+
+impl From<Corruption> for TraceError {
+    fn from(c: Corruption) -> Self {
+        TraceError::Corrupt(c)
+    }
+}
+
+impl From<PageError> for TraceError {
+    fn from(e: PageError) -> Self {
+        TraceError::Page(e)
+    }
+}
+
+impl std::fmt::Display for TraceError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TraceError::Corrupt(c) => c.fmt(f),
+            TraceError::Page(e) => e.fmt(f),
+        }
+    }
+}
+
+impl From<TraceError> for crate::error::FormatError {
+    fn from(e: TraceError) -> Self {
+        crate::error::FormatError::Corrupt(e.to_string())
+    }
+}
+
+/// Where a tree's blocks come from: the pager of an opened file.
+pub trait BlockFetch: Sync {
+    /// The raw bytes of block `block`, counting the request in `c`.
+    fn fetch(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError>;
+}
+
+/// A read-only view of a file's tree, ready for tracing: the top tree (always resident) and the
+/// blocks, reached through a pager. Cheap to make (no allocation, no scan).
 #[derive(Clone, Copy)]
 pub struct Tree<'a> {
-    map: TreeMap<'a>,
-    refs: &'a [u32],
-    tris: &'a [TriRecord],
+    top: TreeMap<'a>,
+    directory: &'a [BlockEntry],
+    blocks: &'a dyn BlockFetch,
     root_min: [f64; 3],
     /// Lattice cells per world unit.
     scale: f64,
 }
 
+/// A block being walked: its id and its records.
+struct Held<'v> {
+    id: u32,
+    root_level: u32,
+    root_count: u32,
+    map: TreeMap<'v>,
+    refs: &'v [u32],
+    tris: &'v [TriRecord],
+}
+
+impl<'v> Held<'v> {
+    fn new(id: u32, v: &BlockView<'v>) -> Held<'v> {
+        Held {
+            id,
+            root_level: v.header.root_level,
+            root_count: v.header.root_count,
+            map: TreeMap::with_base(v.levels, v.nodes, v.ranks, v.header.root_level),
+            refs: v.refs,
+            tris: v.triangles,
+        }
+    }
+}
+
+/// The ray in lattice space, and what the walk derives from it once.
+struct RayCtx {
+    o: [f64; 3],
+    d: [f64; 3],
+    inv: [f64; 3],
+    oi: [f64; 3],
+    moves: [bool; 3],
+    fwd: [bool; 3],
+    shear: RayShear,
+    tmin: f32,
+    t1: f64,
+}
+
+/// Where a walk is: its cell, the ancestors of its leaf, the block it is in, its best hit.
+struct WalkState {
+    q: [u32; 3],
+    /// Level of the lowest common ancestor of `q` and the previous leaf.
+    level: u32,
+    /// Ancestors of the current leaf in the top tree, by absolute level (up to the link).
+    tpath: [u64; 32],
+    /// Ancestors of the current leaf inside its block, by absolute level (from the root).
+    bpath: [u64; 32],
+    /// The block of the current leaf and its roots' level, if it is in a block.
+    cur: Option<(u32, u32)>,
+    best: Option<HitInfo>,
+    t_best: f32,
+    t_stop: f64,
+}
+
+/// What a walk through the blocks it holds ends with.
+enum Step {
+    Done(Option<HitInfo>),
+    /// It must move into this block.
+    Need(u32),
+}
+
 impl<'a> Tree<'a> {
-    pub fn new<D: AsRef<[u8]>>(file: &'a OavmFile<D>) -> Tree<'a> {
-        let h = file.header();
-        let map = TreeMap::new(
-            file.levels(),
-            file.records(SectionKind::Nodes),
-            file.records(SectionKind::Ranks),
-        );
+    /// A tree over a validated top tree, the (untrusted) block directory and a pager.
+    pub fn new(
+        top: TreeMap<'a>,
+        directory: &'a [BlockEntry],
+        blocks: &'a dyn BlockFetch,
+        root_min: [f64; 3],
+        root_size: f64,
+    ) -> Tree<'a> {
         Tree {
-            map,
-            refs: file.records(SectionKind::Refs),
-            tris: file.records(SectionKind::Triangles),
-            root_min: h.root_min,
-            scale: LATTICE_SIZE as f64 / h.root_size,
+            top,
+            directory,
+            blocks,
+            root_min,
+            scale: LATTICE_SIZE as f64 / root_size,
         }
     }
 
+    /// The top tree.
     pub fn map(&self) -> &TreeMap<'a> {
-        &self.map
-    }
-
-    /// The triangle record `tri` (as in [`HitInfo::tri`]).
-    pub fn triangle(&self, tri: u32) -> Option<&'a TriRecord> {
-        self.tris.get(tri as usize)
+        &self.top
     }
 
     /// Closest hit of `ray` with `tmin <= t <= tmax`, or `None`.
-    pub fn intersect(&self, ray: &Ray, c: &mut Counters) -> Result<Option<HitInfo>, Corruption> {
+    pub fn intersect(&self, ray: &Ray, c: &mut Counters) -> Result<Option<HitInfo>, TraceError> {
         self.walk::<false>(ray, c)
     }
 
     /// Whether any triangle is hit with `tmin <= t <= tmax`; stops at the first one found.
-    pub fn occluded(&self, ray: &Ray, c: &mut Counters) -> Result<bool, Corruption> {
+    pub fn occluded(&self, ray: &Ray, c: &mut Counters) -> Result<bool, TraceError> {
         Ok(self.walk::<true>(ray, c)?.is_some())
     }
 
@@ -137,7 +240,7 @@ impl<'a> Tree<'a> {
         &self,
         ray: &Ray,
         c: &mut Counters,
-    ) -> Result<Option<HitInfo>, Corruption> {
+    ) -> Result<Option<HitInfo>, TraceError> {
         c.rays += 1;
         if !ray.is_valid() {
             return Ok(None);
@@ -179,31 +282,133 @@ impl<'a> Tree<'a> {
         if !(t0 <= t1) {
             return Ok(None);
         }
-        let mut q: [u32; 3] =
-            std::array::from_fn(|k| clamp_floor(o[k] + t0 * d[k], 0, LATTICE_SIZE - 1));
-
-        let shear = RayShear::new(ray);
-        let tmin = ray.tmin;
-        let mut best: Option<HitInfo> = None;
-        let mut t_best = ray.tmax;
-        let mut t_stop = t1;
-        // Indices of the current leaf's ancestors by level (32 entries: `level & 31` needs no
-        // bounds check).
-        let mut path = [0u64; 32];
-        let mut level = 0u32;
+        let ctx = RayCtx {
+            o,
+            d,
+            inv,
+            oi,
+            moves,
+            fwd,
+            shear: RayShear::new(ray),
+            tmin: ray.tmin,
+            t1,
+        };
+        let mut w = WalkState {
+            q: std::array::from_fn(|k| clamp_floor(o[k] + t0 * d[k], 0, LATTICE_SIZE - 1)),
+            level: 0,
+            tpath: [0; 32],
+            bpath: [0; 32],
+            cur: None,
+            best: None,
+            t_best: ray.tmax,
+            t_stop: t1,
+        };
         let mut k = Counters::default();
+        // Each turn holds one block (none at first): the walk goes on through the top tree and
+        // that block until it needs another, whose bytes the next turn fetches after this
+        // turn's are let go (so a thread never holds two blocks).
+        let mut need: Option<u32> = None;
         let result = loop {
-            // 1. Locate the leaf containing q, from the common ancestor down.
-            let rec;
-            (level, rec) = match self.map.descend(level, &mut path, q, &mut k.nodes_visited) {
-                Ok(found) => found,
-                Err(e) => break Err(e),
+            let bytes = match need {
+                None => None,
+                Some(b) => match self.blocks.fetch(b, &mut k.page) {
+                    Ok(bytes) => Some((b, bytes)),
+                    Err(e) => break Err(e.into()),
+                },
+            };
+            let view = match &bytes {
+                None => None,
+                Some((b, bytes)) => {
+                    let checked = match self.directory.get(*b as usize) {
+                        Some(e) => block_view(bytes, *b, e),
+                        None => Err("link to a block past the directory"),
+                    };
+                    match checked {
+                        Ok(v) => Some(Held::new(*b, &v)),
+                        Err(what) => {
+                            break Err(TraceError::Corrupt(Corruption {
+                                what,
+                                block: Some(*b),
+                                level: 0,
+                                index: 0,
+                            }));
+                        }
+                    }
+                }
+            };
+            match self.walk_in::<ANY>(&ctx, &mut w, view.as_ref(), &mut k) {
+                Ok(Step::Done(best)) => break Ok(best),
+                Ok(Step::Need(b)) => need = Some(b),
+                Err(e) => break Err(e.into()),
+            }
+        };
+        *c += k;
+        result
+    }
+
+    /// Walks on from `w` through the top tree and the block `held` (if any) until the ray is
+    /// answered or needs another block.
+    fn walk_in<const ANY: bool>(
+        &self,
+        r: &RayCtx,
+        w: &mut WalkState,
+        held: Option<&Held<'_>>,
+        k: &mut Counters,
+    ) -> Result<Step, Corruption> {
+        loop {
+            // 1. Locate the leaf containing q, from the common ancestor down: in the block the
+            // walk is in while the ancestor is inside it, else from the top tree, following a
+            // link into a block.
+            let in_block = match (w.cur, held) {
+                (Some((b, rl)), Some(h)) => b == h.id && w.level >= rl,
+                _ => false,
+            };
+            let (level, rec) = if in_block {
+                self.descend_block(w, held, k)?
+            } else {
+                let (level, rec) =
+                    self.top
+                        .descend(w.level, &mut w.tpath, w.q, &mut k.nodes_visited)?;
+                if rec.kind_bits() == 3 {
+                    let (b, root) = rec.link_bits();
+                    w.cur = Some((b, level));
+                    w.level = level;
+                    w.bpath[(level & 31) as usize] = root as u64;
+                    // The link itself was counted as a visit; its block's root is the same node.
+                    k.nodes_visited -= 1;
+                    match held {
+                        Some(h) if h.id == b => self.descend_block(w, held, k)?,
+                        _ => return Ok(Step::Need(b)),
+                    }
+                } else {
+                    w.cur = None;
+                    (level, rec)
+                }
             };
             k.leaves_visited += 1;
+            let (tris, refs) = match (w.cur, held) {
+                (Some(_), Some(h)) => (h.tris, h.refs),
+                _ => (&[][..], &[][..]),
+            };
+            let block = w.cur.map(|(b, _)| b);
+            let bad = |what, level, index| Corruption {
+                what,
+                block,
+                level,
+                index,
+            };
 
             // 2. Cross it: the box the ray leaves, and the triangles on the way.
+            let q = w.q;
             let size = morton::cell_size(level);
             let cell_lo = q.map(|x| x & !(size - 1));
+            let path_index = |w: &WalkState| {
+                if block.is_some() {
+                    w.bpath[(level & 31) as usize]
+                } else {
+                    w.tpath[(level & 31) as usize]
+                }
+            };
             let (lo, hi) = match rec.kind_bits() {
                 0 => {
                     // Empty: its merged volume, rebuilt from the shape in the record (spec
@@ -211,61 +416,62 @@ impl<'a> Tree<'a> {
                     k.volumes_crossed += 1;
                     let shape = rec.shape_bits();
                     if shape.level as u32 > level {
-                        break Err(Corruption {
-                            what: "merged volume smaller than its leaf",
+                        return Err(bad(
+                            "merged volume smaller than its leaf",
                             level,
-                            index: path[(level & 31) as usize],
-                        });
+                            path_index(w),
+                        ));
                     }
                     shape.box_around(q)
                 }
-                1 => {
+                1 if block.is_some() => {
                     let (inline_count, b) = rec.solid_bits();
                     // The leaf's tight bounds (spec §4.2), widened by the cell margin: a ray that
                     // misses them over [tmin, best] cannot hit any of the leaf's triangles inside
                     // the cell, so their references and records are not even loaded.
                     let s16 = size as f64 / 16.0;
                     let q4 = |shift: u32| ((b >> shift) & 15) as f64;
-                    let (mut tn, mut tf) = (tmin as f64, t_best as f64);
+                    let (mut tn, mut tf) = (r.tmin as f64, w.t_best as f64);
                     let mut inside = true;
+                    // One index over several per-axis arrays.
+                    #[allow(clippy::needless_range_loop)]
                     for a in 0..3 {
                         let blo = cell_lo[a] as f64 + q4(4 * a as u32) * s16 - CELL_MARGIN;
                         let bhi =
                             cell_lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN;
-                        if moves[a] {
-                            let (x, y) = (blo * inv[a] - oi[a], bhi * inv[a] - oi[a]);
+                        if r.moves[a] {
+                            let (x, y) = (blo * r.inv[a] - r.oi[a], bhi * r.inv[a] - r.oi[a]);
                             tn = tn.max(x.min(y));
                             tf = tf.min(x.max(y));
                         } else {
-                            inside &= o[a] >= blo && o[a] <= bhi;
+                            inside &= r.o[a] >= blo && r.o[a] <= bhi;
                         }
                     }
                     if inside && tn <= tf {
-                        let Some((refs, _)) = leaf_refs(self.refs, rec.payload, inline_count)
-                        else {
-                            break Err(Corruption {
-                                what: "triangle references out of range",
+                        let Some((leaf, _)) = leaf_refs(refs, rec.payload, inline_count) else {
+                            return Err(bad(
+                                "triangle references out of range",
                                 level,
-                                index: rec.payload as u64,
-                            });
+                                rec.payload as u64,
+                            ));
                         };
-                        k.triangles_tested += refs.len() as u64;
+                        k.triangles_tested += leaf.len() as u64;
                         // Four triangles at a time; a short last group repeats its first
                         // triangle (a repeated hit changes nothing: ties keep the first).
-                        for group in refs.chunks(4) {
-                            let tri =
-                                |i: usize| self.tris.get(group[i.min(group.len() - 1)] as usize);
+                        for group in leaf.chunks(4) {
+                            let tri = |i: usize| tris.get(group[i.min(group.len() - 1)] as usize);
                             let (Some(r0), Some(r1), Some(r2), Some(r3)) =
                                 (tri(0), tri(1), tri(2), tri(3))
                             else {
-                                return Err(Corruption {
-                                    what: "triangle index out of range",
+                                return Err(bad(
+                                    "triangle index out of range",
                                     level,
-                                    index: rec.payload as u64,
-                                });
+                                    rec.payload as u64,
+                                ));
                             };
                             let (mut mask, ts) =
-                                shear.intersect4([&r0.v, &r1.v, &r2.v, &r3.v], tmin, t_best);
+                                r.shear
+                                    .intersect4([&r0.v, &r1.v, &r2.v, &r3.v], r.tmin, w.t_best);
                             while mask != 0 {
                                 let l = mask.trailing_zeros() as usize;
                                 mask &= mask - 1;
@@ -273,37 +479,40 @@ impl<'a> Tree<'a> {
                                 let hit = HitInfo {
                                     t,
                                     prim: rec_l.prim,
-                                    tri: group[l.min(group.len() - 1)],
+                                    v: rec_l.v,
                                 };
                                 if ANY {
-                                    *c += k;
-                                    return Ok(Some(hit));
+                                    return Ok(Step::Done(Some(hit)));
                                 }
-                                if best.is_none() || t < t_best {
-                                    t_best = t;
-                                    best = Some(hit);
+                                if w.best.is_none() || t < w.t_best {
+                                    w.t_best = t;
+                                    w.best = Some(hit);
                                 }
                             }
                         }
-                        t_stop = t1.min(t_best as f64);
+                        w.t_stop = r.t1.min(w.t_best as f64);
                     } else {
                         k.leaves_culled += 1;
                     }
                     (cell_lo, cell_lo.map(|x| x + size))
                 }
                 _ => {
-                    break Err(Corruption {
-                        what: "invalid leaf record",
+                    return Err(bad(
+                        if block.is_some() {
+                            "invalid leaf record"
+                        } else {
+                            "invalid leaf record in the top tree"
+                        },
                         level,
-                        index: path[(level & 31) as usize],
-                    });
+                        path_index(w),
+                    ));
                 }
             };
 
             // 3. Exit of the box (slab test on its far faces); stop where nothing closer remains.
             let te: [f64; 3] = std::array::from_fn(|a| {
-                let face = if fwd[a] { hi[a] } else { lo[a] };
-                face as f64 * inv[a] - oi[a]
+                let face = if r.fwd[a] { hi[a] } else { lo[a] };
+                face as f64 * r.inv[a] - r.oi[a]
             });
             // Branch-free: which axis is crossed first is unpredictable from ray to ray.
             let a01 = select_unpredictable(te[1] < te[0], 1usize, 0usize);
@@ -312,8 +521,8 @@ impl<'a> Tree<'a> {
             let t_exit = t01.min(te[2]);
             // Negated on purpose: a NaN bound must stop the walk.
             #[allow(clippy::neg_cmp_op_on_partial_ord)]
-            if !(t_exit < t_stop) {
-                break Ok(best);
+            if !(t_exit < w.t_stop) {
+                return Ok(Step::Done(w.best));
             }
 
             // 4. Step into the neighbour across the exit face: along the exit axis to `hi` or
@@ -322,25 +531,62 @@ impl<'a> Tree<'a> {
             let old = q;
             let mut next = [0u32; 3];
             for a in 0..3 {
-                let p = o[a] + t_exit * d[a];
-                let (lo_a, hi_a) = if fwd[a] {
+                let p = r.o[a] + t_exit * r.d[a];
+                let (lo_a, hi_a) = if r.fwd[a] {
                     (old[a], hi[a] - 1)
                 } else {
                     (lo[a], old[a])
                 };
-                let lateral = select_unpredictable(moves[a], clamp_floor(p, lo_a, hi_a), old[a]);
-                let across = select_unpredictable(fwd[a], hi[a], lo[a].wrapping_sub(1));
+                let lateral = select_unpredictable(r.moves[a], clamp_floor(p, lo_a, hi_a), old[a]);
+                let across = select_unpredictable(r.fwd[a], hi[a], lo[a].wrapping_sub(1));
                 next[a] = select_unpredictable(a == axis, across, lateral);
             }
             // Leaving the root: `hi` at the lattice's end, or `lo - 1` wrapping below 0.
             if next[axis] >= LATTICE_SIZE {
-                break Ok(best);
+                return Ok(Step::Done(w.best));
             }
-            q = next;
-            level = level.min(morton::common_level(old, q));
+            w.q = next;
+            w.level = level.min(morton::common_level(old, next));
+        }
+    }
+
+    /// Descends inside the held block from `w.level` to the leaf containing `w.q`; checks, when
+    /// starting from a root, that the root exists and the block is the link's.
+    #[inline(always)]
+    fn descend_block(
+        &self,
+        w: &mut WalkState,
+        held: Option<&Held<'_>>,
+        k: &mut Counters,
+    ) -> Result<(u32, crate::physical::format::NodeRecord), Corruption> {
+        let (Some((b, rl)), Some(h)) = (w.cur, held) else {
+            return Err(Corruption {
+                what: "walk inside a block it does not hold",
+                block: w.cur.map(|c| c.0),
+                level: w.level,
+                index: 0,
+            });
         };
-        *c += k;
-        result
+        let bad = |what| Corruption {
+            what,
+            block: Some(b),
+            level: rl,
+            index: w.bpath[(rl & 31) as usize],
+        };
+        if w.level == rl {
+            if h.root_level != rl {
+                return Err(bad("block roots are not at the level of their link"));
+            }
+            if w.bpath[(rl & 31) as usize] >= h.root_count as u64 {
+                return Err(bad("link to a root the block does not have"));
+            }
+        }
+        h.map
+            .descend(w.level, &mut w.bpath, w.q, &mut k.nodes_visited)
+            .map_err(|mut e| {
+                e.block = Some(b);
+                e
+            })
     }
 }
 

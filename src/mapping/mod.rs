@@ -33,17 +33,26 @@ use morton::MAX_LEVEL;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Corruption {
     pub what: &'static str,
+    /// The block the node is in (`None`: the top tree, or a file without blocks).
+    pub block: Option<u32>,
     pub level: u32,
     pub index: u64,
 }
 
 impl std::fmt::Display for Corruption {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "{} (level {}, node {})",
-            self.what, self.level, self.index
-        )
+        match self.block {
+            Some(b) => write!(
+                f,
+                "{} (block {b}, level {}, node {})",
+                self.what, self.level, self.index
+            ),
+            None => write!(
+                f,
+                "{} (level {}, node {})",
+                self.what, self.level, self.index
+            ),
+        }
     }
 }
 
@@ -73,12 +82,15 @@ struct LevelInfo {
     next_count: u64,
 }
 
-/// The node records and rank directory of a tree, addressed by `(level, index in level)`.
+/// The node records and rank directory of a tree, or of a block's subtrees, addressed by
+/// `(absolute level, index in level)`. A block's map has a *base*: the absolute level of its
+/// roots, which are its local level 0 (format-spec §8).
 #[derive(Clone, Copy)]
 pub struct TreeMap<'a> {
-    /// 32 entries (levels past `level_count` are zero) so that `level & 31` indexes it
-    /// without a bounds check.
+    /// Indexed by absolute level; 32 entries (levels outside `base .. base + level_count` are
+    /// zero) so that `level & 31` indexes it without a bounds check.
     info: [LevelInfo; 32],
+    base: u32,
     level_count: u32,
     levels: &'a [LevelEntry],
     nodes: &'a [NodeRecord],
@@ -89,10 +101,22 @@ impl<'a> TreeMap<'a> {
     /// A map over validated level, node and rank tables (levels beyond 22 are ignored; every
     /// access is still bounds-checked against the slices).
     pub fn new(levels: &'a [LevelEntry], nodes: &'a [NodeRecord], ranks: &'a [RankWord]) -> Self {
-        let levels = &levels[..levels.len().min(MAX_LEVEL as usize + 1)];
+        Self::with_base(levels, nodes, ranks, 0)
+    }
+
+    /// A map whose local level 0 is absolute level `base` (a block's roots). Levels past the
+    /// lattice's deepest are ignored.
+    pub fn with_base(
+        levels: &'a [LevelEntry],
+        nodes: &'a [NodeRecord],
+        ranks: &'a [RankWord],
+        base: u32,
+    ) -> Self {
+        let base = base.min(MAX_LEVEL);
+        let levels = &levels[..levels.len().min((MAX_LEVEL + 1 - base) as usize)];
         let mut info = [LevelInfo::default(); 32];
         for (l, e) in levels.iter().enumerate() {
-            info[l] = LevelInfo {
+            info[base as usize + l] = LevelInfo {
                 node_start: e.node_start,
                 rank_start: e.rank_start,
                 next_count: levels.get(l + 1).map_or(0, |n| n.node_count),
@@ -100,6 +124,7 @@ impl<'a> TreeMap<'a> {
         }
         TreeMap {
             info,
+            base,
             level_count: levels.len() as u32,
             levels,
             nodes,
@@ -131,6 +156,7 @@ impl<'a> TreeMap<'a> {
             let li = &self.info[(level & 31) as usize];
             *visits += 1;
             let bad = |what| Corruption {
+                block: None,
                 what,
                 level,
                 index: idx,
@@ -158,23 +184,45 @@ impl<'a> TreeMap<'a> {
         }
     }
 
+    /// Levels held (local levels, from the base).
     pub fn level_count(&self) -> u32 {
         self.level_count
     }
 
+    /// Absolute level of local level 0.
+    pub fn base(&self) -> u32 {
+        self.base
+    }
+
+    /// The level table, by local level.
     pub fn levels(&self) -> &'a [LevelEntry] {
         self.levels
+    }
+
+    /// Rank word `w` of absolute level `level`, if it exists.
+    pub fn rank_word(&self, level: u32, w: u64) -> Option<&'a RankWord> {
+        let lv = self.level(level)?;
+        if w >= lv.node_count.div_ceil(64) {
+            return None;
+        }
+        self.ranks.get((lv.rank_start + w) as usize)
+    }
+
+    /// The level entry of absolute level `level`.
+    fn level(&self, level: u32) -> Option<&'a LevelEntry> {
+        self.levels.get(level.checked_sub(self.base)? as usize)
     }
 
     /// The record of node `idx` of `level`.
     #[inline]
     pub fn node(&self, level: u32, idx: u64) -> Result<NodeRecord, Corruption> {
         let bad = Corruption {
+            block: None,
             what: "node index out of range",
             level,
             index: idx,
         };
-        let lv = self.levels.get(level as usize).ok_or(bad)?;
+        let lv = self.level(level).ok_or(bad)?;
         if idx >= lv.node_count {
             return Err(bad);
         }
@@ -188,14 +236,12 @@ impl<'a> TreeMap<'a> {
     #[inline]
     pub fn child(&self, level: u32, idx: u64, octant: u32) -> Result<u64, Corruption> {
         let bad = |what| Corruption {
+            block: None,
             what,
             level,
             index: idx,
         };
-        let lv = self
-            .levels
-            .get(level as usize)
-            .ok_or(bad("level out of range"))?;
+        let lv = self.level(level).ok_or(bad("level out of range"))?;
         let word = self
             .ranks
             .get((lv.rank_start + idx / 64) as usize)
@@ -207,8 +253,7 @@ impl<'a> TreeMap<'a> {
         let child = child_index(word, bit, octant)
             .ok_or(bad("rank directory points past the next level"))?;
         let next = self
-            .levels
-            .get(level as usize + 1)
+            .level(level + 1)
             .ok_or(bad("internal node on the deepest level"))?;
         if child >= next.node_count {
             return Err(bad("rank directory points past the next level"));
@@ -220,6 +265,7 @@ impl<'a> TreeMap<'a> {
     /// node of rank `idx / 8`, found by binary search over the rank words (select).
     pub fn parent(&self, level: u32, idx: u64) -> Result<u64, Corruption> {
         let bad = |what| Corruption {
+            block: None,
             what,
             level,
             index: idx,
@@ -228,10 +274,7 @@ impl<'a> TreeMap<'a> {
             return Err(bad("the root has no parent"));
         }
         let pl = level - 1;
-        let lv = self
-            .levels
-            .get(pl as usize)
-            .ok_or(bad("level out of range"))?;
+        let lv = self.level(pl).ok_or(bad("level out of range"))?;
         let words = self
             .ranks
             .get(lv.rank_start as usize..(lv.rank_start + lv.node_count.div_ceil(64)) as usize)
@@ -269,6 +312,7 @@ impl<'a> TreeMap<'a> {
                 Some(_) => return Ok(None),
                 None => {
                     return Err(Corruption {
+                        block: None,
                         what: "invalid node record",
                         level: l,
                         index: idx,
@@ -292,6 +336,7 @@ impl<'a> TreeMap<'a> {
                 Some(_) => return Ok((level, idx, rec)),
                 None => {
                     return Err(Corruption {
+                        block: None,
                         what: "invalid node record",
                         level,
                         index: idx,
@@ -327,6 +372,7 @@ impl<'a> TreeMap<'a> {
                 Some(_) => return Ok(vec![(l, idx)]),
                 None => {
                     return Err(Corruption {
+                        block: None,
                         what: "invalid node record",
                         level: l,
                         index: idx,
@@ -343,6 +389,7 @@ impl<'a> TreeMap<'a> {
         let mut budget = self.nodes.len();
         while let Some((l, idx)) = stack.pop() {
             budget = budget.checked_sub(1).ok_or(Corruption {
+                block: None,
                 what: "subtree walk visits more nodes than the tree has",
                 level: l,
                 index: idx,
@@ -358,6 +405,7 @@ impl<'a> TreeMap<'a> {
                 Some(_) => out.push((l, idx)),
                 None => {
                     return Err(Corruption {
+                        block: None,
                         what: "invalid node record",
                         level: l,
                         index: idx,

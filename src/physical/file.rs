@@ -54,6 +54,11 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
         &self.sections[kind as usize - 1]
     }
 
+    /// The buffer holding the file.
+    pub fn data(&self) -> &D {
+        &self.data
+    }
+
     pub fn bytes(&self) -> &[u8] {
         self.data.as_ref()
     }
@@ -65,6 +70,12 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
             .as_ref()
             .get(s.offset as usize..(s.offset + s.length) as usize)
             .unwrap_or(&[])
+    }
+
+    /// The block directory (spec §8), cast in place; entries are untrusted until checked
+    /// ([`block_view`] and the pager check each one they use).
+    pub fn directory(&self) -> &[BlockEntry] {
+        self.records(SectionKind::Directory)
     }
 
     /// A section's records, cast in place. Open checked the section's length, alignment in the
@@ -118,6 +129,12 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
             expected: VERSION,
             found: header.version,
         });
+    }
+    if header.max_block_raw_len > MAX_BLOCK_RAW_LEN {
+        return Err(header_err(format!(
+            "max_block_raw_len {} is above the limit of {MAX_BLOCK_RAW_LEN} bytes",
+            header.max_block_raw_len
+        )));
     }
     if header.header_size as usize != need {
         return Err(header_err(format!(
@@ -253,12 +270,28 @@ fn read_section_table(
                 s.length, s.offset, header.file_size
             )));
         };
-        if s.count.checked_mul(kind.record_size()) != Some(s.length) {
+        match kind.record_size() {
+            Some(size) if s.count.checked_mul(size) != Some(s.length) => {
+                return Err(table_err(format!(
+                    "{name}: {} records of {size} bytes do not make {} bytes",
+                    s.count, s.length
+                )));
+            }
+            Some(_) => {}
+            None => {
+                if s.checksum != 0 || s.count != header.block_count {
+                    return Err(table_err(format!(
+                        "{name}: {} blocks and checksum {:#x}, the header says {} blocks and \
+                         blocks carry their own checksums (0 here)",
+                        s.count, s.checksum, header.block_count
+                    )));
+                }
+            }
+        }
+        if kind == SectionKind::Directory && s.count != header.block_count {
             return Err(table_err(format!(
-                "{name}: {} records of {} bytes do not make {} bytes",
-                s.count,
-                kind.record_size(),
-                s.length
+                "{name}: {} entries, the header says {} blocks",
+                s.count, header.block_count
             )));
         }
         prev_end = end;
@@ -284,9 +317,11 @@ fn read_levels(
         what,
     };
     let s = &sections[SectionKind::Levels as usize - 1];
-    if s.count != header.level_count as u64 {
+    // The top tree holds the levels down to its deepest link or empty leaf: at least the root,
+    // at most the whole tree's.
+    if s.count == 0 || s.count > header.level_count as u64 {
         return Err(err(format!(
-            "{} entries for {} levels",
+            "{} top-tree levels for a tree of {} levels",
             s.count, header.level_count
         )));
     }
@@ -336,6 +371,97 @@ fn read_levels(
         )));
     }
     Ok(levels)
+}
+
+/// A block's records, cast in place from its raw bytes (spec §8).
+#[derive(Clone, Copy, Debug)]
+pub struct BlockView<'a> {
+    pub header: BlockHeader,
+    pub levels: &'a [LevelEntry],
+    pub nodes: &'a [NodeRecord],
+    pub ranks: &'a [RankWord],
+    pub volumes: &'a [VolumeRecord],
+    pub refs: &'a [u32],
+    pub triangles: &'a [TriRecord],
+}
+
+/// Reads the raw bytes of block `id` (described by `entry`): checks its header against the
+/// entry, its layout against its length and its level table against its counts, all in
+/// `O(levels)`, and casts its records in place. Errors say what is wrong.
+pub fn block_view<'a>(
+    raw: &'a [u8],
+    id: u32,
+    entry: &BlockEntry,
+) -> Result<BlockView<'a>, &'static str> {
+    let hsize = std::mem::size_of::<BlockHeader>();
+    if raw.len() as u64 != entry.raw_len || raw.len() < hsize {
+        return Err("block length differs from its directory entry");
+    }
+    let header: BlockHeader = bytemuck::pod_read_unaligned(&raw[..hsize]);
+    if header.tag != BLOCK_TAG {
+        return Err("block does not start with its tag");
+    }
+    if header.block_id != id as u64 {
+        return Err("block holds another block's id");
+    }
+    if header.root_level != entry.root_level
+        || header.root_count != entry.root_count
+        || header.triangle_count != entry.triangles as u64
+    {
+        return Err("block header differs from its directory entry");
+    }
+    if header.level_count == 0
+        || header.root_count == 0
+        || header.root_level as u64 + header.level_count as u64 > MAX_LEVEL as u64 + 1
+    {
+        return Err("block level count or root level out of range");
+    }
+    let Some((ranges, len)) = block_layout(&header) else {
+        return Err("block counts overflow");
+    };
+    if len != raw.len() as u64 {
+        return Err("block counts do not match its length");
+    }
+    let cast = |i: usize| &raw[ranges[i].start as usize..ranges[i].end as usize];
+    let (Ok(levels), Ok(nodes), Ok(ranks), Ok(volumes), Ok(refs), Ok(triangles)) = (
+        bytemuck::try_cast_slice::<u8, LevelEntry>(cast(0)),
+        bytemuck::try_cast_slice::<u8, NodeRecord>(cast(1)),
+        bytemuck::try_cast_slice::<u8, RankWord>(cast(2)),
+        bytemuck::try_cast_slice::<u8, VolumeRecord>(cast(3)),
+        bytemuck::try_cast_slice::<u8, u32>(cast(4)),
+        bytemuck::try_cast_slice::<u8, TriRecord>(cast(5)),
+    ) else {
+        return Err("block bytes are not aligned");
+    };
+    let (mut node_start, mut rank_start) = (0u64, 0u64);
+    let mut expected = header.root_count as u64;
+    for e in levels {
+        if e.node_count != expected
+            || e.internal_count > e.node_count
+            || e.node_start != node_start
+            || e.rank_start != rank_start
+        {
+            return Err("block level table is inconsistent");
+        }
+        node_start = node_start.saturating_add(e.node_count);
+        rank_start = rank_start.saturating_add(e.node_count.div_ceil(64));
+        expected = e.internal_count.saturating_mul(8);
+        if node_start > header.node_count {
+            return Err("block level table is inconsistent");
+        }
+    }
+    if expected != 0 || node_start != header.node_count || rank_start != header.rank_count {
+        return Err("block level table is inconsistent");
+    }
+    Ok(BlockView {
+        header,
+        levels,
+        nodes,
+        ranks,
+        volumes,
+        refs,
+        triangles,
+    })
 }
 
 /// A byte buffer aligned for casting records in place (backed by `u64`s), for files held in

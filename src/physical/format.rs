@@ -9,8 +9,8 @@ use bytemuck::{Pod, Zeroable};
 /// catch text-mode line-ending conversions, as in PNG.
 pub const MAGIC: [u8; 8] = *b"\x89OAVM\r\n\x1a";
 
-/// Spec §8: the format version this code reads and writes.
-pub const VERSION: u32 = 1;
+/// Spec §12: the format version this code reads and writes.
+pub const VERSION: u32 = 2;
 
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
@@ -25,8 +25,10 @@ pub const CELL_MARGIN: f64 = 2.0;
 
 /// Spec §2, `flags` bit 0: empty leaves refer to merged volumes (else one volume per empty leaf).
 pub const FLAG_MERGED: u32 = 1;
+/// Spec §2, `flags` bit 1: at least one block is stored compressed.
+pub const FLAG_COMPRESSED: u32 = 2;
 /// Every flag this version knows; any other bit set is an error at open.
-pub const KNOWN_FLAGS: u32 = FLAG_MERGED;
+pub const KNOWN_FLAGS: u32 = FLAG_MERGED | FLAG_COMPRESSED;
 
 /// Spec §2: the file header, at offset 0 (256 bytes).
 #[repr(C)]
@@ -60,8 +62,16 @@ pub struct Header {
     /// Build options (spec §2): maximum depth `D` and leaf size `K`.
     pub max_depth: u32,
     pub leaf_size: u32,
+    /// Blocks in the block directory (spec §8).
+    pub block_count: u64,
+    /// The largest `raw_len` of any block: what one decoded block can need.
+    pub max_block_raw_len: u64,
+    /// Triangle records over all blocks (a triangle referenced from two blocks is in both).
+    pub block_triangles: u64,
+    /// Distinct triangles stored (the input minus degenerate ones).
+    pub stored_triangles: u64,
     /// Zero in this version.
-    pub reserved: [u64; 14],
+    pub reserved: [u64; 10],
     /// xxh3-64 of the header's first 248 bytes followed by the whole section table.
     pub checksum: u64,
 }
@@ -74,22 +84,25 @@ pub const HEADER_CHECKED_LEN: usize = std::mem::offset_of!(Header, checksum);
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SectionKind {
-    Levels = 1,
-    Nodes = 2,
-    Ranks = 3,
-    Volumes = 4,
-    Refs = 5,
-    Triangles = 6,
+    /// The blocks, one after another (spec §8); one "record" per block.
+    Blocks = 1,
+    /// The block directory (spec §8).
+    Directory = 2,
+    /// The top tree (spec §4, §7): level table, node records, rank words, volumes.
+    Levels = 3,
+    Nodes = 4,
+    Ranks = 5,
+    Volumes = 6,
 }
 
 impl SectionKind {
     pub const ALL: [SectionKind; 6] = [
+        SectionKind::Blocks,
+        SectionKind::Directory,
         SectionKind::Levels,
         SectionKind::Nodes,
         SectionKind::Ranks,
         SectionKind::Volumes,
-        SectionKind::Refs,
-        SectionKind::Triangles,
     ];
 
     pub fn from_u32(v: u32) -> Option<SectionKind> {
@@ -98,25 +111,27 @@ impl SectionKind {
 
     pub fn name(self) -> &'static str {
         match self {
+            SectionKind::Blocks => "blocks",
+            SectionKind::Directory => "block directory",
             SectionKind::Levels => "levels",
             SectionKind::Nodes => "nodes",
             SectionKind::Ranks => "ranks",
             SectionKind::Volumes => "volumes",
-            SectionKind::Refs => "refs",
-            SectionKind::Triangles => "triangles",
         }
     }
 
-    /// Size of one record of this section.
-    pub fn record_size(self) -> u64 {
-        (match self {
+    /// Size of one record of this section; `None` for the blocks section, whose blocks have
+    /// their own lengths (its `count` is the number of blocks).
+    pub fn record_size(self) -> Option<u64> {
+        let size = match self {
+            SectionKind::Blocks => return None,
+            SectionKind::Directory => std::mem::size_of::<BlockEntry>(),
             SectionKind::Levels => std::mem::size_of::<LevelEntry>(),
             SectionKind::Nodes => std::mem::size_of::<NodeRecord>(),
             SectionKind::Ranks => std::mem::size_of::<RankWord>(),
             SectionKind::Volumes => std::mem::size_of::<VolumeRecord>(),
-            SectionKind::Refs => std::mem::size_of::<u32>(),
-            SectionKind::Triangles => std::mem::size_of::<TriRecord>(),
-        }) as u64
+        };
+        Some(size as u64)
     }
 }
 
@@ -126,16 +141,16 @@ impl SectionKind {
 pub struct SectionEntry {
     /// A [`SectionKind`].
     pub kind: u32,
-    /// 0: stored raw. Other values are reserved for block compression.
+    /// 0. (Blocks carry their own codecs, spec §8.)
     pub codec: u32,
     pub offset: u64,
     pub length: u64,
     /// Number of records; `length == count * record_size`.
     pub count: u64,
-    /// 0 in this version. Reserved for the offset of the section's block directory, when
-    /// sections are split into independently compressed blocks.
+    /// 0 in this version (reserved).
     pub block_directory: u64,
-    /// xxh3-64 of the section's `length` bytes.
+    /// xxh3-64 of the section's `length` bytes; 0 for the blocks section, whose blocks are
+    /// checksummed one by one in the directory.
     pub checksum: u64,
 }
 const _: () = assert!(std::mem::size_of::<SectionEntry>() == 48);
@@ -283,6 +298,8 @@ pub enum NodeKind {
     },
     /// A node with 8 children at the next level.
     Internal,
+    /// Top tree only (spec §7): the node is root `root` of block `block`, where its subtree is.
+    Link { block: u32, root: u32 },
 }
 
 /// Largest reference count stored in a solid leaf's record; larger counts are stored in the
@@ -294,6 +311,9 @@ const BOUNDS_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 const KIND_EMPTY: u32 = 0;
 const KIND_SOLID: u32 = 1;
 const KIND_INTERNAL: u32 = 2;
+const KIND_LINK: u32 = 3;
+/// Largest root index a link can hold (bits 0..29 of `meta`).
+pub const MAX_LINK_ROOT: u32 = (1 << KIND_SHIFT) - 1;
 
 impl NodeRecord {
     pub fn empty(volume: u32, shape: VolumeShape) -> NodeRecord {
@@ -319,6 +339,21 @@ impl NodeRecord {
             payload: 0,
             meta: KIND_INTERNAL << KIND_SHIFT,
         }
+    }
+
+    /// A top-tree node whose subtree is root `root` of block `block` (spec §7).
+    pub fn link(block: u32, root: u32) -> NodeRecord {
+        debug_assert!(root <= MAX_LINK_ROOT);
+        NodeRecord {
+            payload: block,
+            meta: KIND_LINK << KIND_SHIFT | (root & MAX_LINK_ROOT),
+        }
+    }
+
+    /// A link's block and root, unvalidated (see [`Self::kind_bits`]).
+    #[inline(always)]
+    pub fn link_bits(self) -> (u32, u32) {
+        (self.payload, self.meta & MAX_LINK_ROOT)
     }
 
     /// The kind bits (`0` empty leaf, `1` solid leaf, `2` internal, `3` invalid), for the tracer's
@@ -365,7 +400,11 @@ impl NodeRecord {
                 })
             }
             KIND_INTERNAL if low == 0 && self.payload == 0 => Some(NodeKind::Internal),
-            _ => None,
+            KIND_INTERNAL => None,
+            _ => Some(NodeKind::Link {
+                block: self.payload,
+                root: low,
+            }),
         }
     }
 }
@@ -443,6 +482,58 @@ pub struct BlockEntry {
 }
 const _: () = assert!(std::mem::size_of::<BlockEntry>() == 48);
 
+/// Spec §2: the largest `max_block_raw_len` a reader accepts (1 GiB): what one decoded block
+/// may make a reader allocate, whatever the file says.
+pub const MAX_BLOCK_RAW_LEN: u64 = 1 << 30;
+
+/// Spec §8: the tag that starts every block's raw bytes ("OBLK", little-endian).
+pub const BLOCK_TAG: u32 = u32::from_le_bytes(*b"OBLK");
+
+/// Spec §8: the header of a block's raw bytes (64 bytes). The block's records follow: its level
+/// table at offset 64, then nodes, ranks, volumes, refs and triangles, each at the next multiple
+/// of 64 from the block's start.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct BlockHeader {
+    /// [`BLOCK_TAG`].
+    pub tag: u32,
+    /// Levels of the block's subtrees (local level 0 holds the roots).
+    pub level_count: u32,
+    /// Absolute level of the roots.
+    pub root_level: u32,
+    pub root_count: u32,
+    pub node_count: u64,
+    pub rank_count: u64,
+    pub volume_count: u64,
+    pub ref_count: u64,
+    pub triangle_count: u64,
+    /// The block's own index in the directory (catches a block stored in another's place).
+    pub block_id: u64,
+}
+const _: () = assert!(std::mem::size_of::<BlockHeader>() == 64);
+
+/// Spec §8: the byte ranges, from a block's start, of its level table, nodes, ranks, volumes,
+/// refs and triangles, and the block's raw length; `None` if the counts overflow.
+pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; 6], u64)> {
+    let sizes = [
+        (h.level_count as u64, std::mem::size_of::<LevelEntry>()),
+        (h.node_count, std::mem::size_of::<NodeRecord>()),
+        (h.rank_count, std::mem::size_of::<RankWord>()),
+        (h.volume_count, std::mem::size_of::<VolumeRecord>()),
+        (h.ref_count, std::mem::size_of::<u32>()),
+        (h.triangle_count, std::mem::size_of::<TriRecord>()),
+    ];
+    let mut at = std::mem::size_of::<BlockHeader>() as u64;
+    let mut out: [std::ops::Range<u64>; 6] = Default::default();
+    for (i, (count, size)) in sizes.into_iter().enumerate() {
+        at = at.checked_next_multiple_of(SECTION_ALIGN)?;
+        let end = at.checked_add(count.checked_mul(size as u64)?)?;
+        out[i] = at..end;
+        at = end;
+    }
+    Some((out, at))
+}
+
 /// Rounds `x` up to the next multiple of [`SECTION_ALIGN`].
 pub fn align_up(x: u64) -> u64 {
     x.div_ceil(SECTION_ALIGN) * SECTION_ALIGN
@@ -489,7 +580,14 @@ mod tests {
         );
         assert_eq!(NodeRecord::internal().kind(), Some(NodeKind::Internal));
         let raw = |payload, meta| NodeRecord { payload, meta }.kind();
-        assert_eq!(raw(0, 3 << 30), None); // kind 3
+        assert_eq!(
+            raw(4, 3 << 30 | 5),
+            Some(NodeKind::Link { block: 4, root: 5 })
+        );
+        assert_eq!(
+            NodeRecord::link(4, 5).kind(),
+            Some(NodeKind::Link { block: 4, root: 5 })
+        );
         assert_eq!(raw(1, 2 << 30), None); // internal with a payload
         assert_eq!(raw(1, 1 << 8), None); // empty with bits past the shape
         assert_eq!(raw(1, 1), None); // empty, merged along x at level 0 (beyond the root)

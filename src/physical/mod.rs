@@ -1,6 +1,7 @@
 //! The physical layer: the bytes of an `.oavm` file (format-spec.md), mapping the file,
 //! validating it at open, verifying it in full, and writing it.
 
+pub mod blocks;
 pub mod file;
 pub mod format;
 pub mod mmap;

@@ -105,6 +105,13 @@ pub trait BlockSource: Sync {
     fn release(&self, _off: usize, _len: usize) {}
 }
 
+/// Bytes held in memory (tests, files built in memory): the hints do nothing.
+impl BlockSource for &[u8] {
+    fn bytes(&self) -> &[u8] {
+        self
+    }
+}
+
 impl BlockSource for MappedFile {
     fn bytes(&self) -> &[u8] {
         self.as_ref()
@@ -254,9 +261,7 @@ const BAD: u8 = 4;
 const SPINS: u32 = 64;
 
 /// Reads blocks for the tracer within a memory budget. See the module docs.
-pub struct Pager<'f, S: BlockSource> {
-    source: &'f S,
-    directory: &'f [BlockEntry],
+pub struct Pager {
     max_raw_len: u64,
     /// The effective budget.
     budget: u64,
@@ -287,11 +292,27 @@ struct Hand {
     free: Vec<usize>,
 }
 
-impl<'f, S: BlockSource> Pager<'f, S> {
+/// What one call reads: the file's bytes and its block directory. The pager keeps no reference
+/// to them, so that whoever owns the file can own its pager too; every call must pass the same
+/// file.
+struct Src<'s, S> {
+    source: &'s S,
+    directory: &'s [BlockEntry],
+}
+
+impl<S> Clone for Src<'_, S> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<S> Copy for Src<'_, S> {}
+
+impl Pager {
     /// A pager over `directory` (cast from the file, untrusted: each entry is checked when its
     /// block is first admitted). Reads the directory's codecs to size the slot set, never the
     /// blocks; allocates a few bytes per block, and no slot buffer until a zstd miss needs it.
-    pub fn new(source: &'f S, directory: &'f [BlockEntry], opts: PagerOptions) -> Pager<'f, S> {
+    pub fn new(directory: &[BlockEntry], opts: PagerOptions) -> Pager {
         let max_raw_len = opts.max_raw_len.max(1);
         let threads = opts.threads.max(1) as u64;
         let zstd_blocks = directory.iter().filter(|e| e.codec == CODEC_ZSTD).count() as u64;
@@ -302,8 +323,6 @@ impl<'f, S: BlockSource> Pager<'f, S> {
             .min(u64::from(NO_SLOT) - 1);
         let budget = opts.budget.max(slot_count.saturating_mul(max_raw_len));
         Pager {
-            source,
-            directory,
             max_raw_len,
             budget,
             state: directory.iter().map(|_| AtomicU8::new(COLD)).collect(),
@@ -334,21 +353,34 @@ impl<'f, S: BlockSource> Pager<'f, S> {
     }
 
     /// The decoded bytes of `block`, admitting it if it is not resident; adds to `c`.
-    pub fn get(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError> {
-        let Some(entry) = self.directory.get(block as usize) else {
+    pub fn get<'s, S: BlockSource>(
+        &'s self,
+        source: &'s S,
+        directory: &'s [BlockEntry],
+        block: u32,
+        c: &mut PageCounters,
+    ) -> Result<BlockBytes<'s>, PageError> {
+        let src = Src { source, directory };
+        if directory.len() != self.state.len() {
+            return Err(PageError {
+                block,
+                what: "the pager was made for another file's directory".into(),
+            });
+        }
+        let Some(entry) = directory.get(block as usize) else {
             return Err(PageError {
                 block,
                 what: format!(
                     "no such block (the directory has {} blocks)",
-                    self.directory.len()
+                    directory.len()
                 ),
             });
         };
         let bytes = match entry.codec {
-            CODEC_RAW => self.get_raw(block, entry, c)?,
-            CODEC_ZSTD => self.get_zstd(block, entry, c)?,
+            CODEC_RAW => self.get_raw(src, block, entry, c)?,
+            CODEC_ZSTD => self.get_zstd(src, block, entry, c)?,
             codec => {
-                let what = match self.check_entry(entry) {
+                let what = match self.check_entry(src, entry) {
                     Err(what) => what,
                     Ok(()) => format!("unknown codec {codec}"),
                 };
@@ -381,12 +413,13 @@ impl<'f, S: BlockSource> Pager<'f, S> {
         self.slots.len()
     }
 
-    fn get_raw(
-        &self,
+    fn get_raw<'s, S: BlockSource>(
+        &'s self,
+        src: Src<'s, S>,
         block: u32,
         entry: &BlockEntry,
         c: &mut PageCounters,
-    ) -> Result<BlockBytes<'_>, PageError> {
+    ) -> Result<BlockBytes<'s>, PageError> {
         let state = &self.state[block as usize];
         let mut spins = 0;
         loop {
@@ -411,7 +444,7 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                         .compare_exchange(COLD, BUSY, Ordering::Acquire, Ordering::Relaxed)
                         .is_ok()
                     {
-                        return self.admit_raw(block, entry, c);
+                        return self.admit_raw(src, block, entry, c);
                     }
                 }
                 BAD => return Err(self.remembered(block)),
@@ -419,21 +452,22 @@ impl<'f, S: BlockSource> Pager<'f, S> {
             }
         }
         c.hits += 1;
-        Ok(BlockBytes::Raw(self.raw_slice(block, entry)?))
+        Ok(BlockBytes::Raw(self.raw_slice(src, block, entry)?))
     }
 
     /// Admits a raw block this thread has made BUSY.
-    fn admit_raw(
-        &self,
+    fn admit_raw<'s, S: BlockSource>(
+        &'s self,
+        src: Src<'s, S>,
         block: u32,
         entry: &BlockEntry,
         c: &mut PageCounters,
-    ) -> Result<BlockBytes<'_>, PageError> {
+    ) -> Result<BlockBytes<'s>, PageError> {
         let state = &self.state[block as usize];
-        let checked = self.check_entry(entry).and_then(|()| {
+        let checked = self.check_entry(src, entry).and_then(|()| {
             let (off, len) = (entry.offset as usize, entry.stored_len as usize);
-            self.source.prefetch(off, len);
-            self.check_sum(entry, self.stored(entry))
+            src.source.prefetch(off, len);
+            self.check_sum(entry, self.stored(src, entry))
         });
         if let Err(what) = checked {
             return Err(self.fail(block, what));
@@ -443,13 +477,18 @@ impl<'f, S: BlockSource> Pager<'f, S> {
         lock(&self.ring).push_back(block);
         c.misses += 1;
         c.bytes_read += entry.stored_len;
-        self.evict_raw();
-        Ok(BlockBytes::Raw(self.raw_slice(block, entry)?))
+        self.evict_raw(src);
+        Ok(BlockBytes::Raw(self.raw_slice(src, block, entry)?))
     }
 
     /// A raw block's bytes (its entry was checked on admission; checked again for free).
-    fn raw_slice(&self, block: u32, entry: &BlockEntry) -> Result<&'f [u8], PageError> {
-        let source: &'f S = self.source;
+    fn raw_slice<'s, S: BlockSource>(
+        &self,
+        src: Src<'s, S>,
+        block: u32,
+        entry: &BlockEntry,
+    ) -> Result<&'s [u8], PageError> {
+        let source: &'s S = src.source;
         let off = entry.offset as usize;
         source
             .bytes()
@@ -464,7 +503,7 @@ impl<'f, S: BlockSource> Pager<'f, S> {
     /// block is left to evict. One thread evicts at a time; the others wait for it, then evict
     /// what is still over (so that no thread returns with the budget exceeded by more than the
     /// blocks other threads are admitting).
-    fn evict_raw(&self) {
+    fn evict_raw<S: BlockSource>(&self, src: Src<'_, S>) {
         if self.resident.load(Ordering::SeqCst) <= self.budget {
             return;
         }
@@ -496,9 +535,8 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                         .compare_exchange(s, BUSY, Ordering::Acquire, Ordering::Relaxed)
                         .is_ok()
                     {
-                        let e = &self.directory[b as usize];
-                        self.source
-                            .release(e.offset as usize, e.stored_len as usize);
+                        let e = &src.directory[b as usize];
+                        src.source.release(e.offset as usize, e.stored_len as usize);
                         self.resident.fetch_sub(e.stored_len, Ordering::SeqCst);
                         state.store(COLD, Ordering::Release);
                         break;
@@ -512,12 +550,13 @@ impl<'f, S: BlockSource> Pager<'f, S> {
         }
     }
 
-    fn get_zstd(
-        &self,
+    fn get_zstd<'s, S: BlockSource>(
+        &'s self,
+        src: Src<'s, S>,
         block: u32,
         entry: &BlockEntry,
         c: &mut PageCounters,
-    ) -> Result<BlockBytes<'_>, PageError> {
+    ) -> Result<BlockBytes<'s>, PageError> {
         let mut spins = 0;
         loop {
             if self.state[block as usize].load(Ordering::Acquire) == BAD {
@@ -527,7 +566,7 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                 c.hits += 1;
                 return Ok(BlockBytes::Decoded(SlotGuard(guard)));
             }
-            self.check_entry(entry)
+            self.check_entry(src, entry)
                 .map_err(|what| self.fail(block, what))?;
             let Some((slot, write)) = self.assign_slot(block) else {
                 // Admitted by another thread meanwhile (look again), or no slot free of
@@ -535,7 +574,7 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                 wait(&mut spins);
                 continue;
             };
-            return self.admit_zstd(block, entry, slot, write, c);
+            return self.admit_zstd(src, block, entry, slot, write, c);
         }
     }
 
@@ -614,22 +653,23 @@ impl<'f, S: BlockSource> Pager<'f, S> {
 
     /// Fills a slot assigned to `block` (outside the clock mutex) and returns it locked for
     /// reading.
-    fn admit_zstd<'p>(
+    fn admit_zstd<'p, S: BlockSource>(
         &'p self,
+        src: Src<'_, S>,
         block: u32,
         entry: &BlockEntry,
         slot: usize,
         mut write: RwLockWriteGuard<'p, Slot>,
         c: &mut PageCounters,
     ) -> Result<BlockBytes<'p>, PageError> {
-        match self.decode(entry, &mut write) {
+        match self.decode(src, entry, &mut write) {
             Ok(()) => {
                 write.valid = true;
                 let read = RwLockWriteGuard::downgrade(write);
                 c.misses += 1;
                 c.bytes_read += entry.stored_len;
                 c.bytes_decompressed += entry.raw_len;
-                self.evict_raw();
+                self.evict_raw(src);
                 Ok(BlockBytes::Decoded(SlotGuard(read)))
             }
             Err(what) => {
@@ -647,9 +687,14 @@ impl<'f, S: BlockSource> Pager<'f, S> {
     }
 
     /// Verifies a zstd block's stored bytes and decompresses them into `slot`.
-    fn decode(&self, entry: &BlockEntry, slot: &mut Slot) -> Result<(), String> {
-        let stored = self.stored(entry);
-        self.source.prefetch(entry.offset as usize, stored.len());
+    fn decode<S: BlockSource>(
+        &self,
+        src: Src<'_, S>,
+        entry: &BlockEntry,
+        slot: &mut Slot,
+    ) -> Result<(), String> {
+        let stored = self.stored(src, entry);
+        src.source.prefetch(entry.offset as usize, stored.len());
         self.check_sum(entry, stored)?;
         let raw_len = entry.raw_len as usize;
         match zstd::zstd_safe::get_frame_content_size(stored) {
@@ -695,8 +740,8 @@ impl<'f, S: BlockSource> Pager<'f, S> {
     }
 
     /// Checks an entry without reading its block (see the module docs).
-    fn check_entry(&self, e: &BlockEntry) -> Result<(), String> {
-        let file_len = self.source.bytes().len() as u64;
+    fn check_entry<S: BlockSource>(&self, src: Src<'_, S>, e: &BlockEntry) -> Result<(), String> {
+        let file_len = src.source.bytes().len() as u64;
         match e.offset.checked_add(e.stored_len) {
             Some(end) if end <= file_len => {}
             _ => {
@@ -726,7 +771,7 @@ impl<'f, S: BlockSource> Pager<'f, S> {
                         e.offset
                     ));
                 }
-                let base = self.source.bytes().as_ptr() as usize;
+                let base = src.source.bytes().as_ptr() as usize;
                 if !base.is_multiple_of(std::mem::align_of::<u64>()) {
                     return Err("the file's buffer is not 8-aligned".into());
                 }
@@ -738,9 +783,9 @@ impl<'f, S: BlockSource> Pager<'f, S> {
     }
 
     /// A block's stored bytes (its entry checked).
-    fn stored(&self, e: &BlockEntry) -> &[u8] {
+    fn stored<'s, S: BlockSource>(&self, src: Src<'s, S>, e: &BlockEntry) -> &'s [u8] {
         let off = e.offset as usize;
-        self.source
+        src.source
             .bytes()
             .get(off..off.saturating_add(e.stored_len as usize))
             .unwrap_or(&[])
@@ -804,13 +849,11 @@ mod tests {
 
     #[test]
     fn pager_is_send_and_sync() {
-        assert_send_sync::<Pager<'static, AlignedBytes>>();
-        assert_send_sync::<Pager<'static, MappedFile>>();
+        assert_send_sync::<Pager>();
     }
 
     #[test]
     fn slots_and_effective_budget() {
-        let bytes = AlignedBytes::from_slice(&[0u8; 64]);
         let zstd = BlockEntry {
             offset: 0,
             stored_len: 0,
@@ -828,19 +871,19 @@ mod tests {
             max_raw_len: 1000,
         };
         // Tiny budget: threads + 1 slots, budget raised to them.
-        let p = Pager::new(&bytes, &dir, opts(10, 3));
+        let p = Pager::new(&dir, opts(10, 3));
         assert_eq!((p.slot_count(), p.budget()), (4, 4000));
         // Large budget: budget / max_raw_len slots, capped by the zstd blocks.
-        let p = Pager::new(&bytes, &dir, opts(7500, 1));
+        let p = Pager::new(&dir, opts(7500, 1));
         assert_eq!((p.slot_count(), p.budget()), (7, 7500));
-        let p = Pager::new(&bytes, &dir, opts(u64::MAX, 1));
+        let p = Pager::new(&dir, opts(u64::MAX, 1));
         assert_eq!((p.slot_count(), p.budget()), (10, u64::MAX));
         // No zstd blocks: no slots, the budget as asked.
         let raw = [BlockEntry {
             codec: CODEC_RAW,
             ..zstd
         }];
-        let p = Pager::new(&bytes, &raw, opts(10, 3));
+        let p = Pager::new(&raw, opts(10, 3));
         assert_eq!((p.slot_count(), p.budget()), (0, 10));
     }
 }

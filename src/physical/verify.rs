@@ -1,11 +1,14 @@
 //! Full verification of an opened file (`oavm-trace FILE --verify`): every byte is covered by a
 //! checksum or a check. Opening already validated the header, the section table (both under the
-//! header checksum) and the level table; this adds every section's checksum, zero padding, and
-//! the invariants of format-spec §10 on the contents.
+//! header checksum) and the top tree's level table; this adds every section's and every block's
+//! checksum, zero padding, every block's decoding and layout, and the invariants of format-spec
+//! §10 on the contents of the top tree and of every block, and the links between them.
 
 use serde::Serialize;
 
-use super::file::OavmFile;
+use rayon::prelude::*;
+
+use super::file::{AlignedBytes, OavmFile, block_view};
 use super::format::*;
 use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
 use crate::mapping::TreeMap;
@@ -44,7 +47,7 @@ impl Defects {
 }
 
 /// Verifies everything open did not.
-pub fn verify<D: AsRef<[u8]>>(file: &OavmFile<D>) -> VerifyReport {
+pub fn verify<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>) -> VerifyReport {
     let mut d = Defects {
         list: Vec::new(),
         more: 0,
@@ -52,7 +55,8 @@ pub fn verify<D: AsRef<[u8]>>(file: &OavmFile<D>) -> VerifyReport {
     let bytes = file.bytes();
     let header = *file.header();
 
-    // Checksums and padding: together with the header checksum they cover every byte.
+    // Checksums and padding: with the header checksum and the blocks' own checksums they cover
+    // every byte.
     let mut covered = (std::mem::size_of::<Header>()
         + SectionKind::ALL.len() * std::mem::size_of::<SectionEntry>())
         as u64;
@@ -68,13 +72,15 @@ pub fn verify<D: AsRef<[u8]>>(file: &OavmFile<D>) -> VerifyReport {
                 s.offset
             ));
         }
-        let computed = checksum(file.section_bytes(kind));
-        if computed != s.checksum {
-            d.push(format!(
-                "{} section: checksum mismatch (stored {:#018x}, computed {computed:#018x})",
-                kind.name(),
-                s.checksum
-            ));
+        if kind != SectionKind::Blocks {
+            let computed = checksum(file.section_bytes(kind));
+            if computed != s.checksum {
+                d.push(format!(
+                    "{} section: checksum mismatch (stored {:#018x}, computed {computed:#018x})",
+                    kind.name(),
+                    s.checksum
+                ));
+            }
         }
         sections_checked += 1;
         covered = s.offset + s.length;
@@ -96,16 +102,33 @@ pub fn verify<D: AsRef<[u8]>>(file: &OavmFile<D>) -> VerifyReport {
     }
 }
 
-fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut Defects) {
-    let levels = file.levels();
-    let nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
-    let ranks: &[RankWord] = file.records(SectionKind::Ranks);
-    let volumes: &[VolumeRecord] = file.records(SectionKind::Volumes);
-    let refs: &[u32] = file.records(SectionKind::Refs);
-    let tris: &[TriRecord] = file.records(SectionKind::Triangles);
-    let map = TreeMap::new(levels, nodes, ranks);
+/// A unit to check: the top tree, or one block's subtrees.
+struct Unit<'a> {
+    /// "top tree" or "block N", to start its defects with.
+    label: String,
+    map: TreeMap<'a>,
+    /// Morton codes of its level-0 nodes.
+    root_codes: Vec<u64>,
+    volumes: &'a [VolumeRecord],
+    refs: &'a [u32],
+    tris: &'a [TriRecord],
+    top: bool,
+}
 
-    // The root cube follows from the mesh bounds (spec §2), and those from the triangles.
+/// What a unit contributes to the file's totals.
+#[derive(Default)]
+struct UnitTotals {
+    empty: u64,
+    solid: u64,
+    /// Links (top tree only): block, root, level, code.
+    links: Vec<(u32, u32, u32, u64)>,
+    lo: [f32; 3],
+    hi: [f32; 3],
+    triangles: u64,
+}
+
+fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d: &mut Defects) {
+    // The root cube follows from the mesh bounds (spec §2).
     let (root_min, root_size) = crate::build::root_cube(header.mesh_min, header.mesh_max);
     if root_min != header.root_min || root_size != header.root_size {
         d.push(format!(
@@ -113,52 +136,310 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
             header.root_min, header.root_size
         ));
     }
-    if !tris.is_empty() {
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in tris.iter().flat_map(|t| t.v.iter()) {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        if lo != header.mesh_min || hi != header.mesh_max {
+
+    // The top tree.
+    let top = Unit {
+        label: "top tree".into(),
+        map: TreeMap::new(
+            file.levels(),
+            file.records(SectionKind::Nodes),
+            file.records(SectionKind::Ranks),
+        ),
+        root_codes: vec![0],
+        volumes: file.records(SectionKind::Volumes),
+        refs: &[],
+        tris: &[],
+        top: true,
+    };
+    let top_totals = check_unit(&top, header, d);
+
+    // Links: every block root linked exactly once, from its level.
+    let directory = file.directory();
+    let mut roots: Vec<Vec<Option<u64>>> = directory
+        .iter()
+        .map(|e| vec![None; (e.root_count as usize).min(top_totals.links.len())])
+        .collect();
+    for &(b, root, level, code) in &top_totals.links {
+        let Some(entry) = directory.get(b as usize) else {
             d.push(format!(
-                "header: mesh bounds {:?}..{:?} are not the triangles' bounds {lo:?}..{hi:?}",
-                header.mesh_min, header.mesh_max
+                "top tree: a link at level {level} to block {b}, past the {} blocks",
+                directory.len()
+            ));
+            continue;
+        };
+        if entry.root_level != level {
+            d.push(format!(
+                "top tree: a link at level {level} to block {b}, whose roots are at level {}",
+                entry.root_level
             ));
         }
+        match roots[b as usize].get_mut(root as usize) {
+            Some(slot @ None) => *slot = Some(code),
+            Some(Some(_)) => d.push(format!("block {b}: root {root} is linked twice")),
+            None => d.push(format!(
+                "top tree: a link to root {root} of block {b}, which has {}",
+                entry.root_count
+            )),
+        }
     }
+
+    // The blocks: stored one after another inside the blocks section, each checksummed, decoded
+    // and checked like the top tree (in parallel; each decoded block is dropped when checked).
+    let bytes = file.bytes();
+    let section = *file.section(SectionKind::Blocks);
+    let mut prev_end = section.offset;
+    let mut max_raw = 0u64;
+    for (b, e) in directory.iter().enumerate() {
+        let align = if e.codec == CODEC_RAW {
+            RAW_BLOCK_ALIGN
+        } else {
+            SECTION_ALIGN
+        };
+        let end = e.offset.checked_add(e.stored_len);
+        if e.offset < prev_end
+            || !e.offset.is_multiple_of(align)
+            || end.is_none_or(|x| x > section.offset + section.length)
+        {
+            d.push(format!(
+                "block {b}: {} bytes at offset {} are misplaced (after {prev_end}, {align}-aligned, inside the blocks section)",
+                e.stored_len, e.offset
+            ));
+            continue;
+        }
+        if let Some(pad) = bytes.get(prev_end as usize..e.offset as usize)
+            && pad.iter().any(|&x| x != 0)
+        {
+            d.push(format!("padding before block {b} is not zero"));
+        }
+        prev_end = end.unwrap_or(prev_end);
+        max_raw = max_raw.max(e.raw_len);
+    }
+    if prev_end != section.offset + section.length && directory.is_empty() == (section.length == 0)
+    {
+        d.push(format!(
+            "the blocks section ends at {}, its last block at {prev_end}",
+            section.offset + section.length
+        ));
+    }
+    if max_raw != header.max_block_raw_len {
+        d.push(format!(
+            "header: max_block_raw_len {} but the largest block is {max_raw} bytes",
+            header.max_block_raw_len
+        ));
+    }
+    let prims_seen: Vec<std::sync::atomic::AtomicU64> = (0..header.input_triangles.div_ceil(64))
+        .map(|_| std::sync::atomic::AtomicU64::new(0))
+        .collect();
+    let results: Vec<(Vec<String>, usize, UnitTotals)> = (0..directory.len())
+        .into_par_iter()
+        .map(|b| {
+            let mut bd = Defects {
+                list: Vec::new(),
+                more: 0,
+            };
+            let totals = check_block(file, header, b as u32, &roots[b], &prims_seen, &mut bd);
+            (bd.list, bd.more, totals)
+        })
+        .collect();
+
+    let mut totals = top_totals;
+    let mut first_bounds = true;
+    for (list, more, t) in results {
+        for x in list {
+            d.push(x);
+        }
+        d.more += more;
+        totals.empty += t.empty;
+        totals.solid += t.solid;
+        totals.triangles += t.triangles;
+        if t.triangles > 0 {
+            for k in 0..3 {
+                if first_bounds {
+                    totals.lo[k] = t.lo[k];
+                    totals.hi[k] = t.hi[k];
+                } else {
+                    totals.lo[k] = totals.lo[k].min(t.lo[k]);
+                    totals.hi[k] = totals.hi[k].max(t.hi[k]);
+                }
+            }
+            first_bounds = false;
+        }
+    }
+    if totals.empty != header.empty_leaves || totals.solid != header.solid_leaves {
+        d.push(format!(
+            "{} empty and {} solid leaves, the header says {} and {}",
+            totals.empty, totals.solid, header.empty_leaves, header.solid_leaves
+        ));
+    }
+    if totals.triangles != header.block_triangles {
+        d.push(format!(
+            "blocks hold {} triangle records, the header says {}",
+            totals.triangles, header.block_triangles
+        ));
+    }
+    let distinct: u64 = prims_seen
+        .iter()
+        .map(|w| w.load(std::sync::atomic::Ordering::Relaxed).count_ones() as u64)
+        .sum();
+    if distinct != header.stored_triangles {
+        d.push(format!(
+            "blocks hold {distinct} distinct triangles, the header says {}",
+            header.stored_triangles
+        ));
+    }
+    if !first_bounds && (totals.lo != header.mesh_min || totals.hi != header.mesh_max) {
+        d.push(format!(
+            "header: mesh bounds {:?}..{:?} are not the triangles' bounds {:?}..{:?}",
+            header.mesh_min, header.mesh_max, totals.lo, totals.hi
+        ));
+    }
+}
+
+/// Checks block `b`: its checksum, its decoding, its header and level table, then its
+/// contents as a unit whose roots have the codes its links give.
+fn check_block<D: AsRef<[u8]> + Sync>(
+    file: &OavmFile<D>,
+    header: &Header,
+    b: u32,
+    roots: &[Option<u64>],
+    prims_seen: &[std::sync::atomic::AtomicU64],
+    d: &mut Defects,
+) -> UnitTotals {
+    let e = file.directory()[b as usize];
+    let Some(stored) = file
+        .bytes()
+        .get(e.offset as usize..(e.offset.saturating_add(e.stored_len)) as usize)
+    else {
+        return UnitTotals::default(); // reported as misplaced
+    };
+    let computed = checksum(stored);
+    if computed != e.checksum {
+        d.push(format!(
+            "block {b}: checksum mismatch (stored {:#018x}, computed {computed:#018x})",
+            e.checksum
+        ));
+        return UnitTotals::default();
+    }
+    if e.raw_len > header.max_block_raw_len {
+        d.push(format!(
+            "block {b}: raw length {} above the header's maximum {}",
+            e.raw_len, header.max_block_raw_len
+        ));
+        return UnitTotals::default();
+    }
+    let decoded: AlignedBytes;
+    let raw: &[u8] = match e.codec {
+        CODEC_RAW if e.raw_len == e.stored_len => stored,
+        CODEC_ZSTD => {
+            let mut out = vec![0u8; e.raw_len as usize];
+            match zstd::bulk::Decompressor::new()
+                .and_then(|mut z| z.decompress_to_buffer(stored, &mut out[..]))
+            {
+                Ok(n) if n as u64 == e.raw_len => {}
+                Ok(n) => {
+                    d.push(format!(
+                        "block {b}: decodes to {n} bytes, its entry says {}",
+                        e.raw_len
+                    ));
+                    return UnitTotals::default();
+                }
+                Err(err) => {
+                    d.push(format!("block {b}: does not decode: {err}"));
+                    return UnitTotals::default();
+                }
+            }
+            decoded = AlignedBytes::from_slice(&out);
+            decoded.as_ref()
+        }
+        c => {
+            d.push(format!(
+                "block {b}: unknown codec {c} or a raw block whose lengths differ"
+            ));
+            return UnitTotals::default();
+        }
+    };
+    let view = match block_view(raw, b, &e) {
+        Ok(v) => v,
+        Err(what) => {
+            d.push(format!("block {b}: {what}"));
+            return UnitTotals::default();
+        }
+    };
+    let Some(root_codes) = roots.iter().copied().collect::<Option<Vec<u64>>>() else {
+        d.push(format!("block {b}: a root has no link in the top tree"));
+        return UnitTotals::default();
+    };
+    if root_codes.len() != view.header.root_count as usize {
+        d.push(format!("block {b}: a root has no link in the top tree"));
+        return UnitTotals::default();
+    }
+    let unit = Unit {
+        label: format!("block {b}"),
+        map: TreeMap::with_base(view.levels, view.nodes, view.ranks, view.header.root_level),
+        root_codes,
+        volumes: view.volumes,
+        refs: view.refs,
+        tris: view.triangles,
+        top: false,
+    };
+    let mut totals = check_unit(&unit, header, d);
+    totals.triangles = view.triangles.len() as u64;
+    for t in view.triangles {
+        if let Some(w) = prims_seen.get(t.prim as usize / 64) {
+            w.fetch_or(1 << (t.prim % 64), std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+    totals
+}
+
+/// Checks one unit: node kinds, rank words, leaf order of references, volumes, triangles.
+fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
+    let mut totals = UnitTotals {
+        lo: [f32::INFINITY; 3],
+        hi: [f32::NEG_INFINITY; 3],
+        ..UnitTotals::default()
+    };
+    let label = &u.label;
+    let base = u.map.base();
+    let levels = u.map.levels();
+    let (volumes, refs, tris) = (u.volumes, u.refs, u.tris);
     let merged = header.flags & FLAG_MERGED != 0;
 
     // Node kinds, rank directory, and the leaves (for the order checks below).
     let mut leaves: Vec<(u64, u32, u64, NodeKind)> = Vec::new();
-    let (mut empty, mut solid) = (0u64, 0u64);
-    for (l, lv) in levels.iter().enumerate() {
-        let l = l as u32;
+    for (ll, lv) in levels.iter().enumerate() {
+        let l = base + ll as u32;
         let mut internal = 0u64;
         let mut rank = 0u64;
         for w in 0..lv.node_count.div_ceil(64) {
-            let Some(word) = ranks.get((lv.rank_start + w) as usize) else {
-                d.push(format!("level {l}: rank word {w} missing"));
+            let Some(word) = u.map.rank_word(l, w) else {
+                d.push(format!("{label} level {l}: rank word {w} missing"));
                 break;
             };
             let mut bits = 0u64;
             for i in 64 * w..(64 * w + 64).min(lv.node_count) {
-                let Some(rec) = nodes.get((lv.node_start + i) as usize) else {
+                let Ok(rec) = u.map.node(l, i) else {
                     break;
                 };
                 match rec.kind() {
-                    None => d.push(format!("level {l} node {i}: invalid record {rec:?}")),
+                    None => d.push(format!(
+                        "{label} level {l} node {i}: invalid record {rec:?}"
+                    )),
                     Some(NodeKind::Internal) => {
                         bits |= 1 << (i % 64);
                         internal += 1;
                     }
+                    Some(NodeKind::Solid { .. }) if u.top => d.push(format!(
+                        "{label} level {l} node {i}: a solid leaf in the top tree"
+                    )),
+                    Some(NodeKind::Link { .. }) if !u.top => {
+                        d.push(format!("{label} level {l} node {i}: a link inside a block"))
+                    }
                     Some(k) => {
-                        if let NodeKind::Empty { .. } = k {
-                            empty += 1;
-                        } else {
-                            solid += 1;
+                        match k {
+                            NodeKind::Empty { .. } => totals.empty += 1,
+                            NodeKind::Solid { .. } => totals.solid += 1,
+                            _ => {}
                         }
                         leaves.push((0, l, i, k));
                     }
@@ -166,7 +447,7 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
             }
             if word.internal != bits || word.rank != rank {
                 d.push(format!(
-                    "level {l} rank word {w}: stores bits {:#x} rank {}, the nodes give {bits:#x} and {rank}",
+                    "{label} level {l} rank word {w}: stores bits {:#x} rank {}, the nodes give {bits:#x} and {rank}",
                     word.internal, word.rank
                 ));
             }
@@ -174,23 +455,31 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
         }
         if internal != lv.internal_count {
             d.push(format!(
-                "level {l}: {internal} internal nodes, the level table says {}",
+                "{label} level {l}: {internal} internal nodes, the level table says {}",
                 lv.internal_count
             ));
         }
     }
-    if empty != header.empty_leaves || solid != header.solid_leaves {
-        d.push(format!(
-            "{empty} empty and {solid} solid leaves, the header says {} and {}",
-            header.empty_leaves, header.solid_leaves
-        ));
-    }
 
-    // Leaf codes, for depth-first order: found from the root by rank, never trusted from data.
-    fill_leaf_keys(&map, &mut leaves, d);
+    // Leaf codes, for depth-first order: found from the roots by rank, never trusted from data.
+    let codes = level_codes(u, d);
+    for leaf in leaves.iter_mut() {
+        let (l, i) = (leaf.1, leaf.2);
+        let code = codes
+            .get((l - base) as usize)
+            .and_then(|c| c.get(i as usize))
+            .copied()
+            .unwrap_or(0);
+        leaf.0 = crate::mapping::morton::encode(cell_origin(code, l));
+        if let NodeKind::Link { block, root } = leaf.3 {
+            totals.links.push((block, root, l, code));
+        }
+    }
     leaves.sort_unstable_by_key(|&(key, ..)| key);
 
     // Solid leaves tile the references in depth-first order; empty leaves' volumes contain them.
+    // (Triangles are marked used from the leaves' ranges: a count word is not a reference.)
+    let mut tri_used = vec![false; tris.len()];
     let mut next_ref = 0u64;
     let mut volume_used = vec![false; volumes.len()];
     for &(key, l, i, kind) in &leaves {
@@ -204,107 +493,120 @@ fn check_structure<D: AsRef<[u8]>>(file: &OavmFile<D>, header: &Header, d: &mut 
             } => {
                 if first as u64 != next_ref {
                     d.push(format!(
-                        "level {l} node {i}: references start at {first}, expected {next_ref} (leaf order)"
+                        "{label} level {l} node {i}: references start at {first}, expected {next_ref} (leaf order)"
                     ));
                 }
                 match leaf_refs(refs, first, inline_count) {
                     None => {
-                        d.push(format!("level {l} node {i}: references run past the refs section or have a bad count word"));
+                        d.push(format!("{label} level {l} node {i}: references run past the refs or have a bad count word"));
                         next_ref = first as u64 + inline_count.max(1) as u64;
                     }
                     Some((leaf, range)) => {
                         next_ref = range.end as u64;
+                        for &t in leaf {
+                            match tri_used.get_mut(t as usize) {
+                                Some(used) => *used = true,
+                                None => d.push(format!(
+                                    "{label} level {l} node {i}: triangle {t} out of range"
+                                )),
+                            }
+                        }
                         if !leaf.windows(2).all(|w| w[0] < w[1]) {
                             d.push(format!(
-                                "level {l} node {i}: references are not strictly increasing"
+                                "{label} level {l} node {i}: references are not strictly increasing"
                             ));
                         }
                         if let Some(what) = bounds_defect(header, tris, leaf, lo, size, bounds) {
-                            d.push(format!("level {l} node {i}: {what}"));
+                            d.push(format!("{label} level {l} node {i}: {what}"));
                         }
                     }
                 }
             }
             NodeKind::Empty { volume, shape } => match volumes.get(volume as usize) {
-                None => d.push(format!("level {l} node {i}: volume {volume} out of range")),
+                None => d.push(format!(
+                    "{label} level {l} node {i}: volume {volume} out of range"
+                )),
                 Some(v) => {
                     volume_used[volume as usize] = true;
                     let contains = (0..3).all(|k| v.lo[k] <= lo[k] && lo[k] + size <= v.hi[k]);
                     if !contains {
                         d.push(format!(
-                            "level {l} node {i}: volume {volume} does not contain the leaf"
+                            "{label} level {l} node {i}: volume {volume} does not contain the leaf"
                         ));
                     }
                     let (slo, shi) = shape.box_around(lo);
                     if !merged && (shape.level as u32 != l || shape.axes != 0) {
-                        d.push(format!("level {l} node {i}: merged volume {shape:?} in a file built without merging"));
+                        d.push(format!("{label} level {l} node {i}: merged volume {shape:?} in a file built without merging"));
                     }
                     if shape.level as u32 > l || slo != v.lo || shi != v.hi {
                         d.push(format!(
-                            "level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
+                            "{label} level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
                         ));
                     }
                 }
             },
-            NodeKind::Internal => {}
+            NodeKind::Internal | NodeKind::Link { .. } => {}
         }
     }
     if next_ref != refs.len() as u64 {
         d.push(format!(
-            "leaves reference {next_ref} of {} stored references",
+            "{label}: leaves reference {next_ref} of {} stored references",
             refs.len()
         ));
     }
 
-    // Volumes: valid boxes in the lattice, used, and overlapping no solid leaf.
+    // Volumes: valid boxes in the lattice, used, and overlapping no solid leaf (nor, in the top
+    // tree, any block's subtree).
     for (i, v) in volumes.iter().enumerate() {
         if !(0..3).all(|k| v.lo[k] < v.hi[k] && v.hi[k] <= LATTICE_SIZE) {
-            d.push(format!("volume {i}: {v:?} is not a box inside the lattice"));
+            d.push(format!(
+                "{label} volume {i}: {v:?} is not a box inside the lattice"
+            ));
             continue;
         }
         if !volume_used[i] {
-            d.push(format!("volume {i}: referenced by no empty leaf"));
+            d.push(format!("{label} volume {i}: referenced by no empty leaf"));
         }
-        if let Some(what) = solid_leaf_inside(&map, v) {
-            d.push(format!("volume {i}: {what}"));
+        if let Some(what) = solid_leaf_inside(u, v) {
+            d.push(format!("{label} volume {i}: {what}"));
         }
     }
 
-    // References and triangles.
-    let mut tri_used = vec![false; tris.len()];
-    for (i, &r) in refs.iter().enumerate() {
-        match tri_used.get_mut(r as usize) {
-            Some(u) => *u = true,
-            None => d.push(format!("reference {i}: triangle {r} out of range")),
-        }
-    }
+    // Triangles (each referenced by some leaf's references, marked above).
     for (i, t) in tris.iter().enumerate() {
         if !t.v.iter().flatten().all(|c| c.is_finite()) {
-            d.push(format!("triangle {i}: non-finite coordinates"));
+            d.push(format!("{label} triangle {i}: non-finite coordinates"));
         }
         if t.prim as u64 >= header.input_triangles {
             d.push(format!(
-                "triangle {i}: primitive id {} beyond the input's {} triangles",
+                "{label} triangle {i}: primitive id {} beyond the input's {} triangles",
                 t.prim, header.input_triangles
             ));
         }
         if !tri_used[i] {
-            d.push(format!("triangle {i}: referenced by no leaf"));
+            d.push(format!("{label} triangle {i}: referenced by no leaf"));
+        }
+        for p in &t.v {
+            for (k, &c) in p.iter().enumerate() {
+                totals.lo[k] = totals.lo[k].min(c);
+                totals.hi[k] = totals.hi[k].max(c);
+            }
         }
     }
+    totals
 }
 
-/// Replaces each leaf's key by the Morton code of its lowest lattice corner, found by walking
-/// the tree from the root (so a corrupt rank directory shows as a defect, not a wrong key).
-fn fill_leaf_keys(map: &TreeMap, leaves: &mut [(u64, u32, u64, NodeKind)], d: &mut Defects) {
-    // Codes per level, generated top-down by rank: level L+1's codes are the children of level
-    // L's internal nodes, in order.
-    let mut codes: Vec<Vec<u64>> = vec![vec![0]];
-    for (l, lv) in map.levels().iter().enumerate().skip(1) {
-        let prev = &codes[l - 1];
-        let mut next = Vec::with_capacity(lv.node_count as usize);
+/// The Morton codes of a unit's nodes, by local level, generated from its roots by rank: level
+/// `l + 1`'s codes are the children of level `l`'s internal nodes, in order.
+fn level_codes(u: &Unit, d: &mut Defects) -> Vec<Vec<u64>> {
+    let base = u.map.base();
+    let mut codes: Vec<Vec<u64>> = vec![u.root_codes.clone()];
+    for (ll, lv) in u.map.levels().iter().enumerate().skip(1) {
+        let l = base + ll as u32;
+        let prev = &codes[ll - 1];
+        let mut next = Vec::with_capacity(lv.node_count.min(1 << 24) as usize);
         for (i, &code) in prev.iter().enumerate() {
-            if let Ok(rec) = map.node(l as u32 - 1, i as u64)
+            if let Ok(rec) = u.map.node(l - 1, i as u64)
                 && rec.kind() == Some(NodeKind::Internal)
             {
                 next.extend((0..8).map(|o| code << 3 | o));
@@ -312,22 +614,15 @@ fn fill_leaf_keys(map: &TreeMap, leaves: &mut [(u64, u32, u64, NodeKind)], d: &m
         }
         if next.len() as u64 != lv.node_count {
             d.push(format!(
-                "level {l}: {} nodes, but the level above has children for {}",
+                "{} level {l}: {} nodes, but the level above has children for {}",
+                u.label,
                 lv.node_count,
                 next.len()
             ));
         }
         codes.push(next);
     }
-    for leaf in leaves.iter_mut() {
-        let (l, i) = (leaf.1, leaf.2);
-        let code = codes
-            .get(l as usize)
-            .and_then(|c| c.get(i as usize))
-            .copied()
-            .unwrap_or(0);
-        leaf.0 = crate::mapping::morton::encode(cell_origin(code, l));
-    }
+    codes
 }
 
 /// Checks that a solid leaf's tight bounds contain every part of its triangles inside its cell
@@ -376,9 +671,17 @@ fn bounds_defect(
     None
 }
 
-/// Describes a solid leaf whose interior overlaps box `v`, if there is one.
-fn solid_leaf_inside(map: &TreeMap, v: &VolumeRecord) -> Option<String> {
-    let mut stack = vec![(0u32, 0u64, [0u32; 3])];
+/// Describes a solid leaf (or, in the top tree, a block's subtree) whose interior overlaps box
+/// `v`, if there is one.
+fn solid_leaf_inside(u: &Unit, v: &VolumeRecord) -> Option<String> {
+    let map = &u.map;
+    let base = map.base();
+    let mut stack: Vec<(u32, u64, [u32; 3])> = u
+        .root_codes
+        .iter()
+        .enumerate()
+        .map(|(j, &code)| (base, j as u64, cell_origin(code, base)))
+        .collect();
     let mut budget = map.levels().iter().map(|l| l.node_count).sum::<u64>();
     while let Some((l, idx, lo)) = stack.pop() {
         budget = budget.checked_sub(1)?;
@@ -391,6 +694,11 @@ fn solid_leaf_inside(map: &TreeMap, v: &VolumeRecord) -> Option<String> {
             NodeKind::Solid { .. } => {
                 return Some(format!(
                     "covers part of solid leaf at level {l}, lattice {lo:?}"
+                ));
+            }
+            NodeKind::Link { block, .. } => {
+                return Some(format!(
+                    "covers part of block {block}'s subtree at level {l}, lattice {lo:?}"
                 ));
             }
             NodeKind::Empty { .. } => {}
