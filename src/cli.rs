@@ -71,6 +71,32 @@ impl Progress {
     }
 }
 
+/// The streaming pack's phases as a bar with a rate and an estimate of the time left (bytes of
+/// the input, or chunks built).
+impl crate::build::streaming::PackProgress for Progress {
+    fn phase(&self, name: &str, total: u64, bytes: bool) {
+        let template = if bytes {
+            "{spinner} [{elapsed_precise}] {msg:<16} [{bar:30}] {bytes}/{total_bytes} \
+             {binary_bytes_per_sec}, {eta} left"
+        } else {
+            "{spinner} [{elapsed_precise}] {msg:<16} [{bar:30}] {pos}/{len} {per_sec}, {eta} left"
+        };
+        self.bar.set_style(
+            ProgressStyle::with_template(template)
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        self.bar.set_length(total);
+        self.bar.set_position(0);
+        self.bar.reset_eta();
+        self.bar.set_message(name.to_string());
+    }
+
+    fn at(&self, done: u64) {
+        self.bar.set_position(done);
+    }
+}
+
 impl Drop for Progress {
     fn drop(&mut self) {
         self.finish();

@@ -39,6 +39,11 @@ struct Args {
     #[arg(long, value_name = "LEVEL", num_args = 0..=1, require_equals = true,
           default_missing_value = "3", allow_negative_numbers = true)]
     compress: Option<i32>,
+    /// Pack within about this much memory (e.g. 4G), streaming the mesh: for meshes whose
+    /// triangles do not fit in memory. Reads binary PLY only. Without it the whole mesh is read
+    /// and built in memory.
+    #[arg(long, value_name = "SIZE", value_parser = oavm::cli::parse_bytes)]
+    mem_budget: Option<u64>,
     /// Print the report as one JSON object.
     #[arg(long)]
     json: bool,
@@ -62,10 +67,22 @@ fn main() -> ExitCode {
         };
         blocks.validate()?;
         let progress = Progress::new(std::io::stderr().is_terminal());
-        let report = with_threads(args.threads, || {
-            build::pack_with(&args.mesh, args.time, &args.out, &opts, &blocks, &|m| {
+        let report = with_threads(args.threads, || match args.mem_budget {
+            Some(budget) => {
+                if args.time.is_some() {
+                    return Err(oavm::Error::Invalid(
+                        "--time poses an .aff scene, which --mem-budget cannot stream (binary PLY \
+                         only)"
+                            .into(),
+                    ));
+                }
+                build::streaming::pack_streaming(
+                    &args.mesh, &args.out, &opts, &blocks, budget, &progress,
+                )
+            }
+            None => build::pack_with(&args.mesh, args.time, &args.out, &opts, &blocks, &|m| {
                 progress.set(m)
-            })
+            }),
         })?;
         progress.finish();
         let mut out = std::io::stdout().lock();
@@ -166,6 +183,19 @@ fn human(r: &PackReport) -> String {
             }
         ),
     );
+    if let Some(st) = &r.streaming {
+        line(
+            "streaming",
+            format!(
+                "budget {} MiB: {} chunks of at most ~{} triangles (largest ~{}), {:.1} MB spilled",
+                st.mem_budget >> 20,
+                st.chunks,
+                st.chunk_triangles_target,
+                st.largest_chunk_estimate,
+                st.spill_bytes as f64 / 1e6
+            ),
+        );
+    }
     line(
         "time",
         format!(

@@ -26,7 +26,7 @@
 //! box is entirely empty. `format-spec.md` §5 states the same rule.
 
 use crate::build::subdivide::{BuildLevel, BuildNode};
-use crate::mapping::morton::{LATTICE_SIZE, cell_origin, cell_size};
+use crate::mapping::morton::{cell_origin, cell_size};
 use crate::physical::format::{VolumeRecord, VolumeShape};
 
 /// An empty leaf's merged volume: its box, and its shape relative to the leaf.
@@ -51,6 +51,12 @@ pub fn cell_box(code: u64, level: u32) -> VolumeRecord {
 
 /// Assigns a box to every empty leaf: its merged volume when `merge` is set, else its own cell.
 pub fn merge_volumes(levels: &[BuildLevel], merge: bool) -> LeafBoxes {
+    merge_volumes_from(levels, 0, merge)
+}
+
+/// [`merge_volumes`] for a subtree whose `levels[0]` is absolute level `base` (one node). An
+/// all-empty subtree's box is its root's cell (the whole lattice for the whole tree).
+pub fn merge_volumes_from(levels: &[BuildLevel], base: u32, merge: bool) -> LeafBoxes {
     let is_empty_leaf = |n: &BuildNode| matches!(n, BuildNode::Leaf(t) if t.is_empty());
     if !merge {
         return levels
@@ -62,9 +68,9 @@ pub fn merge_volumes(levels: &[BuildLevel], merge: bool) -> LeafBoxes {
                     .zip(&lv.codes)
                     .map(|(n, &code)| {
                         is_empty_leaf(n).then(|| Merged {
-                            volume: cell_box(code, l as u32),
+                            volume: cell_box(code, base + l as u32),
                             shape: VolumeShape {
-                                level: l as u8,
+                                level: (base + l as u32) as u8,
                                 axes: 0,
                             },
                         })
@@ -94,14 +100,16 @@ pub fn merge_volumes(levels: &[BuildLevel], merge: bool) -> LeafBoxes {
 
     // Top-down: the box of every all-empty node.
     let mut boxes: LeafBoxes = levels.iter().map(|lv| vec![None; lv.nodes.len()]).collect();
-    if all_empty[0][0] {
-        boxes[0][0] = Some(Merged {
-            volume: VolumeRecord {
-                lo: [0; 3],
-                hi: [LATTICE_SIZE; 3],
-            },
-            shape: VolumeShape { level: 0, axes: 0 },
-        });
+    for (i, &empty) in all_empty[0].iter().enumerate() {
+        if empty {
+            boxes[0][i] = Some(Merged {
+                volume: cell_box(levels[0].codes[i], base),
+                shape: VolumeShape {
+                    level: base as u8,
+                    axes: 0,
+                },
+            });
+        }
     }
     for l in 0..levels.len().saturating_sub(1) {
         let mut rank = 0usize;
@@ -120,15 +128,15 @@ pub fn merge_volumes(levels: &[BuildLevel], merge: bool) -> LeafBoxes {
             }
             // Type-2: same-parent merging of its empty children.
             let empty: [bool; 8] = std::array::from_fn(|c| all_empty[l + 1][first + c]);
-            let parent = cell_box(levels[l].codes[idx], l as u32);
-            let half = cell_size(l as u32 + 1);
+            let parent = cell_box(levels[l].codes[idx], base + l as u32);
+            let half = cell_size(base + l as u32 + 1);
             for c in 0..8 {
                 if empty[c] {
                     let axes = merged_axes(&empty, c);
                     boxes[l + 1][first + c] = Some(Merged {
                         volume: group_box(&parent, half, c, axes),
                         shape: VolumeShape {
-                            level: l as u8 + 1,
+                            level: (base + l as u32) as u8 + 1,
                             axes,
                         },
                     });

@@ -9,6 +9,7 @@
 
 pub mod merge;
 pub mod spill;
+pub mod streaming;
 pub mod subdivide;
 
 use std::collections::HashMap;
@@ -297,6 +298,17 @@ fn layout(
     records: &[TriRecord],
     lattice: &[LatticeTri],
 ) -> Result<TreeParts, Error> {
+    layout_from(levels, 0, boxes, records, lattice)
+}
+
+/// [`layout`] for a subtree whose `levels[0]` is absolute level `base`.
+fn layout_from(
+    levels: &[BuildLevel],
+    base: u32,
+    boxes: &merge::LeafBoxes,
+    records: &[TriRecord],
+    lattice: &[LatticeTri],
+) -> Result<TreeParts, Error> {
     // All leaves, ordered by the Morton code of their lowest lattice corner: depth-first order,
     // so the leaves (and with them references and triangles) of a subtree are contiguous.
     let mut leaves: Vec<(u64, u32, u32)> = levels
@@ -309,7 +321,11 @@ fn layout(
                 .enumerate()
                 .filter(|(_, (n, _))| matches!(n, BuildNode::Leaf(_)))
                 .map(move |(i, (_, &code))| {
-                    (code << (3 * (MAX_LEVEL - l as u32)), l as u32, i as u32)
+                    (
+                        code << (3 * (MAX_LEVEL - base - l as u32)),
+                        l as u32,
+                        i as u32,
+                    )
                 })
         })
         .collect();
@@ -324,7 +340,9 @@ fn layout(
                 .par_iter()
                 .zip(&lv.codes)
                 .map(|(n, &code)| match n {
-                    BuildNode::Leaf(t) if !t.is_empty() => leaf_bounds(lattice, t, code, l as u32),
+                    BuildNode::Leaf(t) if !t.is_empty() => {
+                        leaf_bounds(lattice, t, code, base + l as u32)
+                    }
                     _ => LeafBounds::FULL,
                 })
                 .collect()
@@ -552,7 +570,25 @@ pub struct PackReport {
     #[serde(rename = "block_options")]
     pub blocks: BlockOptions,
     pub block_count: u32,
+    /// How the streaming builder (`--mem-budget`) split the work; absent for the in-memory one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub streaming: Option<StreamingReport>,
     pub total_seconds: f64,
+}
+
+/// What the streaming builder did ([`streaming::pack_streaming`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct StreamingReport {
+    pub mem_budget: u64,
+    /// Subtrees built in memory one at a time.
+    pub chunks: u64,
+    /// Triangles a chunk may hold, from the budget.
+    pub chunk_triangles_target: u64,
+    /// The largest chunk's triangle count as the histogram estimated it.
+    pub largest_chunk_estimate: u64,
+    /// Bytes spilled to the temporary file (triangles, once per chunk they overlap).
+    pub spill_bytes: u64,
+    pub histogram_level: u32,
 }
 
 /// Reads the mesh at `mesh_path`, builds its tree and writes it to `out` atomically: on any
@@ -624,6 +660,7 @@ pub fn pack_with(
         file_bytes,
         blocks: *blocks,
         block_count,
+        streaming: None,
         total_seconds: t0.elapsed().as_secs_f64(),
     })
 }

@@ -70,15 +70,29 @@ pub fn subdivide(
     params: SubdivideParams,
     on_level: &(dyn Fn(u32, usize) + Sync),
 ) -> Vec<BuildLevel> {
+    subdivide_from(tris, 0, 0, params, on_level)
+}
+
+/// Builds the subtree of node `code` at level `base` over `tris` (the triangles that overlap
+/// the node's widened cell): `levels[i]` is absolute level `base + i`, codes are absolute. The
+/// node is treated as having no ancestors (for the rule that stops where subdivision separates
+/// nothing). Used by the streaming builder, one chunk of the tree at a time.
+pub fn subdivide_from(
+    tris: &[LatticeTri],
+    base: u32,
+    code: u64,
+    params: SubdivideParams,
+    on_level: &(dyn Fn(u32, usize) + Sync),
+) -> Vec<BuildLevel> {
     let max_depth = params.max_depth.min(MAX_LEVEL);
     let mut levels = Vec::new();
     let mut current = vec![Pending {
-        code: 0,
+        code,
         tris: (0..tris.len() as u32).collect(),
         parent_count: u32::MAX,
         grand_count: u32::MAX,
     }];
-    for level in 0..=max_depth {
+    for level in base.min(max_depth)..=max_depth {
         let split: Vec<Decision> = current
             .into_par_iter()
             .map(|p| {

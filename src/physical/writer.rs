@@ -270,6 +270,20 @@ pub struct FileSink {
     out: std::io::BufWriter<std::fs::File>,
 }
 
+impl FileSink {
+    /// Appends to `file`, from its current position, through a 1 MiB buffer.
+    pub fn new(file: std::fs::File) -> FileSink {
+        FileSink {
+            out: std::io::BufWriter::with_capacity(1 << 20, file),
+        }
+    }
+
+    /// Flushes the buffer and gives the file back.
+    pub fn into_file(self) -> std::io::Result<std::fs::File> {
+        self.out.into_inner().map_err(|e| e.into_error())
+    }
+}
+
 impl Sink for FileSink {
     fn append(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         self.out.write_all(bytes)
