@@ -8,7 +8,7 @@
 //! 2. *Bounds*: a pass over the triangles finds the bounds of the non-degenerate ones, hence the
 //!    root cube (the same one the in-memory builder fits, format-spec §2).
 //! 3. *Histogram*: a second pass counts, for every cell of level `H` (at most 8: 16.7 million
-//!    cells), the triangles that overlap it widened by the cell margin (the exact triangle–box
+//!    cells; less where that would take more than an eighth of the budget), the triangles that overlap it widened by the cell margin (the exact triangle–box
 //!    test of spec §6 where a triangle's box spans several cells). Summed upwards, these counts
 //!    decide the **top of the tree** without holding any triangle: a node holding more than a
 //!    chunk's worth of triangles is split, a node holding none is an empty leaf, any other node
@@ -113,7 +113,12 @@ pub fn pack_streaming(
     // 1. Vertices.
     progress.phase("reading vertices", file_len, true);
     let positions = ply.read_positions(&|b| progress.at(b))?;
-    let h = HISTOGRAM_LEVEL.min(opts.max_depth);
+    // The histogram and its cell-to-chunk table take at most an eighth of the budget.
+    let h = (1..=HISTOGRAM_LEVEL.min(opts.max_depth).max(1))
+        .rev()
+        .find(|&h| 8u64 << (3 * h) <= mem_budget / 8)
+        .unwrap_or(1)
+        .min(opts.max_depth);
     // Positions, and the histogram and the cell-to-chunk table (4 bytes a cell each).
     let fixed = positions.len() as u64 * 12 + (8u64 << (3 * h));
 

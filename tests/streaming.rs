@@ -1,0 +1,177 @@
+//! The streaming pack (`oavm-pack --mem-budget`, `build::streaming`): a small budget splits the
+//! bunny into hundreds of chunks, and the file must still verify and answer every ray exactly
+//! as the in-memory pack's file does; temporary files never outlive the pack; bad input leaves
+//! no output.
+
+mod common;
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use oavm::build::streaming::{Quiet, pack_streaming};
+use oavm::build::{self, BuildOptions};
+use oavm::physical::writer::BlockOptions;
+use oavm::rays::{self, Bounds, Camera};
+use oavm::{Hit, Scene};
+use tempfile::TempDir;
+
+fn bunny() -> oavm::mesh::Mesh {
+    oavm::mesh::load(&common::shared_scene("bunny/bun_zipper.ply")).expect("bunny")
+}
+
+/// Writes `mesh` as a binary little-endian PLY, with quads made of some triangle pairs' ids
+/// left as triangles (ids are what RAYS.md counts).
+fn write_binary_ply(mesh: &oavm::mesh::Mesh, path: &Path) {
+    let mut out = Vec::new();
+    write!(
+        out,
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\n\
+         property float y\nproperty float z\nelement face {}\n\
+         property list uchar int vertex_indices\nend_header\n",
+        mesh.positions.len(),
+        mesh.triangles.len()
+    )
+    .unwrap();
+    for p in &mesh.positions {
+        for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for t in &mesh.triangles {
+        out.push(3);
+        for i in t {
+            out.extend_from_slice(&(*i as i32).to_le_bytes());
+        }
+    }
+    fs::write(path, out).unwrap();
+}
+
+fn ray_sets(mesh: &oavm::mesh::Mesh) -> Vec<oavm::Ray> {
+    let b = Bounds::of_points(mesh.positions.iter().copied());
+    let mut all = rays::random_rays(&b, 20_000, 7);
+    all.extend(Camera::framing(&b).primary_rays(160, 120));
+    all
+}
+
+fn answers(path: &Path, rays: &[oavm::Ray]) -> (Vec<Hit>, Vec<u8>) {
+    let scene = Scene::open(path).expect("open");
+    let mut hits = vec![Hit::MISS; rays.len()];
+    scene.intersect_batch(rays, &mut hits).expect("trace");
+    let mut occ = vec![0u8; rays.len()];
+    scene.occluded_batch(rays, &mut occ).expect("trace");
+    (hits, occ)
+}
+
+/// Every entry of `dir` (to check that no temporary file is left).
+fn entries(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_tiny_budget_gives_the_same_answers_as_the_in_memory_pack() {
+    let dir = TempDir::new().unwrap();
+    let mesh = bunny();
+    let ply = dir.path().join("bunny.ply");
+    write_binary_ply(&mesh, &ply);
+    let in_memory = dir.path().join("memory.oavm");
+    build::pack(&ply, &in_memory, &BuildOptions::default(), &|_| {}).unwrap();
+    let rays = ray_sets(&mesh);
+    let expected = answers(&in_memory, &rays);
+
+    // (budget, codec, at least this many chunks): 16 MiB leaves about 3 MiB for a chunk, a few
+    // thousand triangles; 4 GiB holds the bunny in one chunk.
+    for (budget, compress, min_chunks) in [
+        (16u64 << 20, None, 10),
+        (16 << 20, Some(3), 10),
+        (4 << 30, None, 1),
+    ] {
+        let out = dir
+            .path()
+            .join(format!("streamed-{budget}-{compress:?}.oavm"));
+        let blocks = BlockOptions {
+            block_size: 16 << 10,
+            compress,
+        };
+        let report = pack_streaming(
+            &ply,
+            &out,
+            &BuildOptions::default(),
+            &blocks,
+            budget,
+            &Quiet,
+        )
+        .unwrap();
+        let st = report.streaming.as_ref().expect("a streaming report");
+        assert!(
+            st.chunks >= min_chunks,
+            "budget {budget}: only {} chunks",
+            st.chunks
+        );
+        assert_eq!(report.stats.input_triangles, mesh.triangles.len() as u64);
+        let scene = Scene::open(&out).unwrap();
+        let v = scene.verify();
+        assert!(v.is_ok(), "budget {budget}: {:?}", v.defects);
+        assert_eq!(
+            answers(&out, &rays),
+            expected,
+            "budget {budget}: answers differ"
+        );
+    }
+    // Only the inputs and outputs remain: the spill file had no name, the output's temporary
+    // file was renamed.
+    let names: Vec<String> = entries(dir.path())
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names
+            .iter()
+            .all(|n| n.ends_with(".ply") || n.ends_with(".oavm")),
+        "{names:?}"
+    );
+}
+
+#[test]
+fn bad_input_gives_an_error_and_no_output() {
+    let dir = TempDir::new().unwrap();
+    let mesh = bunny();
+    let ply = dir.path().join("bunny.ply");
+    write_binary_ply(&mesh, &ply);
+    let bytes = fs::read(&ply).unwrap();
+    let opts = BuildOptions::default();
+    let blocks = BlockOptions::default();
+
+    // Truncated body; an index past the vertices; an ascii PLY (the streaming path reads binary
+    // only); a missing file.
+    let truncated = dir.path().join("truncated.ply");
+    fs::write(&truncated, &bytes[..bytes.len() - 7]).unwrap();
+    let mut bad_index = bytes.clone();
+    let n = bad_index.len();
+    bad_index[n - 4..].copy_from_slice(&(1i32 << 30).to_le_bytes());
+    let out_of_range = dir.path().join("index.ply");
+    fs::write(&out_of_range, &bad_index).unwrap();
+    let ascii = common::shared_scene("bunny/bun_zipper.ply");
+    let missing = dir.path().join("missing.ply");
+    for (input, says) in [
+        (&truncated, "truncated.ply"),
+        (&out_of_range, "index.ply"),
+        (&ascii, "binary PLY"),
+        (&missing, "missing.ply"),
+    ] {
+        let out = dir.path().join("out.oavm");
+        let err = pack_streaming(input, &out, &opts, &blocks, 64 << 20, &Quiet)
+            .err()
+            .unwrap_or_else(|| panic!("{} packed", input.display()))
+            .to_string();
+        assert!(err.contains(says), "{}: {err}", input.display());
+        assert!(!out.exists(), "{}: an output was left", input.display());
+    }
+    let names: Vec<PathBuf> = entries(dir.path());
+    assert_eq!(names.len(), 3, "temporary files left: {names:?}");
+}
