@@ -155,10 +155,9 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
 
     // Links: every block root linked exactly once, from its level.
     let directory = file.directory();
-    let mut roots: Vec<Vec<Option<u64>>> = directory
-        .iter()
-        .map(|e| vec![None; (e.root_count as usize).min(top_totals.links.len())])
-        .collect();
+    // (The map holds one entry per link: its size follows the top tree's, never the
+    // directory's claims.)
+    let mut roots: std::collections::HashMap<(u32, u32), u64> = std::collections::HashMap::new();
     for &(b, root, level, code) in &top_totals.links {
         let Some(entry) = directory.get(b as usize) else {
             d.push(format!(
@@ -173,13 +172,13 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
                 entry.root_level
             ));
         }
-        match roots[b as usize].get_mut(root as usize) {
-            Some(slot @ None) => *slot = Some(code),
-            Some(Some(_)) => d.push(format!("block {b}: root {root} is linked twice")),
-            None => d.push(format!(
+        if root >= entry.root_count {
+            d.push(format!(
                 "top tree: a link to root {root} of block {b}, which has {}",
                 entry.root_count
-            )),
+            ));
+        } else if roots.insert((b, root), code).is_some() {
+            d.push(format!("block {b}: root {root} is linked twice"));
         }
     }
 
@@ -227,7 +226,22 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
             header.max_block_raw_len
         ));
     }
-    let prims_seen: Vec<std::sync::atomic::AtomicU64> = (0..header.input_triangles.div_ceil(64))
+    // Distinct triangles, by primitive id: a bitset of `input_triangles` bits, at most as many
+    // bytes as the file has (a header claiming more is reported, and the count skipped), so
+    // that no header makes verify allocate more than the file's size.
+    let plausible = header.input_triangles <= 8 * bytes.len() as u64;
+    if !plausible {
+        d.push(format!(
+            "header: input_triangles {} is implausible for a file of {} bytes",
+            header.input_triangles,
+            bytes.len()
+        ));
+    }
+    let prims_seen: Vec<std::sync::atomic::AtomicU64> = (0..if plausible {
+        header.input_triangles.div_ceil(64)
+    } else {
+        0
+    })
         .map(|_| std::sync::atomic::AtomicU64::new(0))
         .collect();
     let results: Vec<(Vec<String>, usize, UnitTotals)> = (0..directory.len())
@@ -237,7 +251,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
                 list: Vec::new(),
                 more: 0,
             };
-            let totals = check_block(file, header, b as u32, &roots[b], &prims_seen, &mut bd);
+            let totals = check_block(file, header, b as u32, &roots, &prims_seen, &mut bd);
             (bd.list, bd.more, totals)
         })
         .collect();
@@ -281,7 +295,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
         .iter()
         .map(|w| w.load(std::sync::atomic::Ordering::Relaxed).count_ones() as u64)
         .sum();
-    if distinct != header.stored_triangles {
+    if plausible && distinct != header.stored_triangles {
         d.push(format!(
             "blocks hold {distinct} distinct triangles, the header says {}",
             header.stored_triangles
@@ -301,7 +315,7 @@ fn check_block<D: AsRef<[u8]> + Sync>(
     file: &OavmFile<D>,
     header: &Header,
     b: u32,
-    roots: &[Option<u64>],
+    roots: &std::collections::HashMap<(u32, u32), u64>,
     prims_seen: &[std::sync::atomic::AtomicU64],
     d: &mut Defects,
 ) -> UnitTotals {
@@ -365,14 +379,29 @@ fn check_block<D: AsRef<[u8]> + Sync>(
             return UnitTotals::default();
         }
     };
-    let Some(root_codes) = roots.iter().copied().collect::<Option<Vec<u64>>>() else {
+    // Zero padding between the block's parts (the layout was checked by block_view).
+    if let Some((ranges, _)) = block_layout(&view.header) {
+        let mut at = std::mem::size_of::<BlockHeader>() as u64;
+        for r in ranges {
+            if raw
+                .get(at as usize..r.start as usize)
+                .is_some_and(|pad| pad.iter().any(|&x| x != 0))
+            {
+                d.push(format!(
+                    "block {b}: padding at bytes {at}..{} is not zero",
+                    r.start
+                ));
+            }
+            at = r.end;
+        }
+    }
+    let Some(root_codes) = (0..view.header.root_count)
+        .map(|j| roots.get(&(b, j)).copied())
+        .collect::<Option<Vec<u64>>>()
+    else {
         d.push(format!("block {b}: a root has no link in the top tree"));
         return UnitTotals::default();
     };
-    if root_codes.len() != view.header.root_count as usize {
-        d.push(format!("block {b}: a root has no link in the top tree"));
-        return UnitTotals::default();
-    }
     let unit = Unit {
         label: format!("block {b}"),
         map: TreeMap::with_base(view.levels, view.nodes, view.ranks, view.header.root_level),
