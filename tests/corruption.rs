@@ -1856,28 +1856,28 @@ fn check_bit_flips(
 
 #[test]
 fn bit_flips_in_default_file_are_caught() {
-    if let Err(e) = check_bit_flips(default_file(), 40, true, 1) {
+    if let Err(e) = check_bit_flips(default_file(), 24, true, 1) {
         panic!("{e}");
     }
 }
 
 #[test]
 fn bit_flips_in_default_zstd_file_are_caught() {
-    if let Err(e) = check_bit_flips(default_zstd_file(), 40, false, 11) {
+    if let Err(e) = check_bit_flips(default_zstd_file(), 24, false, 11) {
         panic!("{e}");
     }
 }
 
 #[test]
 fn bit_flips_in_deep_file_are_caught() {
-    if let Err(e) = check_bit_flips(deep_file(), 30, false, 2) {
+    if let Err(e) = check_bit_flips(deep_file(), 16, false, 2) {
         panic!("{e}");
     }
 }
 
 #[test]
 fn bit_flips_in_deep_zstd_file_are_caught() {
-    if let Err(e) = check_bit_flips(deep_zstd_file(), 30, false, 12) {
+    if let Err(e) = check_bit_flips(deep_zstd_file(), 16, false, 12) {
         panic!("{e}");
     }
 }
@@ -2207,6 +2207,8 @@ fn check_rewritten(fix: &'static Fixture, per_region: usize, seed: u64) -> Resul
                 m.how
             );
             let t0 = Instant::now();
+            // Under the tight budget: every third file whose blocks or links changed.
+            let with_tight = with_tight && tally.tried % 3 == 1;
             let verdict = evaluate_guarded(fix, b, with_tight, &what);
             tally.slowest = tally.slowest.max(t0.elapsed());
             let (traced, tight, defects) = match verdict {
@@ -2377,28 +2379,28 @@ fn check_rewritten(fix: &'static Fixture, per_region: usize, seed: u64) -> Resul
 
 #[test]
 fn rewritten_default_file_never_panics_or_hangs() {
-    if let Err(e) = check_rewritten(default_file(), 30, 3) {
+    if let Err(e) = check_rewritten(default_file(), 20, 3) {
         panic!("{e}");
     }
 }
 
 #[test]
 fn rewritten_default_zstd_file_never_panics_or_hangs() {
-    if let Err(e) = check_rewritten(default_zstd_file(), 30, 13) {
+    if let Err(e) = check_rewritten(default_zstd_file(), 12, 13) {
         panic!("{e}");
     }
 }
 
 #[test]
 fn rewritten_deep_file_never_panics_or_hangs() {
-    if let Err(e) = check_rewritten(deep_file(), 25, 4) {
+    if let Err(e) = check_rewritten(deep_file(), 16, 4) {
         panic!("{e}");
     }
 }
 
 #[test]
 fn rewritten_deep_zstd_file_never_panics_or_hangs() {
-    if let Err(e) = check_rewritten(deep_zstd_file(), 25, 14) {
+    if let Err(e) = check_rewritten(deep_zstd_file(), 10, 14) {
         panic!("{e}");
     }
 }
