@@ -345,11 +345,19 @@ fn relayout(b: &[u8], block: usize, stored: &[u8], raw_len: usize) -> Vec<u8> {
         b[o..o + l].to_vec()
     };
     for (i, e) in dir.iter().enumerate() {
-        let align = if e.codec == CODEC_RAW { RAW_ALIGN } else { ALIGN };
+        let align = if e.codec == CODEC_RAW {
+            RAW_ALIGN
+        } else {
+            ALIGN
+        };
         out.resize(out.len().next_multiple_of(align), 0);
         let bytes = if i == block { stored } else { &b[e.stored()] };
         write_u64(&mut dir_bytes, i * DIR_LEN + DIR_OFFSET, out.len() as u64);
-        write_u64(&mut dir_bytes, i * DIR_LEN + DIR_STORED_LEN, bytes.len() as u64);
+        write_u64(
+            &mut dir_bytes,
+            i * DIR_LEN + DIR_STORED_LEN,
+            bytes.len() as u64,
+        );
         if i == block {
             write_u64(&mut dir_bytes, i * DIR_LEN + DIR_RAW_LEN, raw_len as u64);
         }
@@ -610,7 +618,10 @@ struct Fixture {
 impl Fixture {
     fn new(name: &str, mesh: &Mesh, opts: BuildOptions, blocks: BlockOptions) -> Fixture {
         let (parts, _) = oavm::build::build(mesh, &opts, &|_| {}).expect("build");
-        let bytes = encode_with(&parts, &blocks).expect("encode").as_ref().to_vec();
+        let bytes = encode_with(&parts, &blocks)
+            .expect("encode")
+            .as_ref()
+            .to_vec();
         let scene = open(&bytes).expect("the intact file opens");
         let report = scene.verify();
         assert!(report.is_ok(), "{name}: intact file: {:?}", report.defects);
@@ -630,7 +641,9 @@ impl Fixture {
             );
         }
         let links = top_links(&bytes);
-        let largest = (0..dir.len()).max_by_key(|&b| dir[b].raw_len).expect("blocks");
+        let largest = (0..dir.len())
+            .max_by_key(|&b| dir[b].raw_len)
+            .expect("blocks");
         let mut detailed = vec![0, largest, dir.len() - 1];
         detailed.sort_unstable();
         detailed.dedup();
@@ -702,7 +715,11 @@ impl Fixture {
         };
         let mut out = vec![
             file("header".into(), RegionKind::Header, 0..HEADER_LEN),
-            file("section table".into(), RegionKind::Table, HEADER_LEN..TABLE_END),
+            file(
+                "section table".into(),
+                RegionKind::Table,
+                HEADER_LEN..TABLE_END,
+            ),
             file(
                 "padding before the blocks section".into(),
                 RegionKind::Padding,
@@ -781,7 +798,11 @@ impl Fixture {
         }
         let (blocks_at, blocks_len) = section(b, BLOCKS);
         let mut end = blocks_at + blocks_len;
-        assert_eq!(end, self.dir[n - 1].stored().end, "the last block ends the section");
+        assert_eq!(
+            end,
+            self.dir[n - 1].stored().end,
+            "the last block ends the section"
+        );
         for (i, (name, ..)) in SECTIONS.iter().enumerate() {
             let (offset, length) = section(b, i + 1);
             if offset > end {
@@ -1039,7 +1060,8 @@ fn evaluate(fix: &Fixture, bytes: &[u8], with_tight: bool) -> Verdict {
     let tight = with_tight.then(|| {
         catching(|| {
             let data = AlignedBytes::from_slice(bytes);
-            let scene = Scene::from_bytes_with(data, "corrupt.oavm", &tight_options(fix)).expect("opens");
+            let scene =
+                Scene::from_bytes_with(data, "corrupt.oavm", &tight_options(fix)).expect("opens");
             pool2().install(|| trace(fix, &scene))
         })
     });
@@ -1203,10 +1225,7 @@ fn layout_matches_the_spec() {
     assert_eq!(offset_of!(Header, file_size), FILE_SIZE_AT);
     assert_eq!(offset_of!(Header, root_min), ROOT_MIN_AT);
     assert_eq!(offset_of!(Header, root_size), ROOT_SIZE_AT);
-    assert_eq!(
-        offset_of!(Header, max_block_raw_len),
-        MAX_BLOCK_RAW_LEN_AT
-    );
+    assert_eq!(offset_of!(Header, max_block_raw_len), MAX_BLOCK_RAW_LEN_AT);
     let header_fields = [
         offset_of!(Header, block_count),
         offset_of!(Header, block_triangles),
@@ -1229,7 +1248,10 @@ fn layout_matches_the_spec() {
         offset_of!(BlockEntry, triangles),
         offset_of!(BlockEntry, checksum),
     ];
-    assert_eq!(dir_fields.to_vec(), DIR_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>());
+    assert_eq!(
+        dir_fields.to_vec(),
+        DIR_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
     assert_eq!(size_of::<BlockHeader>(), BLOCK_HEADER_LEN);
     let bh_fields = [
         offset_of!(BlockHeader, tag),
@@ -1263,16 +1285,22 @@ fn layout_matches_the_spec() {
     }
     assert_eq!(oavm::physical::format::CODEC_RAW, CODEC_RAW);
     assert_eq!(oavm::physical::format::CODEC_ZSTD, CODEC_ZSTD);
-    assert_eq!(
-        oavm::physical::format::RAW_BLOCK_ALIGN,
-        RAW_ALIGN as u64
-    );
-    for fix in [default_file(), default_zstd_file(), deep_file(), deep_zstd_file()] {
+    assert_eq!(oavm::physical::format::RAW_BLOCK_ALIGN, RAW_ALIGN as u64);
+    for fix in [
+        default_file(),
+        default_zstd_file(),
+        deep_file(),
+        deep_zstd_file(),
+    ] {
         // Recomputing the checksums of an intact file changes nothing: the tests compute them
         // as the writer does.
         let mut b = fix.bytes.clone();
         fix_checksums(&mut b);
-        assert!(b == fix.bytes, "{}: checksums recomputed differently", fix.name);
+        assert!(
+            b == fix.bytes,
+            "{}: checksums recomputed differently",
+            fix.name
+        );
         // Laying the file out again, each detailed block stored again (compressed as the
         // writer compresses), gives the same bytes: the tests lay files out as the writer does.
         for &blk in &fix.detailed {
@@ -1282,7 +1310,11 @@ fn layout_matches_the_spec() {
                 _ => zstd_frame(&fix.decoded[blk]),
             };
             let b = relayout(&fix.bytes, blk, &stored, e.raw_len);
-            assert!(b == fix.bytes, "{}: block {blk} laid out differently", fix.name);
+            assert!(
+                b == fix.bytes,
+                "{}: block {blk} laid out differently",
+                fix.name
+            );
         }
         // Every link is found, one per root of every block.
         let roots: usize = fix.dir.iter().map(|e| e.root_count as usize).sum();
@@ -1311,7 +1343,11 @@ fn layout_matches_the_spec() {
             fix_header_checksum(&mut b);
             let (o, l) = section(&b, DIRECTORY);
             let sum = xxh3_64(&b[o..o + l]);
-            write_u64(&mut b, HEADER_LEN + DIRECTORY * ENTRY_LEN + ENTRY_CHECKSUM, sum);
+            write_u64(
+                &mut b,
+                HEADER_LEN + DIRECTORY * ENTRY_LEN + ENTRY_CHECKSUM,
+                sum,
+            );
             fix_header_checksum(&mut b);
         }
         let checksum_defect = |b: &[u8]| {
@@ -1319,9 +1355,17 @@ fn layout_matches_the_spec() {
             let defects = scene.verify().defects;
             defects.iter().any(|d| d.contains("checksum"))
         };
-        assert!(checksum_defect(&b), "{}: the change is seen by the checksum", fix.name);
+        assert!(
+            checksum_defect(&b),
+            "{}: the change is seen by the checksum",
+            fix.name
+        );
         let b = fix.rewrite(Space::Block(blk), r, &raw[r..r + 1]);
-        assert!(!checksum_defect(&b), "{}: recomputed checksums are accepted", fix.name);
+        assert!(
+            !checksum_defect(&b),
+            "{}: recomputed checksums are accepted",
+            fix.name
+        );
     }
 }
 
@@ -2046,11 +2090,17 @@ fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
         13 => {
             // A link (§8.1) to a nearby block or root: a real link of the top tree if there is
             // one here, else any record made a link.
-            let at = match fix.links.get((rng.next_u64() % fix.links.len() as u64) as usize) {
+            let at = match fix
+                .links
+                .get((rng.next_u64() % fix.links.len() as u64) as usize)
+            {
                 Some(l) if region.kind == RegionKind::Section(NODES - 1) => base + 8 * l.node,
                 _ => pick(8, rng),
             };
-            let (block, root) = (read_u32(bytes, at), read_u32(bytes, at + 4) & LINK_ROOT_MASK);
+            let (block, root) = (
+                read_u32(bytes, at),
+                read_u32(bytes, at + 4) & LINK_ROOT_MASK,
+            );
             let d = |rng: &mut SplitMix64| [0u32, 1, u32::MAX, 2][(rng.next_u64() % 4) as usize];
             let block = block.wrapping_add(d(rng));
             let root = root.wrapping_add(d(rng)) & LINK_ROOT_MASK;
@@ -2621,9 +2671,9 @@ fn a_block_in_another_blocks_place_is_caught() {
         // The same with the stored bytes swapped in place instead (raw blocks of one size
         // only): the directory is intact, the bytes are not the blocks it describes.
         if fix.dir[i].codec == CODEC_RAW {
-            let same_len = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).find(
-                |&(i, j)| fix.dir[i].stored_len == fix.dir[j].stored_len,
-            );
+            let same_len = (0..n)
+                .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+                .find(|&(i, j)| fix.dir[i].stored_len == fix.dir[j].stored_len);
             if let Some((i, j)) = same_len {
                 let mut b = fix.bytes.clone();
                 let (ri, rj) = (fix.dir[i].stored(), fix.dir[j].stored());
@@ -2655,7 +2705,11 @@ fn links_rewritten_are_caught() {
             v
         };
         // A block's first root: the block's own ray starts in its cell, so it meets the link.
-        let first = *fix.links.iter().find(|l| l.root == 0).expect("a first root");
+        let first = *fix
+            .links
+            .iter()
+            .find(|l| l.root == 0)
+            .expect("a first root");
         let other_level = fix
             .links
             .iter()
@@ -2670,7 +2724,8 @@ fn links_rewritten_are_caught() {
             .expect("two links at one level");
         let roots_of = |b: u32| fix.dir[b as usize].root_count;
         // (what, link rewritten, new record, defect, the block tracing must fail on)
-        let cases: [(&str, Link, Vec<u8>, &str, Vec<usize>); 5] = [
+        type Case<'a> = (&'a str, Link, Vec<u8>, &'a str, Vec<usize>);
+        let cases: [Case; 5] = [
             (
                 "to a block past the directory",
                 first,
@@ -2746,7 +2801,10 @@ fn zstd_frames_that_lie_are_caught() {
         }
         let cases: Vec<(&str, Vec<u8>)> = vec![
             ("content 100 bytes longer", zstd_frame(&longer)),
-            ("content 64 bytes shorter", zstd_frame(&raw[..raw.len() - 64])),
+            (
+                "content 64 bytes shorter",
+                zstd_frame(&raw[..raw.len() - 64]),
+            ),
             ("frame cut by 1 byte", frame[..frame.len() - 1].to_vec()),
             ("frame cut in half", frame[..frame.len() / 2].to_vec()),
             ("the frame twice", twice),
@@ -2804,7 +2862,10 @@ fn max_block_raw_len_is_checked() {
         let mut b = fix.bytes.clone();
         write_u64(&mut b, MAX_BLOCK_RAW_LEN_AT, fix.max_raw - 1);
         fix_header_checksum(&mut b);
-        let what = format!("{}: max_block_raw_len one below the largest block", fix.name);
+        let what = format!(
+            "{}: max_block_raw_len one below the largest block",
+            fix.name
+        );
         expect_caught(fix, what, b, "max_block_raw_len", &[largest], &mut problems);
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
@@ -2817,12 +2878,9 @@ fn max_block_raw_len_is_checked() {
 fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
     for fix in [default_file(), default_zstd_file(), deep_file()] {
         let opts = tight_options(fix);
-        let scene = Scene::from_bytes_with(
-            AlignedBytes::from_slice(&fix.bytes),
-            "tight.oavm",
-            &opts,
-        )
-        .expect("opens");
+        let scene =
+            Scene::from_bytes_with(AlignedBytes::from_slice(&fix.bytes), "tight.oavm", &opts)
+                .expect("opens");
         for round in 0..2 {
             let t = pool2().install(|| trace(fix, &scene));
             assert_eq!(t, Traced::Same, "{}: intact, round {round}", fix.name);
@@ -2943,9 +3001,19 @@ fn huge_rank_in_a_rank_word_is_an_error_not_a_panic() {
     let mut problems = Vec::new();
     type Case = (&'static str, usize, fn(u64) -> u64, bool);
     let cases: [Case; 4] = [
-        ("bit 61 of rank flipped, checksums as they were", 1, |r| r ^ 1 << 61, false),
+        (
+            "bit 61 of rank flipped, checksums as they were",
+            1,
+            |r| r ^ 1 << 61,
+            false,
+        ),
         ("rank 2^61, checksums recomputed", 0, |_| 1 << 61, true),
-        ("rank u64::MAX - 7, checksums recomputed", 1, |_| u64::MAX - 7, true),
+        (
+            "rank u64::MAX - 7, checksums recomputed",
+            1,
+            |_| u64::MAX - 7,
+            true,
+        ),
         ("rank u64::MAX, checksums recomputed", 2, |_| u64::MAX, true),
     ];
     for fix in [default_file(), deep_file(), deep_zstd_file()] {
@@ -3065,7 +3133,11 @@ fn in_child_process(test: &str, f: impl FnOnce()) {
         .output()
         .expect("run the test binary");
     let stderr = String::from_utf8_lossy(&out.stderr);
-    let key = |l: &&str| ["memory allocation", "panicked", "HANG", "PANIC"].iter().any(|k| l.contains(k));
+    let key = |l: &&str| {
+        ["memory allocation", "panicked", "HANG", "PANIC"]
+            .iter()
+            .any(|k| l.contains(k))
+    };
     let tail: Vec<&str> = stderr.lines().filter(key).take(6).collect();
     assert!(
         out.status.success(),
@@ -3096,7 +3168,47 @@ fn bug_verify_allocates_by_input_triangles() {
             fix_header_checksum(&mut b);
             let scene = open(&b).expect("open does not check input_triangles");
             let defects = scene.verify().defects;
-            assert!(!defects.is_empty(), "input_triangles {v}: verify reports nothing");
+            assert!(
+                !defects.is_empty(),
+                "input_triangles {v}: verify reports nothing"
+            );
         }
     });
+}
+
+/// Bug (verify misses a defect): format-spec.md §8.3 lays a block's parts out "each at the next
+/// multiple of 64 bytes from the block's start, zero padding between them", but verify checks
+/// zero padding only between sections and between blocks (§11), not between the parts of a
+/// block. A non-zero byte between two parts, with the block's checksum recomputed, passes
+/// verify (the rewritten runs list these as "unseen, answers unchanged": "block N padding
+/// before its nodes", ... in every detailed block, raw and compressed). Damage on disk is still
+/// caught by the block's checksum; a rewritten file is not. Either verify should check it (as
+/// §8.3 and "every byte of a valid file is covered by a checksum or by the zero-padding rule",
+/// §1, suggest), or §8.3/§11 should say that padding inside a block is not checked.
+#[test]
+#[ignore = "bug: verify does not check the zero padding between the parts of a block (spec \
+            §8.3): a non-zero byte there, the block's checksum recomputed, passes verify"]
+fn bug_verify_ignores_padding_inside_a_block() {
+    let mut problems = Vec::new();
+    for fix in [default_file(), default_zstd_file()] {
+        let pads: Vec<Region> = fix
+            .regions
+            .iter()
+            .filter(|r| matches!(r.kind, RegionKind::BlockPadding(_)))
+            .cloned()
+            .collect();
+        assert!(!pads.is_empty(), "{}: no padding inside blocks", fix.name);
+        for r in pads {
+            let b = fix.rewrite(r.space, r.range.start, &[0x5a]);
+            let scene = open(&b).expect("opens");
+            let defects = scene.verify().defects;
+            if defects.is_empty() {
+                problems.push(format!(
+                    "{}: {} byte 0 set to 0x5a, checksums recomputed: verify reports nothing",
+                    fix.name, r.name
+                ));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
