@@ -1888,12 +1888,14 @@ fn check_bit_flips(
         }
     }
     if failures.count() > 0 {
-        return Err(format!(
+        let report = format!(
             "{}: {} flipped bits not caught, or panicked:{}",
             fix.name,
             failures.count(),
             failures.report()
-        ));
+        );
+        eprintln!("  {report}");
+        return Err(report);
     }
     Ok(())
 }
@@ -2417,12 +2419,14 @@ fn check_rewritten(fix: &'static Fixture, per_region: usize, seed: u64) -> Resul
         );
     }
     if failures.count() > 0 {
-        return Err(format!(
+        let report = format!(
             "{}: {} rewritten files failed:{}",
             fix.name,
             failures.count(),
             failures.report()
-        ));
+        );
+        eprintln!("  {report}");
+        return Err(report);
     }
     Ok(())
 }
