@@ -21,6 +21,7 @@ use oavm::physical::file::block_view;
 use oavm::physical::format::CODEC_RAW;
 use oavm::physical::writer::{BlockOptions, encode_with};
 use oavm::rays::{self, Bounds, Camera};
+use oavm::render::RenderOptions;
 use oavm::{BuildOptions, Counters, Hit, Mesh, Ray, Scene};
 use serde_json::Value;
 use tempfile::TempDir;
@@ -243,6 +244,39 @@ fn raw_blocks_give_the_same_answers_under_any_budget() {
 #[test]
 fn zstd_blocks_give_the_same_answers_under_any_budget() {
     budgets_do_not_change_answers(Some(3));
+}
+
+#[test]
+fn renders_are_the_same_in_rows_and_in_morton_tiles_under_any_budget() {
+    let b = bounds();
+    let bytes = packed(Some(3));
+    let image = |budget: u64, order: Order| {
+        let scene = Scene::from_bytes_with(
+            bytes.clone(),
+            "bunny.oavm",
+            &SceneOptions {
+                mem_budget: budget,
+                threads: 0,
+            },
+        )
+        .unwrap();
+        let opts = RenderOptions {
+            width: 203, // not a multiple of the tile size
+            height: 150,
+            camera: Camera::framing(&b),
+            light: rays::default_light(&b),
+            order,
+        };
+        let (image, stats) = oavm::render::render(&scene, &opts).expect("render");
+        (image.rgb, stats.primary.rays, stats.hits, stats.shadow.rays)
+    };
+    let reference = image(u64::MAX, Order::None);
+    assert_eq!(reference.1, 203 * 150);
+    assert!(reference.2 > 1000, "{} hits", reference.2);
+    for budget in [u64::MAX, 0] {
+        assert!(image(budget, Order::Morton) == reference, "budget {budget}");
+    }
+    assert!(image(0, Order::None) == reference);
 }
 
 #[test]

@@ -208,17 +208,13 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             // same answers as unordered, written in the caller's order.
             let perm = self.morton_order(rays);
             let mut sorted = vec![out[0]; rays.len()];
-            let c = perm
-                .par_chunks(CHUNK)
-                .zip(sorted.par_chunks_mut(CHUNK))
-                .try_fold(Counters::default, |mut c, (idx, out)| {
-                    for (&i, o) in idx.iter().zip(out) {
-                        *o = answer(&rays[i as usize], &mut c)?;
-                    }
-                    Ok(c)
-                })
-                .try_reduce(Counters::default, |a, b| Ok(a + b))
-                .map_err(|e: TraceError| self.corrupt(e))?;
+            let c = in_order(&perm, &mut sorted, |idx, out, c| {
+                for (&i, o) in idx.iter().zip(out) {
+                    *o = answer(&rays[i as usize], c)?;
+                }
+                Ok(())
+            })
+            .map_err(|e| self.corrupt(e))?;
             for (&i, a) in perm.iter().zip(&sorted) {
                 out[i as usize] = *a;
             }
@@ -246,6 +242,45 @@ impl<D: AsRef<[u8]> + BlockSource> BlockFetch for Scene<D> {
 
 /// Rays per rayon task: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 256;
+
+/// Runs `work` on the chunks of `CHUNK` items of `items` (and the matching chunks of `out`) on
+/// every thread of the current rayon pool, handing the chunks out *in order*: each thread takes
+/// the next chunk not yet taken. So at any time the threads work on neighbouring chunks (with
+/// rayon's splitting, each thread would work through its own half of the batch: for sorted rays,
+/// two distant regions of space, which split the pager's budget between them). Stops at the
+/// first error; the counters are summed over the threads.
+fn in_order<I: Sync, T: Send>(
+    items: &[I],
+    out: &mut [T],
+    work: impl Fn(&[I], &mut [T], &mut Counters) -> Result<(), TraceError> + Sync,
+) -> Result<Counters, TraceError> {
+    use std::sync::Mutex;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    // One lock per chunk, each taken once, by the thread whose turn it is: never contended.
+    let chunks: Vec<Mutex<&mut [T]>> = out.chunks_mut(CHUNK).map(Mutex::new).collect();
+    let next = AtomicUsize::new(0);
+    let failed = AtomicBool::new(false);
+    let threads = rayon::current_num_threads().min(chunks.len()).max(1);
+    (0..threads)
+        .into_par_iter()
+        .with_max_len(1)
+        .map(|_| {
+            let mut c = Counters::default();
+            while !failed.load(Ordering::Relaxed) {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(chunk) = chunks.get(i) else { break };
+                let mut out = chunk.lock().unwrap_or_else(|e| e.into_inner());
+                let from = i * CHUNK;
+                let items = &items[from..(from + CHUNK).min(items.len())];
+                if let Err(e) = work(items, &mut out, &mut c) {
+                    failed.store(true, Ordering::Relaxed);
+                    return Err(e);
+                }
+            }
+            Ok(c)
+        })
+        .try_reduce(Counters::default, |a, b| Ok(a + b))
+}
 
 /// The order in which a batch traces its rays. The answers are the same in every order, bit for
 /// bit; what changes is which blocks the rays traced together need, and so, under a memory
@@ -286,12 +321,20 @@ impl std::fmt::Display for Order {
 ///
 /// A ray is clipped (slab test, in f64) to the mesh's bounding box, where every solid leaf and
 /// so every block's triangles lie; the point where it enters that box (its origin, if it starts
-/// inside) is snapped to a grid of `2^KEY_BITS` cells per axis over the root cube, and the key is
-/// that cell's Morton code, then the ray's direction octant (3 bits: the sign of each
-/// component). Rays with the same key start in the same small region of space going the same
-/// general way, so they tend to walk the same blocks first; Morton order keeps neighbouring
-/// cells, and so the blocks (themselves Morton ranges, format-spec §8.1), close in the order.
-/// Rays that miss the box, or are invalid, need no block and sort last.
+/// inside) is snapped to a grid of `2^KEY_BITS` cells per axis over the root cube. The key is,
+/// from the top: a 6-D Morton code of that cell on a coarser grid (`2^COARSE_BITS` per axis)
+/// and of the unit direction on a grid of `2^COARSE_BITS` per axis over `[-1, 1]^3`, their bits
+/// interleaved (entry x, direction x, entry y, ...); then the fine cell's Morton code. Rays with
+/// nearby keys start in the same region of space going the same way, so they walk the same
+/// blocks (themselves Morton ranges, format-spec §8.1), not just the first one. Rays that miss
+/// the box, or are invalid, need no block and sort last.
+///
+/// Why direction too: on the dragon in 64 KiB blocks under a budget of 1/4 of the file, 10^6
+/// random rays read 14,162 bytes per ray unordered, 1,645 sorted by the entry cell then the
+/// octant, 1,294 by the octant then the entry cell, and 1,160 with this key (it made no
+/// difference whether the coarse grids had 3 to 6 bits, as long as entry and direction had the
+/// same number; giving direction more bits than entry was four times worse). Primary and shadow
+/// rays gain about the same from every variant.
 #[derive(Clone, Copy, Debug)]
 pub struct RayKeys {
     lo: [f64; 3],
@@ -301,8 +344,10 @@ pub struct RayKeys {
     scale: f64,
 }
 
-/// Bits per axis of [`RayKeys`]' grid.
+/// Bits per axis of [`RayKeys`]' fine grid of entry points.
 pub const KEY_BITS: u32 = 10;
+/// Bits per axis of [`RayKeys`]' coarse grids of entry points and directions.
+pub const COARSE_BITS: u32 = 5;
 
 impl RayKeys {
     pub fn new(h: &crate::physical::format::Header) -> RayKeys {
@@ -343,11 +388,28 @@ impl RayKeys {
             (((p[k] - self.root_min[k]) * self.scale).floor() as i64).clamp(0, i64::from(max))
                 as u32
         });
-        let octant = ray
+        // The coarse key: the entry cell on the 2^COARSE_BITS grid and the direction on a
+        // 2^COARSE_BITS grid over [-1, 1]^3 (of the unit direction), interleaved bit by bit from
+        // the top (entry x, direction x, entry y, ...): a Morton code in 6-D.
+        let len = ray
             .dir
             .iter()
-            .enumerate()
-            .fold(0u64, |o, (k, &d)| o | u64::from(d < 0.0) << k);
-        morton::encode(cell) << 3 | octant
+            .map(|&d| f64::from(d) * f64::from(d))
+            .sum::<f64>()
+            .sqrt();
+        let side = f64::from(1u32 << COARSE_BITS);
+        let dir: [u32; 3] = std::array::from_fn(|k| {
+            (((f64::from(ray.dir[k]) / len + 1.0) * 0.5 * side) as u32).min((1 << COARSE_BITS) - 1)
+        });
+        let entry = cell.map(|c| c >> (KEY_BITS - COARSE_BITS));
+        let mut coarse = 0u64;
+        for b in (0..COARSE_BITS).rev() {
+            for k in 0..3 {
+                coarse =
+                    coarse << 2 | u64::from(entry[k] >> b & 1) << 1 | u64::from(dir[k] >> b & 1);
+            }
+        }
+        // Then the entry cell on the fine grid.
+        coarse << (3 * KEY_BITS) | morton::encode(cell)
     }
 }
