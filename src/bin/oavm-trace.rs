@@ -263,10 +263,13 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
     Ok(())
 }
 
+/// A camera, its light and its image size.
+type Shot = (Camera, [f32; 3], (u32, u32));
+
 /// The camera, light and image size of the render and of --primary: from --view, or framing
 /// the model and adjusted by --eye, --target, --up, --fov; the light from --light, else the
 /// scene's, else the default.
-fn camera(args: &Args, bounds: &Bounds) -> Result<(Camera, [f32; 3], (u32, u32)), Error> {
+fn camera(args: &Args, bounds: &Bounds) -> Result<Shot, Error> {
     let (camera, scene_light, size) = if let Some(view_path) = &args.view {
         let aff = oavm::mesh::load_aff(view_path, None)?;
         let v = if args.camera_path {
