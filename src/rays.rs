@@ -251,18 +251,57 @@ impl Camera {
 
     /// The rays of pixel row `y` of a `width` x `height` image (see [`Self::primary_rays`]).
     pub fn row(&self, width: u32, height: u32, y: u32) -> impl Iterator<Item = Ray> + use<> {
-        let f = normalize(sub(self.target, self.eye));
-        let r = normalize(cross(f, self.up));
+        let view = self.pixels(width, height);
+        (0..width).map(move |x| view.ray(x, y))
+    }
+
+    /// The rays of a `width` x `height` image, pixel by pixel in any order.
+    pub fn pixels(&self, width: u32, height: u32) -> PixelRays {
+        PixelRays::new(self, width, height)
+    }
+}
+
+/// A camera's basis for one image size, from which each pixel's ray is made: bit for bit the
+/// ray [`Camera::row`] and [`Camera::primary_rays`] give for that pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelRays {
+    f: [f64; 3],
+    r: [f64; 3],
+    u: [f64; 3],
+    h: f64,
+    w: f64,
+    eye: [f32; 3],
+    width: u32,
+    height: u32,
+}
+
+impl PixelRays {
+    fn new(c: &Camera, width: u32, height: u32) -> PixelRays {
+        let f = normalize(sub(c.target, c.eye));
+        let r = normalize(cross(f, c.up));
         let u = cross(r, f);
-        let h = (self.fov_y.to_radians() * 0.5).tan();
+        let h = (c.fov_y.to_radians() * 0.5).tan();
         let w = h * width as f64 / height as f64;
-        let eye = self.eye.map(|x| x as f32);
-        let sy = (1.0 - (y as f64 + 0.5) / height as f64 * 2.0) * h;
-        (0..width).map(move |x| {
-            let sx = ((x as f64 + 0.5) / width as f64 * 2.0 - 1.0) * w;
-            let d = normalize(std::array::from_fn(|k| f[k] + sx * r[k] + sy * u[k]));
-            Ray::new(eye, d.map(|x| x as f32), 0.0, f32::INFINITY)
-        })
+        PixelRays {
+            f,
+            r,
+            u,
+            h,
+            w,
+            eye: c.eye.map(|x| x as f32),
+            width,
+            height,
+        }
+    }
+
+    /// The ray through the centre of pixel `(x, y)` (`(0, 0)` is the top left).
+    #[inline]
+    pub fn ray(&self, x: u32, y: u32) -> Ray {
+        let sy = (1.0 - (y as f64 + 0.5) / self.height as f64 * 2.0) * self.h;
+        let sx = ((x as f64 + 0.5) / self.width as f64 * 2.0 - 1.0) * self.w;
+        let (f, r, u) = (self.f, self.r, self.u);
+        let d = normalize(std::array::from_fn(|k| f[k] + sx * r[k] + sy * u[k]));
+        Ray::new(self.eye, d.map(|x| x as f32), 0.0, f32::INFINITY)
     }
 }
 

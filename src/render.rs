@@ -11,7 +11,8 @@ use serde::Serialize;
 use crate::error::Error;
 use crate::geom::Ray;
 use crate::logical::TraceError;
-use crate::logical::{Counters, Scene};
+use crate::logical::{Counters, Order, Scene};
+use crate::mapping::morton;
 use crate::rays::{Camera, cross, normalize, shadow_ray, sub};
 
 #[derive(Clone, Copy, Debug)]
@@ -20,7 +21,15 @@ pub struct RenderOptions {
     pub height: u32,
     pub camera: Camera,
     pub light: [f32; 3],
+    /// [`Order::None`]: pixel rows in parallel, top to bottom. [`Order::Morton`]: tiles of
+    /// [`TILE`] x [`TILE`] pixels in the Morton order of their positions, so that the rays
+    /// traced together look at neighbouring parts of the model and need the same blocks. The
+    /// image is the same, byte for byte.
+    pub order: Order,
 }
+
+/// Side of a render tile, pixels.
+pub const TILE: u32 = 16;
 
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct RenderStats {
@@ -55,6 +64,30 @@ pub fn render<D: AsRef<[u8]> + crate::physical::pager::BlockSource>(
     let start = Instant::now();
     let tree = scene.tree();
     let width = opts.width as usize;
+    let sum = |mut a: RenderStats, b: RenderStats| {
+        a.primary += b.primary;
+        a.shadow += b.shadow;
+        a.hits += b.hits;
+        a.shadowed += b.shadowed;
+        a
+    };
+    if opts.order == Order::Morton {
+        let (rgb, stats) =
+            render_tiles(&tree, opts, sum).map_err(|e| Error::format(scene.path(), e.into()))?;
+        return Ok((
+            Image {
+                width: opts.width,
+                height: opts.height,
+                rgb,
+            },
+            RenderStats {
+                width: opts.width,
+                height: opts.height,
+                seconds: start.elapsed().as_secs_f64(),
+                ..stats
+            },
+        ));
+    }
     // Rays are made row by row: the image is the only per-pixel allocation (3 bytes a pixel).
     let mut rgb = vec![0u8; width * opts.height as usize * 3];
     let stats = rgb
@@ -73,13 +106,7 @@ pub fn render<D: AsRef<[u8]> + crate::physical::pager::BlockSource>(
             }
             Ok(s)
         })
-        .try_reduce(RenderStats::default, |mut a, b| {
-            a.primary += b.primary;
-            a.shadow += b.shadow;
-            a.hits += b.hits;
-            a.shadowed += b.shadowed;
-            Ok(a)
-        })
+        .try_reduce(RenderStats::default, |a, b| Ok(sum(a, b)))
         .map_err(|e: TraceError| Error::format(scene.path(), e.into()))?;
     let stats = RenderStats {
         width: opts.width,
@@ -95,6 +122,51 @@ pub fn render<D: AsRef<[u8]> + crate::physical::pager::BlockSource>(
         },
         stats,
     ))
+}
+
+/// The image (RGB8) and statistics of `opts`, traced tile by tile in Morton order.
+fn render_tiles(
+    tree: &crate::logical::Tree,
+    opts: &RenderOptions,
+    sum: impl Fn(RenderStats, RenderStats) -> RenderStats,
+) -> Result<(Vec<u8>, RenderStats), TraceError> {
+    let (tw, th) = (opts.width.div_ceil(TILE), opts.height.div_ceil(TILE));
+    let mut tiles: Vec<(u64, u32, u32)> = (0..th)
+        .flat_map(|ty| (0..tw).map(move |tx| (morton::encode([tx, ty, 0]), tx, ty)))
+        .collect();
+    tiles.sort_unstable();
+    let pixels = opts.camera.pixels(opts.width, opts.height);
+    // Each tile's pixels, row by row, then copied into the image.
+    let done = tiles
+        .par_iter()
+        .map(|&(_, tx, ty)| {
+            let mut s = RenderStats::default();
+            let (x0, y0) = (tx * TILE, ty * TILE);
+            let (x1, y1) = ((x0 + TILE).min(opts.width), (y0 + TILE).min(opts.height));
+            let mut px = Vec::with_capacity(3 * ((x1 - x0) * (y1 - y0)) as usize);
+            for y in y0..y1 {
+                let bg = background(y as f64 / opts.height as f64);
+                for x in x0..x1 {
+                    let c = shade(tree, &pixels.ray(x, y), opts.light, &mut s)?.unwrap_or(bg);
+                    px.extend(c.map(to_srgb8));
+                }
+            }
+            Ok((tx, ty, px, s))
+        })
+        .collect::<Result<Vec<_>, TraceError>>()?;
+    let width = opts.width as usize;
+    let mut rgb = vec![0u8; width * opts.height as usize * 3];
+    let mut stats = RenderStats::default();
+    for (tx, ty, px, s) in done {
+        stats = sum(stats, s);
+        let (x0, y0) = ((tx * TILE) as usize, (ty * TILE) as usize);
+        let w = ((tx * TILE + TILE).min(opts.width) as usize - x0) * 3;
+        for (dy, src) in px.chunks_exact(w).enumerate() {
+            let at = ((y0 + dy) * width + x0) * 3;
+            rgb[at..at + w].copy_from_slice(src);
+        }
+    }
+    Ok((rgb, stats))
 }
 
 /// Linear colour of the surface seen by `ray`, or `None` for the background.

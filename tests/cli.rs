@@ -509,6 +509,22 @@ fn trace_renders_a_png() {
     let distinct: std::collections::HashSet<&[u8]> = rgb.chunks(3).collect();
     assert!(distinct.len() > 50, "{} colours", distinct.len());
 
+    // Rows or Morton tiles, any memory budget: the same image.
+    for extra in [&["--order", "none"][..], &["--mem-budget", "0"][..]] {
+        let other = dir.path().join("other.png");
+        let o = run(oavm_trace()
+            .arg(&file)
+            .args(small)
+            .arg("-o")
+            .arg(&other)
+            .args(extra));
+        assert_success(&o);
+        assert!(
+            fs::read(&other).unwrap() == fs::read(&png).unwrap(),
+            "{extra:?}: the image differs"
+        );
+    }
+
     // Bad render options fail cleanly and write no image.
     let bad = dir.path().join("bad.png");
     for args in [

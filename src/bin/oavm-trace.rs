@@ -1,5 +1,7 @@
 //! `oavm-trace FILE.oavm`: traces rays through a packed file, memory-mapped, with no rebuild.
-//! Renders an image by default; traces ray files in batch mode; verifies files.
+//! Renders an image by default; traces ray files in batch mode, or rays it makes itself in
+//! benchmark mode; verifies files. Every trace runs within `--mem-budget` and reports what the
+//! pager read and what the process used (peak RSS, bytes read from the disk).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -7,17 +9,20 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::Parser;
-use oavm::cli::{main_with, with_threads};
+use oavm::cli::{main_with, parse_bytes, with_threads};
+use oavm::logical::{Order, SceneOptions};
 use oavm::rays::{self, Bounds, Camera};
 use oavm::render::{self, RenderOptions};
-use oavm::{Error, Hit, Scene};
-use serde_json::json;
+use oavm::{Counters, Error, Hit, Ray, Scene};
+use serde_json::{Value, json};
 
 /// Traces rays through an .oavm file made by oavm-pack.
 ///
 /// With no mode option, renders the model from a camera that frames it (or from the viewpoint of
-/// a BART scene, --view), shaded by a point light with shadows, and writes a PNG. With --rays and --hits (closest hit) or --occluded (any hit),
-/// traces a ray file in the formats of RAYS.md. With --verify, checks every byte of the file.
+/// a BART scene, --view), shaded by a point light with shadows, and writes a PNG. With --rays and
+/// --hits (closest hit) or --occluded (any hit), traces a ray file in the formats of RAYS.md.
+/// With --random N or --primary WxH (and --shadow), traces rays it makes and reports the figures
+/// only. With --verify, checks every byte of the file.
 #[derive(Parser, Debug)]
 #[command(name = "oavm-trace", version)]
 struct Args {
@@ -37,8 +42,31 @@ struct Args {
     /// Batch mode: write any-hit answers to this OCCL file.
     #[arg(long, value_name = "OCCL", requires = "rays")]
     occluded: Option<PathBuf>,
+    /// Benchmark mode: trace N random rays (origins around the model, directions uniform; the
+    /// ray sets of `cargo run --example rays`), closest hit; nothing is written.
+    #[arg(long, value_name = "N", conflicts_with_all = ["rays", "primary"])]
+    random: Option<usize>,
+    /// Benchmark mode: trace the WxH primary rays of the camera (as for rendering: --eye,
+    /// --target, --fov, --view...), closest hit; nothing is written.
+    #[arg(long, value_name = "WxH", value_parser = parse_size, conflicts_with = "rays")]
+    primary: Option<(u32, u32)>,
+    /// Benchmark mode: then trace a shadow ray (any hit) from every hit to the light.
+    #[arg(long)]
+    shadow: bool,
+    /// Seed of --random.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Bytes of decoded blocks kept in memory (e.g. 512M, 1.5G; default: no limit). Raised to
+    /// what one block per thread needs for compressed files (see the report's pager budget).
+    #[arg(long, value_name = "SIZE", value_parser = parse_bytes)]
+    mem_budget: Option<u64>,
+    /// Order of tracing: morton (rays that enter the model near each other, in the same
+    /// direction octant, together; image tiles in Morton order) or none (as given; image rows).
+    /// The answers are the same; the blocks read again under a small --mem-budget are not.
+    #[arg(long, default_value = "morton", value_parser = parse_order)]
+    order: Order,
     /// Check every section, checksum and invariant; exit non-zero on any defect.
-    #[arg(long, conflicts_with_all = ["rays", "hits", "occluded"])]
+    #[arg(long, conflicts_with_all = ["rays", "hits", "occluded", "random", "primary"])]
     verify: bool,
     /// Image to write (default: the file's name with .png).
     #[arg(short, long, value_name = "PNG")]
@@ -92,6 +120,21 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     }
 }
 
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
+    let dim = |v: &str| match v.trim().parse::<u32>() {
+        Ok(n) if (1..=16384).contains(&n) => Ok(n),
+        _ => Err(format!("{s:?}: sizes are 1 to 16384 pixels")),
+    };
+    Ok((dim(w)?, dim(h)?))
+}
+
+fn parse_order(s: &str) -> Result<Order, String> {
+    s.parse()
+}
+
 fn main() -> ExitCode {
     let start = Instant::now();
     let args = Args::parse();
@@ -106,10 +149,28 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
             "--rays needs --hits (closest hit) or --occluded (any hit)".into(),
         ));
     }
+    if args.shadow && args.random.is_none() && args.primary.is_none() {
+        return Err(Error::Invalid(
+            "--shadow needs --random N or --primary WxH".into(),
+        ));
+    }
     let t = Instant::now();
-    let scene = Scene::open(&args.file)?;
+    let scene = Scene::open_with(
+        &args.file,
+        &SceneOptions {
+            mem_budget: args.mem_budget.unwrap_or(u64::MAX),
+            threads: 0,
+        },
+    )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
-    let threads = rayon::current_num_threads();
+    let mut report = Report {
+        args,
+        start,
+        open_ms,
+        threads: rayon::current_num_threads(),
+        start_to_first_ray_ms: 0.0,
+        io_before: None,
+    };
 
     if args.verify {
         let t = Instant::now();
@@ -142,70 +203,74 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
     }
 
     if let Some(rays_path) = &args.rays {
-        let rays = rays::read_rays(rays_path)?;
-        let t = Instant::now();
-        let start_to_first_ray_ms = start.elapsed().as_secs_f64() * 1e3;
-        let (counters, answers, label, out_path) = if let Some(hits_path) = &args.hits {
-            let mut hits = vec![Hit::MISS; rays.len()];
-            let c = scene.intersect_batch(&rays, &mut hits)?;
-            let seconds = t.elapsed().as_secs_f64();
-            rays::write_hits(hits_path, &hits)?;
-            let n = hits.iter().filter(|h| h.is_hit()).count();
-            ((c, seconds), n, "hits", hits_path)
-        } else {
-            let occl_path = args
-                .occluded
-                .as_ref()
-                .ok_or_else(|| Error::Invalid("no output".into()))?;
-            let mut occ = vec![0u8; rays.len()];
-            let c = scene.occluded_batch(&rays, &mut occ)?;
-            let seconds = t.elapsed().as_secs_f64();
-            rays::write_occlusion(occl_path, &occ)?;
-            let n = occ.iter().filter(|&&o| o == 1).count();
-            ((c, seconds), n, "occluded", occl_path)
-        };
-        let (c, seconds) = counters;
-        let per_ray = |x: u64| x as f64 / (c.rays.max(1)) as f64;
-        let mrays = rays.len() as f64 / seconds.max(1e-12) / 1e6;
-        if args.json {
-            let mut v = json!({
-                "file": args.file,
-                "rays": rays.len(),
-                "seconds": seconds,
-                "mrays_per_s": mrays,
-                "threads": threads,
-                "open_ms": open_ms,
-                "start_to_first_ray_ms": start_to_first_ray_ms,
-                "nodes_visited": c.nodes_visited,
-                "leaves_visited": c.leaves_visited,
-                "volumes_crossed": c.volumes_crossed,
-                "triangles_tested": c.triangles_tested,
-                "nodes_visited_per_ray": per_ray(c.nodes_visited),
-                "triangles_tested_per_ray": per_ray(c.triangles_tested),
-            });
-            v[label] = json!(answers);
-            print(&v)?;
-        } else {
-            print_text(&format!(
-                "{} rays, {answers} {label}, {seconds:.3} s, {mrays:.2} Mrays/s on {threads} threads \
-                 (open {open_ms:.3} ms); per ray: {:.1} nodes, {:.1} volumes, {:.1} triangles; wrote {}\n",
-                rays.len(),
-                per_ray(c.nodes_visited),
-                per_ray(c.volumes_crossed),
-                per_ray(c.triangles_tested),
-                out_path.display()
-            ))?;
-        }
-        return Ok(());
+        return batch(&scene, rays_path, &mut report);
     }
 
-    // Default: render.
     let h = scene.file().header();
     let bounds = Bounds {
         min: h.mesh_min,
         max: h.mesh_max,
     };
-    let (camera, scene_light, (width, height)) = if let Some(view_path) = &args.view {
+    let (camera, light, (width, height)) = camera(args, &bounds)?;
+    if args.random.is_some() || args.primary.is_some() {
+        return bench(&scene, &bounds, &camera, light, &mut report);
+    }
+
+    // Default: render.
+    let opts = RenderOptions {
+        width: args.width.unwrap_or(width),
+        height: args.height.unwrap_or(height),
+        camera,
+        light,
+        order: args.order,
+    };
+    report.first_ray();
+    let (image, stats) = render::render(&scene, &opts)?;
+    let out = args
+        .output
+        .clone()
+        .unwrap_or_else(|| default_png(&args.file));
+    render::write_png(&out, &image)?;
+    let rays = stats.primary.rays + stats.shadow.rays;
+    let mrays = rays as f64 / stats.seconds.max(1e-12) / 1e6;
+    let all = stats.primary + stats.shadow;
+    if args.json {
+        let mut v = report.common(&scene);
+        v["image"] = json!(out);
+        v["rays"] = json!(rays);
+        v["seconds"] = json!(stats.seconds);
+        v["mrays_per_s"] = json!(mrays);
+        v["page"] = page_json(&all);
+        v["render"] = json!(stats);
+        print(&v)?;
+    } else {
+        print_text(&format!(
+            "wrote {} ({}x{}): {} primary rays ({} hit), {} shadow rays ({} shadowed), {:.3} s, \
+             {mrays:.2} Mrays/s on {} threads (open {:.3} ms){}\n",
+            out.display(),
+            stats.width,
+            stats.height,
+            stats.primary.rays,
+            stats.hits,
+            stats.shadow.rays,
+            stats.shadowed,
+            stats.seconds,
+            report.threads,
+            report.open_ms,
+            report.paging_text(&scene, &all),
+        ))?;
+    }
+    Ok(())
+}
+
+/// A camera, its light and its image size.
+type Shot = (Camera, [f32; 3], (u32, u32));
+
+/// The camera, light and image size of the render and of --primary: from --view, or framing
+/// the model and adjusted by --eye, --target, --up, --fov; the light from --light, else the
+/// scene's, else the default.
+fn camera(args: &Args, bounds: &Bounds) -> Result<Shot, Error> {
+    let (camera, scene_light, size) = if let Some(view_path) = &args.view {
         let aff = oavm::mesh::load_aff(view_path, None)?;
         let v = if args.camera_path {
             aff.camera_path.ok_or_else(|| {
@@ -227,7 +292,7 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         let light = aff.lights.first().copied().unwrap_or(v.from);
         (camera, Some(light), v.resolution)
     } else {
-        let mut camera = Camera::framing(&bounds);
+        let mut camera = Camera::framing(bounds);
         if let Some(target) = args.target {
             camera.target = target;
         }
@@ -247,45 +312,235 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         .light
         .or(scene_light)
         .map(|l| l.map(|c| c as f32))
-        .unwrap_or_else(|| rays::default_light(&bounds));
-    let opts = RenderOptions {
-        width: args.width.unwrap_or(width),
-        height: args.height.unwrap_or(height),
-        camera,
-        light,
+        .unwrap_or_else(|| rays::default_light(bounds));
+    Ok((camera, light, size))
+}
+
+/// Batch mode: traces a RAYS file and writes the answers (only once every ray is answered).
+fn batch(scene: &Scene, rays_path: &Path, report: &mut Report) -> Result<(), Error> {
+    let args = report.args;
+    let rays = rays::read_rays(rays_path)?;
+    report.first_ray();
+    let t = Instant::now();
+    let (c, seconds, answers, label, out_path) = if let Some(hits_path) = &args.hits {
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let c = scene.intersect_batch_ordered(&rays, &mut hits, args.order)?;
+        let seconds = t.elapsed().as_secs_f64();
+        rays::write_hits(hits_path, &hits)?;
+        let n = hits.iter().filter(|h| h.is_hit()).count();
+        (c, seconds, n, "hits", hits_path)
+    } else {
+        let occl_path = args
+            .occluded
+            .as_ref()
+            .ok_or_else(|| Error::Invalid("no output".into()))?;
+        let mut occ = vec![0u8; rays.len()];
+        let c = scene.occluded_batch_ordered(&rays, &mut occ, args.order)?;
+        let seconds = t.elapsed().as_secs_f64();
+        rays::write_occlusion(occl_path, &occ)?;
+        let n = occ.iter().filter(|&&o| o == 1).count();
+        (c, seconds, n, "occluded", occl_path)
     };
-    let (image, stats) = render::render(&scene, &opts)?;
-    let out = args
-        .output
-        .clone()
-        .unwrap_or_else(|| default_png(&args.file));
-    render::write_png(&out, &image)?;
-    let rays = stats.primary.rays + stats.shadow.rays;
+    let per_ray = |x: u64| x as f64 / (c.rays.max(1)) as f64;
+    let mrays = rays.len() as f64 / seconds.max(1e-12) / 1e6;
     if args.json {
-        print(&json!({
-            "file": args.file,
-            "image": out,
-            "threads": threads,
-            "open_ms": open_ms,
-            "mrays_per_s": rays as f64 / stats.seconds / 1e6,
-            "render": stats,
-        }))?;
+        let mut v = report.common(scene);
+        merge(&mut v, set_json(label, answers, &c, seconds));
+        print(&v)?;
     } else {
         print_text(&format!(
-            "wrote {} ({}x{}): {} primary rays ({} hit), {} shadow rays ({} shadowed), {:.3} s, \
-             {:.2} Mrays/s on {threads} threads (open {open_ms:.3} ms)\n",
-            out.display(),
-            stats.width,
-            stats.height,
-            stats.primary.rays,
-            stats.hits,
-            stats.shadow.rays,
-            stats.shadowed,
-            stats.seconds,
-            rays as f64 / stats.seconds / 1e6
+            "{} rays, {answers} {label}, {seconds:.3} s, {mrays:.2} Mrays/s on {} threads \
+             (open {:.3} ms); per ray: {:.1} nodes, {:.1} volumes, {:.1} triangles{}; wrote {}\n",
+            rays.len(),
+            report.threads,
+            report.open_ms,
+            per_ray(c.nodes_visited),
+            per_ray(c.volumes_crossed),
+            per_ray(c.triangles_tested),
+            report.paging_text(scene, &c),
+            out_path.display()
         ))?;
     }
     Ok(())
+}
+
+/// Benchmark mode: traces --random or --primary rays (closest hit), then with --shadow a shadow
+/// ray from every hit; reports each set and the total, writes nothing.
+fn bench(
+    scene: &Scene,
+    bounds: &Bounds,
+    camera: &Camera,
+    light: [f32; 3],
+    report: &mut Report,
+) -> Result<(), Error> {
+    let args = report.args;
+    let (name, rays) = match (args.random, args.primary) {
+        (Some(n), _) => ("random", rays::random_rays(bounds, n, args.seed)),
+        (None, Some((w, h))) => ("primary", camera.primary_rays(w, h)),
+        (None, None) => return Err(Error::Invalid("no ray set".into())),
+    };
+    report.first_ray();
+    let mut sets = Vec::new();
+    let mut total = Counters::default();
+    let mut seconds = 0.0;
+    let t = Instant::now();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    let c = scene.intersect_batch_ordered(&rays, &mut hits, args.order)?;
+    let s = t.elapsed().as_secs_f64();
+    let n = hits.iter().filter(|h| h.is_hit()).count();
+    sets.push((name, "hits", n, c, s));
+    (total, seconds) = (total + c, seconds + s);
+    if args.shadow {
+        let shadow: Vec<Ray> = rays::shadow_rays(&rays, &hits, light);
+        drop((rays, hits));
+        let t = Instant::now();
+        let mut occ = vec![0u8; shadow.len()];
+        let c = scene.occluded_batch_ordered(&shadow, &mut occ, args.order)?;
+        let s = t.elapsed().as_secs_f64();
+        let n = occ.iter().filter(|&&o| o == 1).count();
+        sets.push(("shadow", "occluded", n, c, s));
+        (total, seconds) = (total + c, seconds + s);
+    }
+    if args.json {
+        let mut v = report.common(scene);
+        merge(&mut v, set_json("", 0, &total, seconds));
+        v["sets"] = sets
+            .iter()
+            .map(|&(set, label, n, c, s)| {
+                let mut v = json!({ "set": set });
+                merge(&mut v, set_json(label, n, &c, s));
+                v
+            })
+            .collect();
+        print(&v)?;
+    } else {
+        let mut text = String::new();
+        for &(set, label, n, c, s) in &sets {
+            text += &format!(
+                "{set}: {} rays, {n} {label}, {s:.3} s, {:.2} Mrays/s{}\n",
+                c.rays,
+                c.rays as f64 / s.max(1e-12) / 1e6,
+                report.paging_text(scene, &c)
+            );
+        }
+        text += &format!(
+            "{} threads, order {}, open {:.3} ms, first ray {:.3} ms after start\n",
+            report.threads, args.order, report.open_ms, report.start_to_first_ray_ms
+        );
+        print_text(&text)?;
+    }
+    Ok(())
+}
+
+/// What every tracing mode reports besides its rays: times, the pager, the process's memory
+/// and disk reads.
+struct Report<'a> {
+    args: &'a Args,
+    /// `main`'s entry (the time before it, exec and loading, is not counted).
+    start: Instant,
+    open_ms: f64,
+    threads: usize,
+    start_to_first_ray_ms: f64,
+    /// The process's `read_bytes` just before the first ray.
+    io_before: Option<u64>,
+}
+
+impl Report<'_> {
+    /// Marks the moment the first ray is ready to be traced.
+    fn first_ray(&mut self) {
+        self.start_to_first_ray_ms = self.start.elapsed().as_secs_f64() * 1e3;
+        self.io_before = proc_field("/proc/self/io", "read_bytes:");
+    }
+
+    fn common(&self, scene: &Scene) -> Value {
+        let io_after = proc_field("/proc/self/io", "read_bytes:");
+        let pager = scene.pager();
+        json!({
+            "file": self.args.file,
+            "file_bytes": scene.file().bytes().len(),
+            "threads": self.threads,
+            "order": self.args.order,
+            "open_ms": self.open_ms,
+            "start_to_first_ray_ms": self.start_to_first_ray_ms,
+            "mem_budget": self.args.mem_budget,
+            "pager_budget": pager.budget(),
+            "pager_peak_resident_bytes": pager.peak_resident_bytes(),
+            "pager_slots": pager.slot_count(),
+            "blocks": scene.file().directory().len(),
+            "max_block_raw_len": scene.file().header().max_block_raw_len,
+            "peak_rss_bytes": proc_field("/proc/self/status", "VmHWM:").map(|kb| kb * 1024),
+            "disk_read_bytes_before_trace": self.io_before,
+            "disk_read_bytes_trace": io_after.zip(self.io_before).map(|(a, b)| a.saturating_sub(b)),
+        })
+    }
+
+    /// The pager's figures for `c`, as a clause of the text report.
+    fn paging_text(&self, scene: &Scene, c: &Counters) -> String {
+        let p = &c.page;
+        format!(
+            "; pager: {} blocks asked, {} misses ({:.1} % hits), {:.1} MB read ({:.0} B/ray), \
+             peak {:.1} MB resident{}",
+            p.requested,
+            p.misses,
+            100.0 * hit_rate(c),
+            p.bytes_read as f64 / 1e6,
+            p.bytes_read as f64 / c.rays.max(1) as f64,
+            scene.pager().peak_resident_bytes() as f64 / 1e6,
+            match self.args.mem_budget {
+                Some(_) => format!(" of {:.1} MB", scene.pager().budget() as f64 / 1e6),
+                None => String::new(),
+            }
+        )
+    }
+}
+
+fn hit_rate(c: &Counters) -> f64 {
+    c.page.hits as f64 / c.page.requested.max(1) as f64
+}
+
+/// The pager's counters of `c`, with the hit rate and bytes read per ray.
+fn page_json(c: &Counters) -> Value {
+    let mut v = json!(c.page);
+    v["hit_rate"] = json!(hit_rate(c));
+    v["bytes_read_per_ray"] = json!(c.page.bytes_read as f64 / c.rays.max(1) as f64);
+    v
+}
+
+/// The figures of one set of rays: `answered` is `label` (hits, occluded; none if empty).
+fn set_json(label: &str, answered: usize, c: &Counters, seconds: f64) -> Value {
+    let per_ray = |x: u64| x as f64 / (c.rays.max(1)) as f64;
+    let mut v = json!({
+        "rays": c.rays,
+        "seconds": seconds,
+        "mrays_per_s": c.rays as f64 / seconds.max(1e-12) / 1e6,
+        "nodes_visited": c.nodes_visited,
+        "leaves_visited": c.leaves_visited,
+        "volumes_crossed": c.volumes_crossed,
+        "leaves_culled": c.leaves_culled,
+        "triangles_tested": c.triangles_tested,
+        "nodes_visited_per_ray": per_ray(c.nodes_visited),
+        "leaves_visited_per_ray": per_ray(c.leaves_visited),
+        "triangles_tested_per_ray": per_ray(c.triangles_tested),
+        "page": page_json(c),
+    });
+    if !label.is_empty() {
+        v[label] = json!(answered);
+    }
+    v
+}
+
+fn merge(into: &mut Value, from: Value) {
+    if let (Value::Object(a), Value::Object(b)) = (into, from) {
+        a.extend(b);
+    }
+}
+
+/// The number after `key` in a `/proc` file of `key value` lines (`None` if unreadable: not
+/// Linux, or a sandbox without it).
+fn proc_field(path: &str, key: &str) -> Option<u64> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let line = text.lines().find(|l| l.starts_with(key))?;
+    line[key.len()..].split_whitespace().next()?.parse().ok()
 }
 
 fn default_png(file: &Path) -> PathBuf {

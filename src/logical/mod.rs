@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
 use crate::mapping::TreeMap;
+use crate::mapping::morton;
 use crate::physical::format::SectionKind;
 use crate::physical::pager::{
     BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions,
@@ -126,10 +127,29 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         Error::format(&self.path, e.into())
     }
 
-    /// Closest hits of `rays` into `out` (same length), in parallel on the current rayon pool.
+    /// Closest hits of `rays` into `out` (same length), in parallel on the current rayon pool,
+    /// in the order given (see [`Self::intersect_batch_ordered`]).
     pub fn intersect_batch(&self, rays: &[Ray], out: &mut [Hit]) -> Result<Counters, Error> {
+        self.intersect_batch_ordered(rays, out, Order::None)
+    }
+
+    /// Any-hit answers of `rays` into `out` (1: occluded, 0: not), in parallel, in the order
+    /// given.
+    pub fn occluded_batch(&self, rays: &[Ray], out: &mut [u8]) -> Result<Counters, Error> {
+        self.occluded_batch_ordered(rays, out, Order::None)
+    }
+
+    /// Closest hits of `rays` into `out`, traced in `order`. The answers do not depend on the
+    /// order (each ray's walk is independent of the others'); only the pager's work does: see
+    /// [`Order`].
+    pub fn intersect_batch_ordered(
+        &self,
+        rays: &[Ray],
+        out: &mut [Hit],
+        order: Order,
+    ) -> Result<Counters, Error> {
         let tree = self.tree();
-        self.batch(rays, out, |ray, c| {
+        self.batch(rays, out, order, |ray, c| {
             Ok(tree.intersect(ray, c)?.map_or(Hit::MISS, |h| Hit {
                 t: h.t,
                 prim: h.prim,
@@ -137,17 +157,37 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         })
     }
 
-    /// Any-hit answers of `rays` into `out` (1: occluded, 0: not), in parallel.
-    pub fn occluded_batch(&self, rays: &[Ray], out: &mut [u8]) -> Result<Counters, Error> {
+    /// Any-hit answers of `rays` into `out` (1: occluded, 0: not), traced in `order`.
+    pub fn occluded_batch_ordered(
+        &self,
+        rays: &[Ray],
+        out: &mut [u8],
+        order: Order,
+    ) -> Result<Counters, Error> {
         let tree = self.tree();
-        self.batch(rays, out, |ray, c| Ok(tree.occluded(ray, c)? as u8))
+        self.batch(rays, out, order, |ray, c| Ok(tree.occluded(ray, c)? as u8))
     }
 
-    /// Answers `rays` into `out` with `answer`, in chunks on rayon, summing the counters.
-    fn batch<T: Send>(
+    /// The order in which [`Order::Morton`] traces `rays`: their indices sorted by
+    /// [`RayKeys::key`] (ties by index, so the order is deterministic).
+    pub fn morton_order(&self, rays: &[Ray]) -> Vec<u32> {
+        let keys = RayKeys::new(self.file.header());
+        let mut keyed: Vec<(u64, u32)> = rays
+            .par_iter()
+            .enumerate()
+            .map(|(i, r)| (keys.key(r), i as u32))
+            .collect();
+        keyed.par_sort_unstable();
+        keyed.into_iter().map(|(_, i)| i).collect()
+    }
+
+    /// Answers `rays` into `out` with `answer`, in `order`, in chunks on rayon, summing the
+    /// counters.
+    fn batch<T: Send + Sync + Copy>(
         &self,
         rays: &[Ray],
         out: &mut [T],
+        order: Order,
         answer: impl Fn(&Ray, &mut Counters) -> Result<T, TraceError> + Sync,
     ) -> Result<Counters, Error> {
         if rays.len() != out.len() {
@@ -156,6 +196,29 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 rays.len(),
                 out.len()
             )));
+        }
+        if order == Order::Morton && !rays.is_empty() {
+            if u32::try_from(rays.len()).is_err() {
+                return Err(Error::Invalid(format!(
+                    "{} rays: an ordered batch holds at most 2^32 - 1",
+                    rays.len()
+                )));
+            }
+            // Trace in sorted order into `sorted`, then put each answer at its ray's place: the
+            // same answers as unordered, written in the caller's order.
+            let perm = self.morton_order(rays);
+            let mut sorted = vec![out[0]; rays.len()];
+            let c = in_order(&perm, &mut sorted, |idx, out, c| {
+                for (&i, o) in idx.iter().zip(out) {
+                    *o = answer(&rays[i as usize], c)?;
+                }
+                Ok(())
+            })
+            .map_err(|e| self.corrupt(e))?;
+            for (&i, a) in perm.iter().zip(&sorted) {
+                out[i as usize] = *a;
+            }
+            return Ok(c);
         }
         rays.par_chunks(CHUNK)
             .zip(out.par_chunks_mut(CHUNK))
@@ -179,3 +242,174 @@ impl<D: AsRef<[u8]> + BlockSource> BlockFetch for Scene<D> {
 
 /// Rays per rayon task: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 256;
+
+/// Runs `work` on the chunks of `CHUNK` items of `items` (and the matching chunks of `out`) on
+/// every thread of the current rayon pool, handing the chunks out *in order*: each thread takes
+/// the next chunk not yet taken. So at any time the threads work on neighbouring chunks (with
+/// rayon's splitting, each thread would work through its own half of the batch: for sorted rays,
+/// two distant regions of space, which split the pager's budget between them). Stops at the
+/// first error; the counters are summed over the threads.
+fn in_order<I: Sync, T: Send>(
+    items: &[I],
+    out: &mut [T],
+    work: impl Fn(&[I], &mut [T], &mut Counters) -> Result<(), TraceError> + Sync,
+) -> Result<Counters, TraceError> {
+    use std::sync::Mutex;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    // One lock per chunk, each taken once, by the thread whose turn it is: never contended.
+    let chunks: Vec<Mutex<&mut [T]>> = out.chunks_mut(CHUNK).map(Mutex::new).collect();
+    let next = AtomicUsize::new(0);
+    let failed = AtomicBool::new(false);
+    let threads = rayon::current_num_threads().min(chunks.len()).max(1);
+    (0..threads)
+        .into_par_iter()
+        .with_max_len(1)
+        .map(|_| {
+            let mut c = Counters::default();
+            while !failed.load(Ordering::Relaxed) {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(chunk) = chunks.get(i) else { break };
+                let mut out = chunk.lock().unwrap_or_else(|e| e.into_inner());
+                let from = i * CHUNK;
+                let items = &items[from..(from + CHUNK).min(items.len())];
+                if let Err(e) = work(items, &mut out, &mut c) {
+                    failed.store(true, Ordering::Relaxed);
+                    return Err(e);
+                }
+            }
+            Ok(c)
+        })
+        .try_reduce(Counters::default, |a, b| Ok(a + b))
+}
+
+/// The order in which a batch traces its rays. The answers are the same in every order, bit for
+/// bit; what changes is which blocks the rays traced together need, and so, under a memory
+/// budget smaller than the file, how often the pager reads a block again.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Order {
+    /// As given.
+    None,
+    /// Sorted by [`RayKeys::key`]: rays that enter the model at nearby points, in the same
+    /// direction octant, run one after the other, in rayon chunks of consecutive sorted rays
+    /// (so each thread works through one region of space at a time).
+    #[default]
+    Morton,
+}
+
+impl std::str::FromStr for Order {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Order, String> {
+        match s {
+            "none" => Ok(Order::None),
+            "morton" => Ok(Order::Morton),
+            _ => Err(format!("unknown order {s:?}: expected none or morton")),
+        }
+    }
+}
+
+impl std::fmt::Display for Order {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Order::None => "none",
+            Order::Morton => "morton",
+        })
+    }
+}
+
+/// The sort key of [`Order::Morton`], for one file.
+///
+/// A ray is clipped (slab test, in f64) to the mesh's bounding box, where every solid leaf and
+/// so every block's triangles lie; the point where it enters that box (its origin, if it starts
+/// inside) is snapped to a grid of `2^KEY_BITS` cells per axis over the root cube. The key is,
+/// from the top: a 6-D Morton code of that cell on a coarser grid (`2^COARSE_BITS` per axis)
+/// and of the unit direction on a grid of `2^COARSE_BITS` per axis over `[-1, 1]^3`, their bits
+/// interleaved (entry x, direction x, entry y, ...); then the fine cell's Morton code. Rays with
+/// nearby keys start in the same region of space going the same way, so they walk the same
+/// blocks (themselves Morton ranges, format-spec §8.1), not just the first one. Rays that miss
+/// the box, or are invalid, need no block and sort last.
+///
+/// Why direction too: on the dragon in 64 KiB blocks under a budget of 1/4 of the file, 10^6
+/// random rays read 14,162 bytes per ray unordered, 1,645 sorted by the entry cell then the
+/// octant, 1,294 by the octant then the entry cell, and 1,160 with this key (it made no
+/// difference whether the coarse grids had 3 to 6 bits, as long as entry and direction had the
+/// same number; giving direction more bits than entry was four times worse). Primary and shadow
+/// rays gain about the same from every variant.
+#[derive(Clone, Copy, Debug)]
+pub struct RayKeys {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    root_min: [f64; 3],
+    /// Key cells per world unit.
+    scale: f64,
+}
+
+/// Bits per axis of [`RayKeys`]' fine grid of entry points.
+pub const KEY_BITS: u32 = 10;
+/// Bits per axis of [`RayKeys`]' coarse grids of entry points and directions.
+pub const COARSE_BITS: u32 = 5;
+
+impl RayKeys {
+    pub fn new(h: &crate::physical::format::Header) -> RayKeys {
+        RayKeys {
+            lo: h.mesh_min.map(f64::from),
+            hi: h.mesh_max.map(f64::from),
+            root_min: h.root_min,
+            scale: f64::from(1u32 << KEY_BITS) / h.root_size,
+        }
+    }
+
+    /// The key of `ray` (see the type's docs); `u64::MAX` for a ray that needs no block.
+    pub fn key(&self, ray: &Ray) -> u64 {
+        if !ray.is_valid() {
+            return u64::MAX;
+        }
+        let (mut t0, mut t1) = (f64::from(ray.tmin), f64::from(ray.tmax));
+        for k in 0..3 {
+            let (o, d) = (f64::from(ray.origin[k]), f64::from(ray.dir[k]));
+            if d == 0.0 {
+                if o < self.lo[k] || o > self.hi[k] {
+                    return u64::MAX;
+                }
+            } else {
+                let (a, b) = ((self.lo[k] - o) / d, (self.hi[k] - o) / d);
+                t0 = t0.max(a.min(b));
+                t1 = t1.min(a.max(b));
+            }
+        }
+        #[allow(clippy::neg_cmp_op_on_partial_ord)] // NaN must mean a miss
+        if !(t0 <= t1) {
+            return u64::MAX;
+        }
+        let max = (1u32 << KEY_BITS) - 1;
+        let p = ray.at(t0);
+        // `as` saturates (NaN to 0); the clamp keeps the cell on the grid.
+        let cell: [u32; 3] = std::array::from_fn(|k| {
+            (((p[k] - self.root_min[k]) * self.scale).floor() as i64).clamp(0, i64::from(max))
+                as u32
+        });
+        // The coarse key: the entry cell on the 2^COARSE_BITS grid and the direction on a
+        // 2^COARSE_BITS grid over [-1, 1]^3 (of the unit direction), interleaved bit by bit from
+        // the top (entry x, direction x, entry y, ...): a Morton code in 6-D.
+        let len = ray
+            .dir
+            .iter()
+            .map(|&d| f64::from(d) * f64::from(d))
+            .sum::<f64>()
+            .sqrt();
+        let side = f64::from(1u32 << COARSE_BITS);
+        let dir: [u32; 3] = std::array::from_fn(|k| {
+            (((f64::from(ray.dir[k]) / len + 1.0) * 0.5 * side) as u32).min((1 << COARSE_BITS) - 1)
+        });
+        let entry = cell.map(|c| c >> (KEY_BITS - COARSE_BITS));
+        let mut coarse = 0u64;
+        for b in (0..COARSE_BITS).rev() {
+            for k in 0..3 {
+                coarse =
+                    coarse << 2 | u64::from(entry[k] >> b & 1) << 1 | u64::from(dir[k] >> b & 1);
+            }
+        }
+        // Then the entry cell on the fine grid.
+        coarse << (3 * KEY_BITS) | morton::encode(cell)
+    }
+}
