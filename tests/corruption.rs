@@ -1046,6 +1046,7 @@ fn tight_options(fix: &Fixture) -> SceneOptions {
     SceneOptions {
         mem_budget: 2 * fix.max_raw,
         threads: 2,
+        check_blocks: true,
     }
 }
 

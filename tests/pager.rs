@@ -120,6 +120,8 @@ impl Synth {
             budget,
             threads,
             max_raw_len: self.max_raw_len,
+            compressed: self.dir.iter().any(|e| e.codec == CODEC_ZSTD),
+            check_raw: true,
         }
     }
 

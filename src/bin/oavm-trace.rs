@@ -60,6 +60,12 @@ struct Args {
     /// what one block per thread needs for compressed files (see the report's pager budget).
     #[arg(long, value_name = "SIZE", value_parser = parse_bytes)]
     mem_budget: Option<u64>,
+    /// Do not check a raw block's checksum when it is paged in: only the pages a walk touches
+    /// are read (far less from the disk when rays pass through blocks), but a damaged block is
+    /// no longer caught by its checksum (reads stay bounds-checked: wrong answers, never a
+    /// crash). `--verify` checks everything regardless.
+    #[arg(long)]
+    no_block_checks: bool,
     /// Order of tracing: morton (rays that enter the model near each other, in the same
     /// direction octant, together; image tiles in Morton order) or none (as given; image rows).
     /// The answers are the same; the blocks read again under a small --mem-budget are not.
@@ -160,6 +166,7 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         &SceneOptions {
             mem_budget: args.mem_budget.unwrap_or(u64::MAX),
             threads: 0,
+            check_blocks: !args.no_block_checks,
         },
     )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -388,7 +395,8 @@ fn bench(
     let c = scene.intersect_batch_ordered(&rays, &mut hits, args.order)?;
     let s = t.elapsed().as_secs_f64();
     let n = hits.iter().filter(|h| h.is_hit()).count();
-    sets.push((name, "hits", n, c, s));
+    let digest = answers_digest(bytemuck::cast_slice(&hits));
+    sets.push((name, "hits", n, c, s, digest));
     (total, seconds) = (total + c, seconds + s);
     if args.shadow {
         let shadow: Vec<Ray> = rays::shadow_rays(&rays, &hits, light);
@@ -398,7 +406,7 @@ fn bench(
         let c = scene.occluded_batch_ordered(&shadow, &mut occ, args.order)?;
         let s = t.elapsed().as_secs_f64();
         let n = occ.iter().filter(|&&o| o == 1).count();
-        sets.push(("shadow", "occluded", n, c, s));
+        sets.push(("shadow", "occluded", n, c, s, answers_digest(&occ)));
         (total, seconds) = (total + c, seconds + s);
     }
     if args.json {
@@ -406,8 +414,8 @@ fn bench(
         merge(&mut v, set_json("", 0, &total, seconds));
         v["sets"] = sets
             .iter()
-            .map(|&(set, label, n, c, s)| {
-                let mut v = json!({ "set": set });
+            .map(|&(set, label, n, c, s, digest)| {
+                let mut v = json!({ "set": set, "answers_xxh3": format!("{digest:016x}") });
                 merge(&mut v, set_json(label, n, &c, s));
                 v
             })
@@ -415,7 +423,7 @@ fn bench(
         print(&v)?;
     } else {
         let mut text = String::new();
-        for &(set, label, n, c, s) in &sets {
+        for &(set, label, n, c, s, _) in &sets {
             text += &format!(
                 "{set}: {} rays, {n} {label}, {s:.3} s, {:.2} Mrays/s{}\n",
                 c.rays,
@@ -463,6 +471,7 @@ impl Report<'_> {
             "open_ms": self.open_ms,
             "start_to_first_ray_ms": self.start_to_first_ray_ms,
             "mem_budget": self.args.mem_budget,
+            "block_checks": !self.args.no_block_checks,
             "pager_budget": pager.budget(),
             "pager_peak_resident_bytes": pager.peak_resident_bytes(),
             "pager_slots": pager.slot_count(),
@@ -507,6 +516,12 @@ fn page_json(c: &Counters) -> Value {
 }
 
 /// The figures of one set of rays: `answered` is `label` (hits, occluded; none if empty).
+/// xxh3-64 of a set's answers (closest hits as their HITS records, or the OCCL bytes): runs
+/// that agree ray for ray have the same digest.
+fn answers_digest(bytes: &[u8]) -> u64 {
+    xxhash_rust::xxh3::xxh3_64(bytes)
+}
+
 fn set_json(label: &str, answered: usize, c: &Counters, seconds: f64) -> Value {
     let per_ray = |x: u64| x as f64 / (c.rays.max(1)) as f64;
     let mut v = json!({

@@ -11,7 +11,7 @@ use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
 use crate::mapping::TreeMap;
 use crate::mapping::morton;
-use crate::physical::format::SectionKind;
+use crate::physical::format::{FLAG_COMPRESSED, SectionKind};
 use crate::physical::pager::{
     BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions,
 };
@@ -28,6 +28,9 @@ pub struct SceneOptions {
     /// Threads that will trace at once (the pager keeps at least one cache slot per thread, plus
     /// one); 0: rayon's current pool size.
     pub threads: usize,
+    /// Check each raw block's checksum when it is paged in (reading it whole); off, only the
+    /// pages a walk touches are read (see [`PagerOptions::check_raw`]).
+    pub check_blocks: bool,
 }
 
 impl Default for SceneOptions {
@@ -35,6 +38,7 @@ impl Default for SceneOptions {
         SceneOptions {
             mem_budget: u64::MAX,
             threads: 0,
+            check_blocks: true,
         }
     }
 }
@@ -90,6 +94,8 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 budget: opts.mem_budget,
                 threads,
                 max_raw_len: file.header().max_block_raw_len,
+                compressed: file.header().flags & FLAG_COMPRESSED != 0,
+                check_raw: opts.check_blocks,
             },
         );
         Ok(Scene { file, path, pager })

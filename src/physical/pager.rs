@@ -141,6 +141,17 @@ pub struct PagerOptions {
     /// The largest `raw_len` accepted (the header's `max_block_raw_len`): the size of a slot,
     /// and the bound on what one block may make the pager allocate.
     pub max_raw_len: u64,
+    /// Whether the file may hold zstd blocks (the header's `COMPRESSED` flag). Without it no
+    /// slot is made, and a zstd block is an error: so `new` never reads the directory, and
+    /// opening costs the same for any number of blocks.
+    pub compressed: bool,
+    /// Check a raw block's checksum when it is admitted, which reads it whole (with a hint to
+    /// read it in one request). Off, a raw block's entry is still checked but only the pages a
+    /// walk touches are read: far fewer bytes from the disk for rays that only pass through a
+    /// block, and bytes that are never checked (every read is still bounds-checked, so a
+    /// damaged block can give wrong answers, never a crash). Zstd blocks are always checked
+    /// (they are decoded whole anyway).
+    pub check_raw: bool,
 }
 
 /// What the caller's gets cost (summed over them). See the module docs for what counts.
@@ -262,6 +273,8 @@ const SPINS: u32 = 64;
 
 /// Reads blocks for the tracer within a memory budget. See the module docs.
 pub struct Pager {
+    /// [`PagerOptions::check_raw`].
+    check_raw: bool,
     max_raw_len: u64,
     /// The effective budget.
     budget: u64,
@@ -315,14 +328,18 @@ impl Pager {
     pub fn new(directory: &[BlockEntry], opts: PagerOptions) -> Pager {
         let max_raw_len = opts.max_raw_len.max(1);
         let threads = opts.threads.max(1) as u64;
-        let zstd_blocks = directory.iter().filter(|e| e.codec == CODEC_ZSTD).count() as u64;
         // (Slot indices are stored as u32s, NO_SLOT excluded.)
-        let slot_count = (opts.budget / max_raw_len)
-            .max(threads + 1)
-            .min(zstd_blocks)
-            .min(u64::from(NO_SLOT) - 1);
+        let slot_count = if opts.compressed {
+            (opts.budget / max_raw_len)
+                .max(threads + 1)
+                .min(directory.len() as u64)
+                .min(u64::from(NO_SLOT) - 1)
+        } else {
+            0
+        };
         let budget = opts.budget.max(slot_count.saturating_mul(max_raw_len));
         Pager {
+            check_raw: opts.check_raw,
             max_raw_len,
             budget,
             state: directory.iter().map(|_| AtomicU8::new(COLD)).collect(),
@@ -465,6 +482,9 @@ impl Pager {
     ) -> Result<BlockBytes<'s>, PageError> {
         let state = &self.state[block as usize];
         let checked = self.check_entry(src, entry).and_then(|()| {
+            if !self.check_raw {
+                return Ok(());
+            }
             let (off, len) = (entry.offset as usize, entry.stored_len as usize);
             src.source.prefetch(off, len);
             self.check_sum(entry, self.stored(src, entry))
@@ -557,6 +577,12 @@ impl Pager {
         entry: &BlockEntry,
         c: &mut PageCounters,
     ) -> Result<BlockBytes<'s>, PageError> {
+        if self.slots.is_empty() {
+            return Err(self.fail(
+                block,
+                "a zstd block in a file whose header says no block is compressed".into(),
+            ));
+        }
         let mut spins = 0;
         loop {
             if self.state[block as usize].load(Ordering::Acquire) == BAD {
@@ -869,6 +895,8 @@ mod tests {
             budget,
             threads,
             max_raw_len: 1000,
+            compressed: true,
+            check_raw: true,
         };
         // Tiny budget: threads + 1 slots, budget raised to them.
         let p = Pager::new(&dir, opts(10, 3));
@@ -883,7 +911,13 @@ mod tests {
             codec: CODEC_RAW,
             ..zstd
         }];
-        let p = Pager::new(&raw, opts(10, 3));
+        let p = Pager::new(
+            &raw,
+            PagerOptions {
+                compressed: false,
+                ..opts(10, 3)
+            },
+        );
         assert_eq!((p.slot_count(), p.budget()), (0, 10));
     }
 }
