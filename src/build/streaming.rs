@@ -460,18 +460,21 @@ fn overlaps_cell(t: &LatticeTri, code: u64, level: u32) -> bool {
 }
 
 /// Calls `f` with the level-`h` code of every cell `t` overlaps (widened by the margin), by the
-/// exact test where its box spans several cells.
+/// exact test where its box spans several cells (no allocation: this runs once per triangle).
 fn for_cells_overlapping(t: &LatticeTri, h: u32, mut f: impl FnMut(u64)) {
-    let mut codes: Vec<u64> = Vec::new();
-    for_cells_of_box(t, h, |c| codes.push(c));
-    if codes.len() == 1 {
-        f(codes[0]);
-        return;
-    }
-    for c in codes {
-        if overlaps_cell(t, c, h) {
-            f(c);
-        }
+    let mut first = None;
+    let mut several = false;
+    for_cells_of_box(t, h, |c| match first {
+        None => first = Some(c),
+        Some(_) => several = true,
+    });
+    match first {
+        Some(c) if !several => f(c),
+        _ => for_cells_of_box(t, h, |c| {
+            if overlaps_cell(t, c, h) {
+                f(c);
+            }
+        }),
     }
 }
 

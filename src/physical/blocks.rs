@@ -124,12 +124,11 @@ pub fn partition(
     if base_level as usize + nl > MAX_LEVEL as usize + 1 {
         return Err(bad("the tree is deeper than the lattice"));
     }
-    let level_nodes = |l: usize| level_nodes(&tree, l);
 
     // Subtree sizes, bottom-up.
     let mut size: Vec<Vec<u64>> = vec![Vec::new(); nl];
     for l in (0..nl).rev() {
-        let nodes = level_nodes(l)?;
+        let nodes = level_nodes(&tree, l)?;
         let mut v = Vec::with_capacity(nodes.len());
         let mut r = 0usize;
         for rec in nodes {
@@ -172,15 +171,15 @@ pub fn partition(
     };
     let mut codes: Vec<Vec<u64>> = vec![base_codes.to_vec()];
     let mut roles: Vec<Vec<Role>> = vec![
-        level_nodes(0)?
+        level_nodes(&tree, 0)?
             .iter()
             .zip(&size[0])
             .map(|(r, &s)| classify(r, s))
             .collect(),
     ];
     for l in 0..nl - 1 {
-        let nodes = level_nodes(l)?;
-        let next = level_nodes(l + 1)?;
+        let nodes = level_nodes(&tree, l)?;
+        let next = level_nodes(&tree, l + 1)?;
         let mut c = vec![0u64; next.len()];
         let mut role = vec![Role::Inside; next.len()];
         let mut r = 0usize;
@@ -234,7 +233,7 @@ pub fn partition(
     // The top nodes.
     let mut top = Vec::new();
     for (l, role) in roles.iter().enumerate() {
-        let nodes = level_nodes(l)?;
+        let nodes = level_nodes(&tree, l)?;
         for (i, r) in role.iter().enumerate() {
             if *r != Role::Top {
                 continue;
