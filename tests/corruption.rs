@@ -70,7 +70,7 @@ const ROOT_SIZE_AT: usize = 64;
 const MAX_BLOCK_RAW_LEN_AT: usize = 144;
 /// §3: the section table follows the header: six 48-byte entries.
 const ENTRY_LEN: usize = 48;
-const SECTION_COUNT: usize = 6;
+const SECTION_COUNT: usize = 7;
 const TABLE_END: usize = HEADER_LEN + SECTION_COUNT * ENTRY_LEN;
 /// §3: fields of a section table entry.
 const ENTRY_OFFSET: usize = 8;
@@ -81,6 +81,7 @@ const BLOCKS: usize = 0;
 const DIRECTORY: usize = 1;
 const LEVELS: usize = 2;
 const NODES: usize = 3;
+const LINK_BOUNDS: usize = 6;
 /// §2: the blocks section starts at offset 4096.
 const BLOCKS_START: usize = 4096;
 /// §8.2: a directory entry and its fields.
@@ -119,6 +120,8 @@ const LEVEL_FIELDS: Fields = &[
 const NODE_FIELDS: Fields = &[(0, "payload"), (4, "meta")];
 const RANK_FIELDS: Fields = &[(0, "internal"), (8, "rank")];
 const VOLUME_FIELDS: Fields = &[(0, "lo"), (12, "hi")];
+/// §8.1: a link's bounds, in 256ths of its cell.
+const LINK_BOUNDS_FIELDS: Fields = &[(0, "lo"), (3, "hi"), (6, "reserved")];
 
 /// §8.2: the fields of a directory entry.
 const DIR_FIELDS: Fields = &[
@@ -132,14 +135,15 @@ const DIR_FIELDS: Fields = &[
     (DIR_CHECKSUM, "checksum"),
 ];
 
-/// §3, §8.2, §4–§5: the sections after the blocks, in file order, with their record sizes and
+/// §3, §8.2, §4–§5, §8.1: the sections after the blocks, in file order, with their record sizes and
 /// fields (the top tree's are named as the code names them: "levels section" and so on).
-const SECTIONS: [(&str, usize, Fields); 5] = [
+const SECTIONS: [(&str, usize, Fields); 6] = [
     ("block directory", DIR_LEN, DIR_FIELDS),
     ("levels", 32, LEVEL_FIELDS),
     ("nodes", 8, NODE_FIELDS),
     ("ranks", 16, RANK_FIELDS),
     ("volumes", 24, VOLUME_FIELDS),
+    ("link bounds", 8, LINK_BOUNDS_FIELDS),
 ];
 
 /// §8.3: the parts of a block after its header, in order, with their record sizes and fields.
@@ -578,7 +582,20 @@ fn top_links(b: &[u8]) -> Vec<Link> {
 
 /// The centre of the cell of node `code` at `level`, in world units (§1: lattice and Morton
 /// codes, x lowest).
-fn cell_centre(b: &[u8], level: u32, code: u64) -> [f32; 3] {
+/// The centre of the link bounds (§8.1) of the link record `node` at `level`, `code`: a ray
+/// from there cannot pass the link by, since it starts inside its bounds.
+fn link_bounds_centre(b: &[u8], node: usize, level: u32, code: u64) -> [f32; 3] {
+    let at = section(b, LINK_BOUNDS).0 + 8 * node;
+    let (lo, hi) = (&b[at..at + 3], &b[at + 3..at + 6]);
+    // 256ths of the cell, as an offset from its centre in cells.
+    let frac: [f64; 3] =
+        std::array::from_fn(|k| (lo[k] as f64 + hi[k] as f64 + 1.0) / 2.0 / 256.0 - 0.5);
+    cell_point(b, level, code, frac)
+}
+
+/// The point `offset` cells (per axis) from the centre of the cell `level`, `code`, in world
+/// units.
+fn cell_point(b: &[u8], level: u32, code: u64, offset: [f64; 3]) -> [f32; 3] {
     let mut c = [0u64; 3];
     for i in 0..level {
         let g = code >> (3 * i);
@@ -590,7 +607,8 @@ fn cell_centre(b: &[u8], level: u32, code: u64) -> [f32; 3] {
     let root_size = f64::from_bits(read_u64(b, ROOT_SIZE_AT));
     std::array::from_fn(|k| {
         let min = f64::from_bits(read_u64(b, ROOT_MIN_AT + 8 * k));
-        (min + ((c[k] * size) as f64 + size as f64 / 2.0) * root_size / (1u64 << 21) as f64) as f32
+        let cells = (c[k] * size) as f64 + size as f64 * (0.5 + offset[k]);
+        (min + cells * root_size / (1u64 << 21) as f64) as f32
     })
 }
 
@@ -651,8 +669,8 @@ impl Fixture {
         let used = mesh.triangles.iter().flatten();
         let bounds = Bounds::of_points(used.map(|&v| mesh.positions[v as usize]));
         let mut rays = ray_set(mesh, &bounds);
-        // One ray from inside each block's first root: its walk needs that block first, so a
-        // block the pager refuses fails the batch.
+        // One ray from inside the link bounds of each block's first root: its walk needs that
+        // block first, so a block the pager refuses fails the batch.
         let mut rng = SplitMix64::new(0xb10c);
         for b in 0..dir.len() {
             let link = links
@@ -660,7 +678,7 @@ impl Fixture {
                 .find(|l| l.block == b as u32 && l.root == 0)
                 .expect("every block's first root is linked");
             rays.push(Ray::new(
-                cell_centre(&bytes, link.level, link.code),
+                link_bounds_centre(&bytes, link.node, link.level, link.code),
                 random_dir(&mut rng),
                 0.0,
                 f32::INFINITY,
@@ -1595,13 +1613,14 @@ fn wrong_magic_fails_at_open() {
 /// The version message names the version found and the one read, and says to repack.
 fn assert_version_error(err: &FormatError, v: u32, what: &str) {
     assert!(
-        matches!(err, FormatError::Version { expected: 2, found } if *found == v),
+        matches!(err, FormatError::Version { expected, found }
+            if *expected == oavm::physical::format::VERSION && *found == v),
         "{what}: {err}"
     );
     let msg = err.to_string();
     assert!(
         msg.contains(&format!("version {v} "))
-            && msg.contains("version 2")
+            && msg.contains(&format!("version {}", oavm::physical::format::VERSION))
             && msg.contains("repack"),
         "{what}: the message names both versions and says to repack: {msg}"
     );
@@ -1610,7 +1629,7 @@ fn assert_version_error(err: &FormatError, v: u32, what: &str) {
 #[test]
 fn wrong_version_fails_at_open_and_says_to_repack() {
     let fix = default_file();
-    for v in [0u32, 1, 3, 0x100, u32::MAX] {
+    for v in [0u32, 1, 2, 4, 0x100, u32::MAX] {
         for fix_checksum in [false, true] {
             let mut b = fix.bytes.clone();
             write_u32(&mut b, VERSION_AT, v);

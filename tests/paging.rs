@@ -249,6 +249,69 @@ fn zstd_blocks_give_the_same_answers_under_any_budget() {
     budgets_do_not_change_answers(Some(3));
 }
 
+/// The file with every link's bounds (format-spec §8.1) widened to its whole cell, the
+/// section's checksum recomputed: a tracer can then pass no block by.
+fn without_link_culling(bytes: &AlignedBytes) -> AlignedBytes {
+    use oavm::physical::format::{LinkBounds, NodeKind, NodeRecord, SectionKind, checksum};
+    let scene = Scene::from_bytes(bytes.clone(), "bunny.oavm").expect("open");
+    let f = scene.file();
+    let nodes: &[NodeRecord] = f.records(SectionKind::Nodes);
+    let s = *f.section(SectionKind::LinkBounds);
+    let mut b = bytes.as_ref().to_vec();
+    let mut links = 0;
+    for (i, rec) in nodes.iter().enumerate() {
+        if let Some(NodeKind::Link { .. }) = rec.kind() {
+            let at = s.offset as usize + 8 * i;
+            b[at..at + 8].copy_from_slice(bytemuck::bytes_of(&LinkBounds::FULL));
+            links += 1;
+        }
+    }
+    assert!(links > 100, "only {links} links");
+    let sum = checksum(&b[s.offset as usize..(s.offset + s.length) as usize]);
+    // The section's checksum is the last field of its entry in the table (§3), which the
+    // header's checksum covers (§2): both are recomputed.
+    let table = 256 + 48 * (SectionKind::LinkBounds as usize - 1);
+    b[table + 40..table + 48].copy_from_slice(&sum.to_le_bytes());
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    h.update(&b[..248]);
+    h.update(&b[256..256 + 48 * SectionKind::ALL.len()]);
+    b[248..256].copy_from_slice(&h.digest().to_le_bytes());
+    AlignedBytes::from_slice(&b)
+}
+
+/// Link bounds let rays pass blocks they cannot hit without paging them in, and change no
+/// answer: the same file with every link's bounds widened to its cell gives the same answers
+/// bit for bit, asks the pager for more blocks, and culls no link. The widened file is still
+/// structurally sound but no longer what its leaves give, and `--verify` says so.
+#[test]
+fn link_bounds_save_block_reads_and_change_no_answer() {
+    for compress in [None, Some(3)] {
+        let bytes = packed(compress);
+        let wide = without_link_culling(bytes);
+        let defects = Scene::from_bytes(wide.clone(), "wide.oavm")
+            .expect("open")
+            .verify()
+            .defects;
+        assert!(
+            defects.iter().any(|d| d.contains("bounds")),
+            "verify misses widened link bounds: {defects:?}"
+        );
+        let culled = trace(bytes, u64::MAX, 2, Order::Morton);
+        let full = trace(&wide, u64::MAX, 2, Order::Morton);
+        assert_eq!(culled.answers, full.answers, "{compress:?}");
+        for (a, b) in [(&culled.closest, &full.closest), (&culled.any, &full.any)] {
+            assert!(a.links_culled > 0, "{compress:?}: {a:?}");
+            assert_eq!(b.links_culled, 0, "{compress:?}: {b:?}");
+            assert!(
+                a.page.requested < b.page.requested,
+                "{compress:?}: {} blocks asked for with link bounds, {} without",
+                a.page.requested,
+                b.page.requested
+            );
+        }
+    }
+}
+
 #[test]
 fn renders_are_the_same_in_rows_and_in_morton_tiles_under_any_budget() {
     let b = bounds();

@@ -532,6 +532,7 @@ fn set_json(label: &str, answered: usize, c: &Counters, seconds: f64) -> Value {
         "leaves_visited": c.leaves_visited,
         "volumes_crossed": c.volumes_crossed,
         "leaves_culled": c.leaves_culled,
+        "links_culled": c.links_culled,
         "triangles_tested": c.triangles_tested,
         "nodes_visited_per_ray": per_ray(c.nodes_visited),
         "leaves_visited_per_ray": per_ray(c.leaves_visited),

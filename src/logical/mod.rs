@@ -121,7 +121,14 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             self.file.records(SectionKind::Nodes),
             self.file.records(SectionKind::Ranks),
         );
-        Tree::new(top, self.file.directory(), self, h.root_min, h.root_size)
+        Tree::new(
+            top,
+            self.file.records(SectionKind::LinkBounds),
+            self.file.directory(),
+            self,
+            h.root_min,
+            h.root_size,
+        )
     }
 
     /// Checks every section and checksum (see [`crate::physical::verify`]).

@@ -40,7 +40,7 @@ use crate::geom::triangle::RayShear;
 use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
 use crate::physical::file::{BlockView, block_view};
-use crate::physical::format::{BlockEntry, CELL_MARGIN, TriRecord, leaf_refs};
+use crate::physical::format::{BlockEntry, CELL_MARGIN, LinkBounds, TriRecord, leaf_refs};
 use crate::physical::pager::{BlockBytes, PageCounters, PageError};
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -55,6 +55,9 @@ pub struct Counters {
     pub volumes_crossed: u64,
     /// Solid leaves whose tight bounds the ray missed: their triangles were not tested.
     pub leaves_culled: u64,
+    /// Links whose bounds (spec §8.1) the ray missed: their blocks were passed without being
+    /// asked of the pager.
+    pub links_culled: u64,
     /// Ray–triangle tests.
     pub triangles_tested: u64,
     /// Blocks asked of the pager (each time a walk moves into another block), with its hits,
@@ -70,6 +73,7 @@ impl std::ops::AddAssign for Counters {
         self.leaves_visited += o.leaves_visited;
         self.volumes_crossed += o.volumes_crossed;
         self.leaves_culled += o.leaves_culled;
+        self.links_culled += o.links_culled;
         self.triangles_tested += o.triangles_tested;
         self.page += o.page;
     }
@@ -137,6 +141,8 @@ pub trait BlockFetch: Sync {
 #[derive(Clone, Copy)]
 pub struct Tree<'a> {
     top: TreeMap<'a>,
+    /// Parallel to the top tree's node records (spec §8.1); unvalidated.
+    link_bounds: &'a [LinkBounds],
     directory: &'a [BlockEntry],
     blocks: &'a dyn BlockFetch,
     root_min: [f64; 3],
@@ -207,6 +213,7 @@ impl<'a> Tree<'a> {
     /// A tree over a validated top tree, the (untrusted) block directory and a pager.
     pub fn new(
         top: TreeMap<'a>,
+        link_bounds: &'a [LinkBounds],
         directory: &'a [BlockEntry],
         blocks: &'a dyn BlockFetch,
         root_min: [f64; 3],
@@ -214,6 +221,7 @@ impl<'a> Tree<'a> {
     ) -> Tree<'a> {
         Tree {
             top,
+            link_bounds,
             directory,
             blocks,
             root_min,
@@ -359,6 +367,7 @@ impl<'a> Tree<'a> {
             // 1. Locate the leaf containing q, from the common ancestor down: in the block the
             // walk is in while the ancestor is inside it, else from the top tree, following a
             // link into a block.
+            let mut culled = false;
             let in_block = match (w.cur, held) {
                 (Some((b, rl)), Some(h)) => b == h.id && w.level >= rl,
                 _ => false,
@@ -369,7 +378,13 @@ impl<'a> Tree<'a> {
                 let (level, rec) =
                     self.top
                         .descend(w.level, &mut w.tpath, w.q, &mut k.nodes_visited)?;
-                if rec.kind_bits() == 3 {
+                if rec.kind_bits() == 3 && !self.link_may_hit(r, w, level) {
+                    // Its block holds nothing this ray can hit: cross its cell as if empty.
+                    k.links_culled += 1;
+                    w.cur = None;
+                    culled = true;
+                    (level, rec)
+                } else if rec.kind_bits() == 3 {
                     let (b, root) = rec.link_bits();
                     w.cur = Some((b, level));
                     w.level = level;
@@ -410,6 +425,7 @@ impl<'a> Tree<'a> {
                 }
             };
             let (lo, hi) = match rec.kind_bits() {
+                _ if culled => (cell_lo, cell_lo.map(|x| x + size)),
                 0 => {
                     // Empty: its merged volume, rebuilt from the shape in the record (spec
                     // §4.2), jumped past whole.
@@ -431,23 +447,13 @@ impl<'a> Tree<'a> {
                     // the cell, so their references and records are not even loaded.
                     let s16 = size as f64 / 16.0;
                     let q4 = |shift: u32| ((b >> shift) & 15) as f64;
-                    let (mut tn, mut tf) = (r.tmin as f64, w.t_best as f64);
-                    let mut inside = true;
-                    // One index over several per-axis arrays.
-                    #[allow(clippy::needless_range_loop)]
-                    for a in 0..3 {
-                        let blo = cell_lo[a] as f64 + q4(4 * a as u32) * s16 - CELL_MARGIN;
-                        let bhi =
-                            cell_lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN;
-                        if r.moves[a] {
-                            let (x, y) = (blo * r.inv[a] - r.oi[a], bhi * r.inv[a] - r.oi[a]);
-                            tn = tn.max(x.min(y));
-                            tf = tf.min(x.max(y));
-                        } else {
-                            inside &= r.o[a] >= blo && r.o[a] <= bhi;
-                        }
-                    }
-                    if inside && tn <= tf {
+                    let blo: [f64; 3] = std::array::from_fn(|a| {
+                        cell_lo[a] as f64 + q4(4 * a as u32) * s16 - CELL_MARGIN
+                    });
+                    let bhi: [f64; 3] = std::array::from_fn(|a| {
+                        cell_lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN
+                    });
+                    if box_may_hit(r, w.t_best, blo, bhi) {
                         let Some((leaf, _)) = leaf_refs(refs, rec.payload, inline_count) else {
                             return Err(bad(
                                 "triangle references out of range",
@@ -550,6 +556,27 @@ impl<'a> Tree<'a> {
         }
     }
 
+    /// Whether the ray may hit anything below the link at `level` on the walk's path: its
+    /// bounds (spec §8.1), widened by the cell margin, met over `[tmin, closest hit so far]`.
+    /// A ray that misses them would cull every solid leaf below the link by the same test (each
+    /// leaf's widened bounds lie inside the link's), so skipping the block changes no answer.
+    /// Bounds past the section (which open rules out) let the walk in.
+    #[inline(always)]
+    fn link_may_hit(&self, r: &RayCtx, w: &WalkState, level: u32) -> bool {
+        let at = self.top.node_start(level) + w.tpath[(level & 31) as usize];
+        let Some(lb) = usize::try_from(at).ok().and_then(|i| self.link_bounds.get(i)) else {
+            return true;
+        };
+        let size = morton::cell_size(level);
+        let s256 = size as f64 / 256.0;
+        let cell_lo = w.q.map(|x| (x & !(size - 1)) as f64);
+        let blo: [f64; 3] =
+            std::array::from_fn(|a| cell_lo[a] + lb.lo[a] as f64 * s256 - CELL_MARGIN);
+        let bhi: [f64; 3] =
+            std::array::from_fn(|a| cell_lo[a] + (lb.hi[a] as f64 + 1.0) * s256 + CELL_MARGIN);
+        box_may_hit(r, w.t_best, blo, bhi)
+    }
+
     /// Descends inside the held block from `w.level` to the leaf containing `w.q`; checks, when
     /// starting from a root, that the root exists and the block is the link's.
     #[inline(always)]
@@ -588,6 +615,26 @@ impl<'a> Tree<'a> {
                 e
             })
     }
+}
+
+/// Slab test of the ray over `[tmin, t_best]` against the box `[blo, bhi]` (lattice units). An
+/// axis the ray does not move along must hold the origin.
+#[inline(always)]
+fn box_may_hit(r: &RayCtx, t_best: f32, blo: [f64; 3], bhi: [f64; 3]) -> bool {
+    let (mut tn, mut tf) = (r.tmin as f64, t_best as f64);
+    let mut inside = true;
+    // One index over several per-axis arrays.
+    #[allow(clippy::needless_range_loop)]
+    for a in 0..3 {
+        if r.moves[a] {
+            let (x, y) = (blo[a] * r.inv[a] - r.oi[a], bhi[a] * r.inv[a] - r.oi[a]);
+            tn = tn.max(x.min(y));
+            tf = tf.min(x.max(y));
+        } else {
+            inside &= r.o[a] >= blo[a] && r.o[a] <= bhi[a];
+        }
+    }
+    inside && tn <= tf
 }
 
 /// `floor(p)` clamped to `[lo, hi]`, without branches (`max` and `min` give the other operand

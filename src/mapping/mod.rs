@@ -184,6 +184,13 @@ impl<'a> TreeMap<'a> {
         }
     }
 
+    /// Index in the node records of the first node of absolute level `level` (0 for a level
+    /// the map does not hold).
+    #[inline(always)]
+    pub fn node_start(&self, level: u32) -> u64 {
+        self.info[(level & 31) as usize].node_start
+    }
+
     /// Levels held (local levels, from the base).
     pub fn level_count(&self) -> u32 {
         self.level_count

@@ -294,6 +294,15 @@ fn read_section_table(
                 s.count, header.block_count
             )));
         }
+        if kind == SectionKind::LinkBounds {
+            let nodes = sections[SectionKind::Nodes as usize - 1].count;
+            if s.count != nodes {
+                return Err(table_err(format!(
+                    "{name}: {} records, one per top-tree node ({nodes}) expected",
+                    s.count
+                )));
+            }
+        }
         prev_end = end;
         sections[i] = s;
     }

@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 pub const MAGIC: [u8; 8] = *b"\x89OAVM\r\n\x1a";
 
 /// Spec §12: the format version this code reads and writes.
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
@@ -93,16 +93,19 @@ pub enum SectionKind {
     Nodes = 4,
     Ranks = 5,
     Volumes = 6,
+    /// The top tree's link bounds (spec §8.1), one record per top-tree node.
+    LinkBounds = 7,
 }
 
 impl SectionKind {
-    pub const ALL: [SectionKind; 6] = [
+    pub const ALL: [SectionKind; 7] = [
         SectionKind::Blocks,
         SectionKind::Directory,
         SectionKind::Levels,
         SectionKind::Nodes,
         SectionKind::Ranks,
         SectionKind::Volumes,
+        SectionKind::LinkBounds,
     ];
 
     pub fn from_u32(v: u32) -> Option<SectionKind> {
@@ -117,6 +120,7 @@ impl SectionKind {
             SectionKind::Nodes => "nodes",
             SectionKind::Ranks => "ranks",
             SectionKind::Volumes => "volumes",
+            SectionKind::LinkBounds => "link bounds",
         }
     }
 
@@ -130,6 +134,7 @@ impl SectionKind {
             SectionKind::Nodes => std::mem::size_of::<NodeRecord>(),
             SectionKind::Ranks => std::mem::size_of::<RankWord>(),
             SectionKind::Volumes => std::mem::size_of::<VolumeRecord>(),
+            SectionKind::LinkBounds => std::mem::size_of::<LinkBounds>(),
         };
         Some(size as u64)
     }
@@ -154,6 +159,48 @@ pub struct SectionEntry {
     pub checksum: u64,
 }
 const _: () = assert!(std::mem::size_of::<SectionEntry>() == 48);
+
+/// Spec §8.1: the bounds of a link's subtree, in 256ths of the link's cell per axis: the box
+/// `[lo, hi + 1) / 256` of the cell contains the tight bounds of every solid leaf below the
+/// block root it links to. One record per top-tree node, parallel to the node records; all
+/// zero for a node that is not a link.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Pod, Zeroable)]
+pub struct LinkBounds {
+    pub lo: [u8; 3],
+    pub hi: [u8; 3],
+    /// Zero.
+    pub reserved: [u8; 2],
+}
+const _: () = assert!(std::mem::size_of::<LinkBounds>() == 8);
+
+impl LinkBounds {
+    /// The whole cell.
+    pub const FULL: LinkBounds = LinkBounds {
+        lo: [0; 3],
+        hi: [255; 3],
+        reserved: [0; 2],
+    };
+
+    /// The smallest bounds containing `[lo, hi]`, given as fractions of the cell (`0..=1`):
+    /// rounded outward to 256ths (exact for the dyadic fractions leaf bounds give).
+    pub fn enclosing(lo: [f64; 3], hi: [f64; 3]) -> LinkBounds {
+        let l: [u8; 3] = std::array::from_fn(|a| (lo[a] * 256.0).floor().clamp(0.0, 255.0) as u8);
+        let h: [u8; 3] = std::array::from_fn(|a| {
+            ((hi[a] * 256.0).ceil() - 1.0).clamp(l[a] as f64, 255.0) as u8
+        });
+        LinkBounds {
+            lo: l,
+            hi: h,
+            reserved: [0; 2],
+        }
+    }
+
+    /// Well-formed as a link's bounds: `lo <= hi` per axis and the reserved bytes zero.
+    pub fn is_valid(&self) -> bool {
+        (0..3).all(|a| self.lo[a] <= self.hi[a]) && self.reserved == [0; 2]
+    }
+}
 
 /// Spec §4.1: where each level's records start (32 bytes per level).
 #[repr(C)]

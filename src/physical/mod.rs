@@ -2,6 +2,7 @@
 //! validating it at open, verifying it in full, and writing it.
 
 pub mod blocks;
+pub mod bounds;
 pub mod file;
 pub mod format;
 pub mod mmap;

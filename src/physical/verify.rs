@@ -120,8 +120,8 @@ struct Unit<'a> {
 struct UnitTotals {
     empty: u64,
     solid: u64,
-    /// Links (top tree only): block, root, level, code.
-    links: Vec<(u32, u32, u32, u64)>,
+    /// Links (top tree only): block, root, level, code, index in the node records.
+    links: Vec<(u32, u32, u32, u64, u64)>,
     lo: [f32; 3],
     hi: [f32; 3],
     triangles: u64,
@@ -157,8 +157,26 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
     let directory = file.directory();
     // (The map holds one entry per link: its size follows the top tree's, never the
     // directory's claims.)
-    let mut roots: std::collections::HashMap<(u32, u32), u64> = std::collections::HashMap::new();
-    for &(b, root, level, code) in &top_totals.links {
+    let mut roots: std::collections::HashMap<(u32, u32), (u64, LinkBounds)> =
+        std::collections::HashMap::new();
+    // Link bounds: well-formed on links, zero elsewhere (open checked there is one per node);
+    // each link's are compared with its block's leaves when the block is checked.
+    let link_bounds: &[LinkBounds] = file.records(SectionKind::LinkBounds);
+    let top_nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
+    for (i, (rec, lb)) in top_nodes.iter().zip(link_bounds).enumerate() {
+        let is_link = matches!(rec.kind(), Some(NodeKind::Link { .. }));
+        if is_link && !lb.is_valid() {
+            d.push(format!(
+                "top tree node {i}: link bounds {lb:?} have lo > hi or reserved bytes set"
+            ));
+        } else if !is_link && *lb != LinkBounds::default() {
+            d.push(format!(
+                "top tree node {i}: link bounds {lb:?} on a node that is not a link"
+            ));
+        }
+    }
+    for &(b, root, level, code, at) in &top_totals.links {
+        let bounds = link_bounds.get(at as usize).copied().unwrap_or_default();
         let Some(entry) = directory.get(b as usize) else {
             d.push(format!(
                 "top tree: a link at level {level} to block {b}, past the {} blocks",
@@ -177,7 +195,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
                 "top tree: a link to root {root} of block {b}, which has {}",
                 entry.root_count
             ));
-        } else if roots.insert((b, root), code).is_some() {
+        } else if roots.insert((b, root), (code, bounds)).is_some() {
             d.push(format!("block {b}: root {root} is linked twice"));
         }
     }
@@ -315,7 +333,7 @@ fn check_block<D: AsRef<[u8]> + Sync>(
     file: &OavmFile<D>,
     header: &Header,
     b: u32,
-    roots: &std::collections::HashMap<(u32, u32), u64>,
+    roots: &std::collections::HashMap<(u32, u32), (u64, LinkBounds)>,
     prims_seen: &[std::sync::atomic::AtomicU64],
     d: &mut Defects,
 ) -> UnitTotals {
@@ -395,13 +413,26 @@ fn check_block<D: AsRef<[u8]> + Sync>(
             at = r.end;
         }
     }
-    let Some(root_codes) = (0..view.header.root_count)
+    let Some(linked) = (0..view.header.root_count)
         .map(|j| roots.get(&(b, j)).copied())
-        .collect::<Option<Vec<u64>>>()
+        .collect::<Option<Vec<(u64, LinkBounds)>>>()
     else {
         d.push(format!("block {b}: a root has no link in the top tree"));
         return UnitTotals::default();
     };
+    // Each link's bounds are exactly what the root's solid leaves give (spec §8.1); records
+    // that give none are reported by the unit check below.
+    if let Ok(computed) = super::bounds::root_bounds(view.levels, view.nodes) {
+        for (j, (c, (_, stored))) in computed.iter().zip(&linked).enumerate() {
+            if c != stored {
+                d.push(format!(
+                    "block {b}: the link to root {j} has bounds {:?}..{:?}, its leaves give {:?}..{:?}",
+                    stored.lo, stored.hi, c.lo, c.hi
+                ));
+            }
+        }
+    }
+    let root_codes = linked.iter().map(|&(code, _)| code).collect();
     let unit = Unit {
         label: format!("block {b}"),
         map: TreeMap::with_base(view.levels, view.nodes, view.ranks, view.header.root_level),
@@ -501,7 +532,9 @@ fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
             .unwrap_or(0);
         leaf.0 = crate::mapping::morton::encode(cell_origin(code, l));
         if let NodeKind::Link { block, root } = leaf.3 {
-            totals.links.push((block, root, l, code));
+            totals
+                .links
+                .push((block, root, l, code, u.map.node_start(l) + i));
         }
     }
     leaves.sort_unstable_by_key(|&(key, ..)| key);

@@ -172,6 +172,8 @@ pub struct StoredBlock {
     pub entry: BlockEntry,
     /// The id the block was encoded with (its header says it): where it must be written.
     pub entry_id: u32,
+    /// The bounds of each of its roots (spec §8.1), for the links to them.
+    pub root_bounds: Vec<LinkBounds>,
 }
 
 /// The raw bytes of a block (spec §8): header, level table, nodes, ranks, volumes, refs,
@@ -213,6 +215,8 @@ pub fn store_block(
     id: u32,
     opts: &BlockOptions,
 ) -> Result<StoredBlock, Error> {
+    let root_bounds = super::bounds::root_bounds(unit.levels, unit.nodes)
+        .map_err(|e| Error::Build(format!("block {id}: {e}")))?;
     let raw = encode_block(unit, root_level, id);
     let raw_len = raw.len() as u64;
     let (codec, bytes) = match opts.compress {
@@ -240,6 +244,7 @@ pub fn store_block(
         },
         bytes,
         entry_id: id,
+        root_bounds,
     })
 }
 
@@ -307,6 +312,10 @@ pub struct FileWriter<S: Sink> {
     max_raw: u64,
     block_triangles: u64,
     compressed: bool,
+    /// The roots' bounds of every block written, block after block; `bounds_start[b]` is where
+    /// block `b`'s begin.
+    bounds: Vec<LinkBounds>,
+    bounds_start: Vec<usize>,
 }
 
 const ZEROS: [u8; 4096] = [0; 4096];
@@ -323,6 +332,8 @@ impl<S: Sink> FileWriter<S> {
             max_raw: 0,
             block_triangles: 0,
             compressed: false,
+            bounds: Vec::new(),
+            bounds_start: Vec::new(),
         })
     }
 
@@ -368,7 +379,37 @@ impl<S: Sink> FileWriter<S> {
         self.block_triangles += entry.triangles as u64;
         self.compressed |= entry.codec != CODEC_RAW;
         self.directory.push(entry);
+        self.bounds_start.push(self.bounds.len());
+        self.bounds.extend_from_slice(&block.root_bounds);
         Ok(self.directory.len() as u32 - 1)
+    }
+
+    /// The link bounds section (spec §8.1): for each top-tree node, its root's bounds if it is a
+    /// link, else zero.
+    fn link_bounds(&self, nodes: &[NodeRecord]) -> std::io::Result<Vec<LinkBounds>> {
+        nodes
+            .iter()
+            .map(|rec| match rec.kind() {
+                Some(NodeKind::Link { block, root }) => self
+                    .bounds_start
+                    .get(block as usize)
+                    .and_then(|&s| {
+                        let end = self
+                            .bounds_start
+                            .get(block as usize + 1)
+                            .copied()
+                            .unwrap_or(self.bounds.len());
+                        self.bounds[s..end].get(root as usize)
+                    })
+                    .copied()
+                    .ok_or_else(|| {
+                        std::io::Error::other(format!(
+                            "the top tree links to root {root} of block {block}, which was not written"
+                        ))
+                    }),
+                _ => Ok(LinkBounds::default()),
+            })
+            .collect()
     }
 
     /// Writes the directory, the top tree and the header; returns the sink and the file size.
@@ -384,7 +425,8 @@ impl<S: Sink> FileWriter<S> {
             checksum: 0,
         };
         let directory = std::mem::take(&mut self.directory);
-        let sections: [(SectionKind, &[u8], u64); 5] = [
+        let link_bounds = self.link_bounds(top.nodes)?;
+        let sections: [(SectionKind, &[u8], u64); 6] = [
             (
                 SectionKind::Directory,
                 bytemuck::cast_slice(&directory),
@@ -409,6 +451,11 @@ impl<S: Sink> FileWriter<S> {
                 SectionKind::Volumes,
                 bytemuck::cast_slice(top.volumes),
                 top.volumes.len() as u64,
+            ),
+            (
+                SectionKind::LinkBounds,
+                bytemuck::cast_slice(&link_bounds),
+                link_bounds.len() as u64,
             ),
         ];
         for (i, (kind, bytes, count)) in sections.into_iter().enumerate() {
