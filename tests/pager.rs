@@ -464,16 +464,16 @@ fn zstd_slots_hold_at_most_their_share() {
     let src = s.source();
     for (budget, threads) in [(0, 1), (0, 8), (5 * s.max_raw_len, 2), (u64::MAX, 4)] {
         let p = Bound::new(&src, &s.dir, s.opts(budget, threads));
-        let slots = if budget == u64::MAX {
-            40
-        } else {
-            (budget / s.max_raw_len).max(threads as u64 + 1)
-        };
+        // Slots for blocks of MIN_SLOT_BYTES (at least threads + 1, at most one per block);
+        // the budget, raised to hold threads + 1 of the largest blocks, bounds their bytes.
+        let slots = (budget / oavm::physical::pager::MIN_SLOT_BYTES)
+            .max(threads as u64 + 1)
+            .min(40);
         assert_eq!(p.slot_count() as u64, slots);
-        assert_eq!(p.budget(), budget.max(slots * s.max_raw_len));
+        assert_eq!(p.budget(), budget.max((threads as u64 + 1) * s.max_raw_len));
         let c = sum(&run_threads(&p, &s, threads, 2000, 7));
-        // Slot buffers are kept: each holds at most the largest block.
-        assert!(p.resident_bytes() <= slots * s.max_raw_len);
+        // Each slot's buffer is at most its block's size rounded to 8, and about twice that.
+        assert!(p.resident_bytes() <= slots * (2 * s.max_raw_len + 8 * 64));
         if budget == u64::MAX {
             // A slot per block: each is decoded once.
             assert_eq!(c.misses, 40, "{c:?}");
@@ -482,6 +482,40 @@ fn zstd_slots_hold_at_most_their_share() {
         }
         check_bound(&p, &s, threads, &format!("zstd, budget {budget}"));
     }
+}
+
+/// The zstd cache is bounded by bytes, not by a count of the largest block: a budget that
+/// holds every block's decoded bytes keeps them all, however much smaller than the largest the
+/// others are; half that budget keeps them within it and still hits.
+#[test]
+fn zstd_cache_holds_blocks_by_their_size() {
+    let s = Synth::build(24, Mix::Zstd, 400_000, 77);
+    let src = s.source();
+    let total: u64 = s.dir.iter().map(|e| e.raw_len).sum();
+    assert!(total / s.max_raw_len < 24, "blocks of mixed sizes");
+    let p = Bound::new(&src, &s.dir, s.opts(total + 24 * 64, 1));
+    let mut c = PageCounters::default();
+    for _ in 0..2 {
+        for b in 0..24 {
+            checked_get(&p, &s, b, &mut c);
+        }
+    }
+    assert_eq!((c.misses, c.hits), (24, 24), "{c:?}");
+    // Half the bytes: evictions, the budget held, some hits all the same (a block read twice
+    // in a row is never evicted in between).
+    let p = Bound::new(&src, &s.dir, s.opts(total / 2, 1));
+    let mut c = PageCounters::default();
+    for b in (0..24).flat_map(|b| [b, b, (b + 23) % 24]) {
+        checked_get(&p, &s, b, &mut c);
+    }
+    assert!(c.misses > 24 && c.hits >= 24, "{c:?}");
+    assert!(
+        p.resident_bytes() <= p.budget(),
+        "{} > {}",
+        p.resident_bytes(),
+        p.budget()
+    );
+    check_bound(&p, &s, 1, "half the bytes");
 }
 
 /// Every get of `b` fails with the same error naming `b`, whose text contains `expect`; every

@@ -564,7 +564,10 @@ impl<'a> Tree<'a> {
     #[inline(always)]
     fn link_may_hit(&self, r: &RayCtx, w: &WalkState, level: u32) -> bool {
         let at = self.top.node_start(level) + w.tpath[(level & 31) as usize];
-        let Some(lb) = usize::try_from(at).ok().and_then(|i| self.link_bounds.get(i)) else {
+        let Some(lb) = usize::try_from(at)
+            .ok()
+            .and_then(|i| self.link_bounds.get(i))
+        else {
             return true;
         };
         let size = morton::cell_size(level);

@@ -186,9 +186,8 @@ impl LinkBounds {
     /// rounded outward to 256ths (exact for the dyadic fractions leaf bounds give).
     pub fn enclosing(lo: [f64; 3], hi: [f64; 3]) -> LinkBounds {
         let l: [u8; 3] = std::array::from_fn(|a| (lo[a] * 256.0).floor().clamp(0.0, 255.0) as u8);
-        let h: [u8; 3] = std::array::from_fn(|a| {
-            ((hi[a] * 256.0).ceil() - 1.0).clamp(l[a] as f64, 255.0) as u8
-        });
+        let h: [u8; 3] =
+            std::array::from_fn(|a| ((hi[a] * 256.0).ceil() - 1.0).clamp(l[a] as f64, 255.0) as u8);
         LinkBounds {
             lo: l,
             hi: h,

@@ -1,4 +1,4 @@
-//! The pager: the only way the tracer reaches a block's bytes (format-spec.md, version 2: the
+//! The pager: the only way the tracer reaches a block's bytes (format-spec.md §8: the
 //! block directory and the blocks region; [`BlockEntry`]).
 //!
 //! A file's tree is split into *blocks*, self-contained subtrees whose bytes are stored either
@@ -35,7 +35,9 @@
 //! it is read from the disk again.
 //!
 //! **Zstd blocks** are decompressed into slots, each an `RwLock` over an 8-aligned buffer
-//! (`Vec<u64>`, grown on a miss to the largest block it has held, never past `max_raw_len`). A
+//! (`Vec<u64>` of the block's size: a slot's buffer is replaced on a miss when it is too small
+//! or more than about twice too large, never past `max_raw_len`), with a zstd context per
+//! thread (not per slot). A
 //! hit reads the block's slot index (an atomic), takes that slot's read lock and checks that it
 //! holds the block: no global lock, no allocation. The guard is returned inside [`BlockBytes`],
 //! so a slot cannot be reused while a caller reads it. A miss takes the clock mutex, looks
@@ -47,8 +49,13 @@
 //! the slot in between). Callers asking for the same block meanwhile find the slot assigned
 //! and wait on its read lock, then count a hit.
 //!
+//! After a miss, with only the read lock of the slot it filled, the thread frees other slots'
+//! buffers by CLOCK (among slots nobody reads) until the resident bytes are within the budget:
+//! the cache is bounded by bytes, so small blocks fill it by the many.
+//!
 //! **No deadlock.** The clock mutex is never held while waiting on a slot (only `try_write`),
-//! and a slot's write lock is never held while waiting on the mutex. A caller holds at most one
+//! and a slot's write lock is never held while waiting on the mutex (a read lock may be: the
+//! mutex's holder waits on nothing). A caller holds at most one
 //! [`BlockBytes`] at a time (the tracer drops a block before asking for the next), so a caller
 //! inside `get` holds no slot, and every slot's readers are callers outside `get` that will
 //! drop theirs: a sweep that finds no slot free drops the mutex, yields and tries again, and
@@ -59,17 +66,20 @@
 //! held only while evicting, which waits on nothing but the ring's mutex (held for one push or
 //! pop).
 //!
-//! **Memory bound.** The slots number `max(budget / max_raw_len, threads + 1)` (no more than
-//! there are zstd blocks): at least `threads + 1`, so that a free slot exists. The *effective*
-//! budget ([`Pager::budget`]) is therefore raised to `slots * max_raw_len` when that is more
-//! than the budget asked for (a file with no zstd block has no slots, and keeps its budget).
-//! Resident bytes count each resident raw block's `stored_len` and each slot's buffer. A thread
-//! that raises them past the effective budget (admitting a raw block, growing a slot) evicts
-//! raw blocks until they are back under it before its `get` returns (one thread evicts at a
-//! time; the others wait for it, then evict what is still over), and a block is queued for
-//! eviction only once its bytes are counted, so at any time `resident <= budget + one block
-//! (max_raw_len) per thread inside get`; once the gets return, `resident <= budget`. Slot
-//! buffers are never evicted (they are the budget's zstd share). A budget of `u64::MAX` means
+//! **Memory bound.** The slots number `max(budget / MIN_SLOT_BYTES, threads + 1)` (no more
+//! than there are blocks): at least `threads + 1`, so that a free slot exists, and few enough
+//! that the slots themselves cost little; blocks smaller on average than [`MIN_SLOT_BYTES`]
+//! leave part of the budget unused. The *effective* budget ([`Pager::budget`]) is raised to
+//! `(threads + 1) * max_raw_len` when that is more than the budget asked for, so that every
+//! thread's block and one more fit (a file with no zstd block has no slots, and keeps its
+//! budget). Resident bytes count each resident raw block's `stored_len` and each slot's buffer
+//! capacity. A thread that raises them past the effective budget (admitting a raw block,
+//! filling a slot) evicts raw blocks and frees slot buffers until they are back under it
+//! before its `get` returns (one thread evicts raw blocks at a time; the others wait for it,
+//! then evict what is still over; slots held by readers, at most one per other thread, are
+//! skipped, and the rest always suffice), and a block is queued for eviction only once its
+//! bytes are counted, so at any time `resident <= budget + one block (max_raw_len) per thread
+//! inside get`; once the gets return, `resident <= budget`. A budget of `u64::MAX` means
 //! unlimited: nothing is ever evicted, and each zstd block gets a slot of its own.
 //!
 //! **Counters.** [`PageCounters`] belong to the caller (one per thread, summed at the end), so a
@@ -79,7 +89,7 @@
 //! `bytes_decompressed`; a get that returns an error counts nothing.
 //!
 //! **Cost.** A raw eviction pops the ring, O(1) per block looked at; a slot sweep looks at each
-//! slot at most twice. `Pager::new` allocates a few bytes of state per block and reads the
+//! slot at most twice, and so does a slot eviction. `Pager::new` allocates a few bytes of state per block and reads the
 //! directory's codecs, never the blocks.
 
 use std::collections::{HashMap, VecDeque};
@@ -243,11 +253,21 @@ pub struct Slot {
     /// The decoded bytes, `len` of them, in `u64`s for alignment.
     words: Vec<u64>,
     len: usize,
-    /// Bytes counted in the pager's resident bytes for this slot (the largest block it held).
+    /// Bytes counted in the pager's resident bytes for this slot (its buffer's capacity).
     accounted: u64,
-    /// Kept with the slot so that a miss allocates no decompression context.
-    dctx: Option<zstd::bulk::Decompressor<'static>>,
 }
+
+thread_local! {
+    /// One zstd decompression context per thread, made on its first miss and kept: a miss
+    /// allocates no context, and slots (of which there may be tens of thousands) hold none.
+    static DCTX: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// The smallest block the slot count plans for: a budget of `B` bytes gets at most
+/// `B / MIN_SLOT_BYTES` slots (so slots, 64 bytes each, cost at most 1/256 of the budget), and
+/// the budget, not the slot count, bounds the cache unless blocks average less than this.
+pub const MIN_SLOT_BYTES: u64 = 16 * 1024;
 
 impl Slot {
     fn bytes(&self) -> &[u8] {
@@ -330,14 +350,17 @@ impl Pager {
         let threads = opts.threads.max(1) as u64;
         // (Slot indices are stored as u32s, NO_SLOT excluded.)
         let slot_count = if opts.compressed {
-            (opts.budget / max_raw_len)
+            (opts.budget / MIN_SLOT_BYTES)
                 .max(threads + 1)
                 .min(directory.len() as u64)
                 .min(u64::from(NO_SLOT) - 1)
         } else {
             0
         };
-        let budget = opts.budget.max(slot_count.saturating_mul(max_raw_len));
+        // Room for one block per thread and one more, whatever the block sizes.
+        let budget = opts
+            .budget
+            .max(slot_count.min(threads + 1).saturating_mul(max_raw_len));
         Pager {
             check_raw: opts.check_raw,
             max_raw_len,
@@ -357,7 +380,6 @@ impl Pager {
                         words: Vec::new(),
                         len: 0,
                         accounted: 0,
-                        dctx: None,
                     })
                 })
                 .collect(),
@@ -498,6 +520,7 @@ impl Pager {
         c.misses += 1;
         c.bytes_read += entry.stored_len;
         self.evict_raw(src);
+        self.evict_zstd();
         Ok(BlockBytes::Raw(self.raw_slice(src, block, entry)?))
     }
 
@@ -651,6 +674,48 @@ impl Pager {
         None
     }
 
+    /// Frees the buffers of slots nobody reads, chosen by CLOCK, until the resident bytes are
+    /// within the budget or one sweep (two passes: the first clears referenced bits) finds
+    /// nothing more to free. Freed slots hold no block and go to the free list. Called after
+    /// an admission, holding at most the read lock of the slot just filled (which `try_write`
+    /// then skips); under the clock mutex, which waits on nothing.
+    fn evict_zstd(&self) {
+        if self.slots.is_empty() || self.resident.load(Ordering::SeqCst) <= self.budget {
+            return;
+        }
+        let mut hand = lock(&self.hand);
+        let n = self.slots.len();
+        for _ in 0..2 * n {
+            if self.resident.load(Ordering::SeqCst) <= self.budget {
+                break;
+            }
+            let i = hand.at;
+            hand.at = (i + 1) % n;
+            if self.slot_referenced[i].load(Ordering::Relaxed) {
+                self.slot_referenced[i].store(false, Ordering::Relaxed);
+                continue;
+            }
+            let Some(mut w) = self.try_write(i) else {
+                continue;
+            };
+            if w.accounted == 0 {
+                continue;
+            }
+            if let Some(old) = self.block_slot.get(w.block as usize) {
+                let _ =
+                    old.compare_exchange(i as u32, NO_SLOT, Ordering::Release, Ordering::Relaxed);
+            }
+            w.block = NO_BLOCK;
+            w.valid = false;
+            w.len = 0;
+            w.words = Vec::new();
+            self.resident.fetch_sub(w.accounted, Ordering::SeqCst);
+            w.accounted = 0;
+            drop(w);
+            hand.free.push(i);
+        }
+    }
+
     /// Slot `i` locked for writing, if nobody holds it.
     fn try_write(&self, i: usize) -> Option<RwLockWriteGuard<'_, Slot>> {
         match self.slots[i].try_write() {
@@ -695,6 +760,7 @@ impl Pager {
                 c.misses += 1;
                 c.bytes_read += entry.stored_len;
                 c.bytes_decompressed += entry.raw_len;
+                self.evict_zstd();
                 self.evict_raw(src);
                 Ok(BlockBytes::Decoded(SlotGuard(read)))
             }
@@ -733,29 +799,38 @@ impl Pager {
             Ok(_) => {}
             Err(_) => return Err("not a zstd frame (bad frame header)".into()),
         }
+        // A buffer of the block's size: the one the slot has if it is large enough and not
+        // more than about twice too large, else a new one (the old one is given back).
         let words = raw_len.div_ceil(8);
-        if slot.words.len() < words {
-            slot.words
-                .try_reserve_exact(words - slot.words.len())
-                .map_err(|_| format!("cannot allocate {raw_len} bytes to decode it"))?;
-            slot.words.resize(words, 0);
-        }
-        if (raw_len as u64) > slot.accounted {
-            self.add_resident(raw_len as u64 - slot.accounted);
-            slot.accounted = raw_len as u64;
-        }
         slot.len = 0;
-        let dctx = match &mut slot.dctx {
-            Some(d) => d,
-            none => none.insert(
-                zstd::bulk::Decompressor::new()
-                    .map_err(|e| format!("cannot create a zstd decompressor: {e}"))?,
-            ),
-        };
+        if slot.words.len() < words || slot.words.len() > 2 * words + 64 {
+            let mut fresh: Vec<u64> = Vec::new();
+            fresh
+                .try_reserve_exact(words)
+                .map_err(|_| format!("cannot allocate {raw_len} bytes to decode it"))?;
+            fresh.resize(words, 0);
+            slot.words = fresh;
+        }
+        let now = 8 * slot.words.capacity() as u64;
+        if now > slot.accounted {
+            self.add_resident(now - slot.accounted);
+        } else {
+            self.resident
+                .fetch_sub(slot.accounted - now, Ordering::SeqCst);
+        }
+        slot.accounted = now;
         let out = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut slot.words)[..raw_len];
-        let n = dctx
-            .decompress_to_buffer(stored, out)
-            .map_err(|e| format!("zstd: {e} (raw_len {raw_len})"))?;
+        let n = DCTX.with_borrow_mut(|dctx| {
+            let dctx = match dctx {
+                Some(d) => d,
+                none => none.insert(
+                    zstd::bulk::Decompressor::new()
+                        .map_err(|e| format!("cannot create a zstd decompressor: {e}"))?,
+                ),
+            };
+            dctx.decompress_to_buffer(stored, out)
+                .map_err(|e| format!("zstd: {e} (raw_len {raw_len})"))
+        })?;
         if n != raw_len {
             return Err(format!(
                 "the zstd frame decodes to {n} bytes, the directory says raw_len {raw_len}"
@@ -901,9 +976,14 @@ mod tests {
         // Tiny budget: threads + 1 slots, budget raised to them.
         let p = Pager::new(&dir, opts(10, 3));
         assert_eq!((p.slot_count(), p.budget()), (4, 4000));
-        // Large budget: budget / max_raw_len slots, capped by the zstd blocks.
+        // Larger budgets: budget / MIN_SLOT_BYTES slots (at least threads + 1), capped by the
+        // zstd blocks; the budget, in bytes, bounds what they hold.
         let p = Pager::new(&dir, opts(7500, 1));
-        assert_eq!((p.slot_count(), p.budget()), (7, 7500));
+        assert_eq!((p.slot_count(), p.budget()), (2, 7500));
+        let p = Pager::new(&dir, opts(5 * MIN_SLOT_BYTES, 1));
+        assert_eq!((p.slot_count(), p.budget()), (5, 5 * MIN_SLOT_BYTES));
+        let p = Pager::new(&dir, opts(50 * MIN_SLOT_BYTES, 1));
+        assert_eq!((p.slot_count(), p.budget()), (10, 50 * MIN_SLOT_BYTES));
         let p = Pager::new(&dir, opts(u64::MAX, 1));
         assert_eq!((p.slot_count(), p.budget()), (10, u64::MAX));
         // No zstd blocks: no slots, the budget as asked.
