@@ -23,8 +23,8 @@ pub struct RenderOptions {
     pub light: [f32; 3],
     /// [`Order::None`]: pixel rows in parallel, top to bottom. [`Order::Morton`]: tiles of
     /// [`TILE`] x [`TILE`] pixels in the Morton order of their positions, so that the rays
-    /// traced together look at neighbouring parts of the model and need the same blocks. The
-    /// image is the same, byte for byte.
+    /// traced together look at neighbouring parts of the model and need the same blocks
+    /// ([`Order::Blocks`] renders the same way). The image is the same, byte for byte.
     pub order: Order,
 }
 
@@ -71,7 +71,7 @@ pub fn render<D: AsRef<[u8]> + crate::physical::pager::BlockSource>(
         a.shadowed += b.shadowed;
         a
     };
-    if opts.order == Order::Morton {
+    if opts.order != Order::None {
         let (rgb, stats) =
             render_tiles(&tree, opts, sum).map_err(|e| Error::format(scene.path(), e.into()))?;
         return Ok((

@@ -186,7 +186,7 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
     let mut misses = Vec::new();
     for budget in [u64::MAX, 3 * max, 0] {
         for threads in [1, 4] {
-            for order in [Order::None, Order::Morton] {
+            for order in [Order::None, Order::Morton, Order::Blocks] {
                 if budget == u64::MAX && threads == 1 && order == Order::None {
                     continue;
                 }
@@ -231,10 +231,12 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
             }
         }
     }
-    // Single-threaded with a budget of three blocks, the Morton order reads fewer blocks again
-    // (it is deterministic; this checks that ordering happens at all).
+    // Single-threaded with a budget of three blocks, the Morton order reads fewer blocks again,
+    // and binning by first block fewer still (it is deterministic; this checks that ordering
+    // happens at all, and that the bins do what they are for).
     assert!(
-        matches!(misses[..], [(Order::None, none), (Order::Morton, morton)] if morton < none),
+        matches!(misses[..], [(Order::None, none), (Order::Morton, morton), (Order::Blocks, blocks)]
+            if morton < none && blocks < morton),
         "{misses:?}"
     );
 }

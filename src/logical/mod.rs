@@ -9,8 +9,8 @@ use rayon::prelude::*;
 
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
-use crate::mapping::TreeMap;
 use crate::mapping::morton;
+use crate::mapping::{Corruption, TreeMap};
 use crate::physical::format::{FLAG_COMPRESSED, SectionKind};
 use crate::physical::pager::{
     BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions,
@@ -194,6 +194,25 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         keyed.into_iter().map(|(_, i)| i).collect()
     }
 
+    /// The order in which [`Order::Blocks`] traces `rays`: their indices sorted by the first
+    /// block each needs ([`Tree::first_block`], found in the top tree; rays that need none
+    /// last), then by [`RayKeys::key`], then by index.
+    pub fn block_order(&self, rays: &[Ray]) -> Result<Vec<u32>, Error> {
+        let keys = RayKeys::new(self.file.header());
+        let tree = self.tree();
+        let mut keyed: Vec<(u32, u64, u32)> = rays
+            .par_iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let first = tree.first_block(r)?.unwrap_or(u32::MAX);
+                Ok((first, keys.key(r), i as u32))
+            })
+            .collect::<Result<_, Corruption>>()
+            .map_err(|e| self.corrupt(e))?;
+        keyed.par_sort_unstable();
+        Ok(keyed.into_iter().map(|(.., i)| i).collect())
+    }
+
     /// Answers `rays` into `out` with `answer`, in `order`, in chunks on rayon, summing the
     /// counters.
     fn batch<T: Send + Sync + Copy>(
@@ -210,7 +229,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 out.len()
             )));
         }
-        if order == Order::Morton && !rays.is_empty() {
+        if order != Order::None && !rays.is_empty() {
             if u32::try_from(rays.len()).is_err() {
                 return Err(Error::Invalid(format!(
                     "{} rays: an ordered batch holds at most 2^32 - 1",
@@ -219,7 +238,10 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             }
             // Trace in sorted order into `sorted`, then put each answer at its ray's place: the
             // same answers as unordered, written in the caller's order.
-            let perm = self.morton_order(rays);
+            let perm = match order {
+                Order::Blocks => self.block_order(rays)?,
+                _ => self.morton_order(rays),
+            };
             let mut sorted = vec![out[0]; rays.len()];
             let c = in_order(&perm, &mut sorted, |idx, out, c| {
                 for (&i, o) in idx.iter().zip(out) {
@@ -308,6 +330,12 @@ pub enum Order {
     /// (so each thread works through one region of space at a time).
     #[default]
     Morton,
+    /// Binned by the first block each ray needs (found in the top tree before tracing, with
+    /// the link bounds), in block order, and by [`RayKeys::key`] within a bin: the rays of a
+    /// bin run together, so their block is read once for all of them, and blocks are read in
+    /// file order. Costs a walk of the top tree per ray; pays under a budget smaller than what
+    /// the rays need.
+    Blocks,
 }
 
 impl std::str::FromStr for Order {
@@ -316,7 +344,10 @@ impl std::str::FromStr for Order {
         match s {
             "none" => Ok(Order::None),
             "morton" => Ok(Order::Morton),
-            _ => Err(format!("unknown order {s:?}: expected none or morton")),
+            "blocks" => Ok(Order::Blocks),
+            _ => Err(format!(
+                "unknown order {s:?}: expected none, morton or blocks"
+            )),
         }
     }
 }
@@ -326,6 +357,7 @@ impl std::fmt::Display for Order {
         f.write_str(match self {
             Order::None => "none",
             Order::Morton => "morton",
+            Order::Blocks => "blocks",
         })
     }
 }

@@ -244,72 +244,29 @@ impl<'a> Tree<'a> {
         Ok(self.walk::<true>(ray, c)?.is_some())
     }
 
+    /// The first block `ray` needs (the block of the first link on its way whose bounds it
+    /// meets), found in the top tree alone, without reading any block; `None` if it needs none
+    /// (it misses the root cube, or passes every link by). [`super::Order::Blocks`] sorts rays by
+    /// it.
+    pub fn first_block(&self, ray: &Ray) -> Result<Option<u32>, Corruption> {
+        let Some((ctx, mut w)) = self.start(ray) else {
+            return Ok(None);
+        };
+        let mut k = Counters::default();
+        Ok(match self.walk_in::<false>(&ctx, &mut w, None, &mut k)? {
+            Step::Need(b) => Some(b),
+            Step::Done(_) => None,
+        })
+    }
+
     fn walk<const ANY: bool>(
         &self,
         ray: &Ray,
         c: &mut Counters,
     ) -> Result<Option<HitInfo>, TraceError> {
         c.rays += 1;
-        if !ray.is_valid() {
+        let Some((ctx, mut w)) = self.start(ray) else {
             return Ok(None);
-        }
-        let n = LATTICE_SIZE as f64;
-        // The ray in lattice space; `t` is unchanged by this affine map.
-        let o: [f64; 3] =
-            std::array::from_fn(|k| (ray.origin[k] as f64 - self.root_min[k]) * self.scale);
-        let d: [f64; 3] = std::array::from_fn(|k| ray.dir[k] as f64 * self.scale);
-        let moves: [bool; 3] = std::array::from_fn(|k| d[k] != 0.0);
-        let fwd: [bool; 3] = std::array::from_fn(|k| d[k] > 0.0);
-        // Plane crossings as `t = plane * inv - oi`. An axis the ray does not move along gets
-        // `inv = 0`, `oi = -inf`: its planes are never crossed (`t = +inf`).
-        let inv: [f64; 3] = std::array::from_fn(|k| if moves[k] { 1.0 / d[k] } else { 0.0 });
-        let oi: [f64; 3] = std::array::from_fn(|k| {
-            if moves[k] {
-                o[k] * inv[k]
-            } else {
-                f64::NEG_INFINITY
-            }
-        });
-        let still_inside =
-            |lo: f64, hi: f64| (0..3).all(|k| moves[k] || (o[k] >= lo && o[k] <= hi));
-
-        // Clip to the root (slab test); an axis the ray is parallel to must contain the origin.
-        let (mut t0, mut t1) = (ray.tmin as f64, ray.tmax as f64);
-        if !still_inside(0.0, n) {
-            return Ok(None);
-        }
-        for k in 0..3 {
-            if moves[k] {
-                let (a, b) = (-oi[k], n * inv[k] - oi[k]);
-                t0 = t0.max(a.min(b));
-                t1 = t1.min(a.max(b));
-            }
-        }
-        // Negated on purpose: NaN (from a NaN tmin or tmax) must mean a miss.
-        #[allow(clippy::neg_cmp_op_on_partial_ord)]
-        if !(t0 <= t1) {
-            return Ok(None);
-        }
-        let ctx = RayCtx {
-            o,
-            d,
-            inv,
-            oi,
-            moves,
-            fwd,
-            shear: RayShear::new(ray),
-            tmin: ray.tmin,
-            t1,
-        };
-        let mut w = WalkState {
-            q: std::array::from_fn(|k| clamp_floor(o[k] + t0 * d[k], 0, LATTICE_SIZE - 1)),
-            level: 0,
-            tpath: [0; 32],
-            bpath: [0; 32],
-            cur: None,
-            best: None,
-            t_best: ray.tmax,
-            t_stop: t1,
         };
         let mut k = Counters::default();
         // Each turn holds one block (none at first): the walk goes on through the top tree and
@@ -352,6 +309,73 @@ impl<'a> Tree<'a> {
         };
         *c += k;
         result
+    }
+
+    /// The ray in lattice space and the walk's start, clipped to the root cube; `None` for a
+    /// ray that cannot hit anything (invalid, or missing the root cube).
+    fn start(&self, ray: &Ray) -> Option<(RayCtx, WalkState)> {
+        if !ray.is_valid() {
+            return None;
+        }
+        let n = LATTICE_SIZE as f64;
+        // The ray in lattice space; `t` is unchanged by this affine map.
+        let o: [f64; 3] =
+            std::array::from_fn(|k| (ray.origin[k] as f64 - self.root_min[k]) * self.scale);
+        let d: [f64; 3] = std::array::from_fn(|k| ray.dir[k] as f64 * self.scale);
+        let moves: [bool; 3] = std::array::from_fn(|k| d[k] != 0.0);
+        let fwd: [bool; 3] = std::array::from_fn(|k| d[k] > 0.0);
+        // Plane crossings as `t = plane * inv - oi`. An axis the ray does not move along gets
+        // `inv = 0`, `oi = -inf`: its planes are never crossed (`t = +inf`).
+        let inv: [f64; 3] = std::array::from_fn(|k| if moves[k] { 1.0 / d[k] } else { 0.0 });
+        let oi: [f64; 3] = std::array::from_fn(|k| {
+            if moves[k] {
+                o[k] * inv[k]
+            } else {
+                f64::NEG_INFINITY
+            }
+        });
+        let still_inside =
+            |lo: f64, hi: f64| (0..3).all(|k| moves[k] || (o[k] >= lo && o[k] <= hi));
+
+        // Clip to the root (slab test); an axis the ray is parallel to must contain the origin.
+        let (mut t0, mut t1) = (ray.tmin as f64, ray.tmax as f64);
+        if !still_inside(0.0, n) {
+            return None;
+        }
+        for k in 0..3 {
+            if moves[k] {
+                let (a, b) = (-oi[k], n * inv[k] - oi[k]);
+                t0 = t0.max(a.min(b));
+                t1 = t1.min(a.max(b));
+            }
+        }
+        // Negated on purpose: NaN (from a NaN tmin or tmax) must mean a miss.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
+        if !(t0 <= t1) {
+            return None;
+        }
+        let ctx = RayCtx {
+            o,
+            d,
+            inv,
+            oi,
+            moves,
+            fwd,
+            shear: RayShear::new(ray),
+            tmin: ray.tmin,
+            t1,
+        };
+        let w = WalkState {
+            q: std::array::from_fn(|k| clamp_floor(o[k] + t0 * d[k], 0, LATTICE_SIZE - 1)),
+            level: 0,
+            tpath: [0; 32],
+            bpath: [0; 32],
+            cur: None,
+            best: None,
+            t_best: ray.tmax,
+            t_stop: t1,
+        };
+        Some((ctx, w))
     }
 
     /// Walks on from `w` through the top tree and the block `held` (if any) until the ray is
