@@ -1033,3 +1033,55 @@ fn trace_says_when_the_file_is_a_directory() {
     let err = assert_error(&o, "oavm-trace", dir.path());
     assert!(err.contains("directory"), "{err}");
 }
+
+/// The tracer's default thread count: one per core, or eight per core under a memory budget
+/// (threads that wait on the disk); `--threads` overrides both.
+#[test]
+fn trace_threads_default_to_more_under_a_budget() {
+    let d = TempDir::new().unwrap();
+    let (file, _) = pack_bunny(d.path(), "bunny.oavm", &[]);
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u64;
+    for (extra, expect) in [
+        (&[][..], cores),
+        (&["--mem-budget", "1M"][..], 8 * cores),
+        (&["--mem-budget", "1M", "--threads", "3"][..], 3),
+    ] {
+        let o = run(oavm_trace()
+            .arg(&file)
+            .args(["--random", "2000", "--json"])
+            .args(extra));
+        assert_success(&o);
+        assert_eq!(uint(&json_of(&o), "threads"), expect, "{extra:?}");
+    }
+}
+
+/// Benchmark mode traces shadow rays in waves after their primary rays (`--wave`): the answers,
+/// as digests, are those of one pass of each, in every order and under a budget.
+#[test]
+fn trace_waves_and_orders_do_not_change_the_answers() {
+    let d = TempDir::new().unwrap();
+    let (file, _) = pack_bunny(d.path(), "bunny.oavm", &["--block-size", "4K"]);
+    let digests = |extra: &[&str]| -> Vec<String> {
+        let o = run(oavm_trace()
+            .arg(&file)
+            .args(["--primary", "160x120", "--shadow", "--json"])
+            .args(extra));
+        assert_success(&o);
+        let v = json_of(&o);
+        let sets = v["sets"].as_array().expect("sets");
+        assert_eq!(sets.len(), 2, "{v:#}");
+        assert!(uint(&sets[1], "rays") > 1000, "{v:#}");
+        sets.iter()
+            .map(|s| s["answers_xxh3"].as_str().expect("digest").to_string())
+            .collect()
+    };
+    let reference = digests(&["--wave", "0", "--order", "none"]);
+    for order in ["none", "morton", "blocks"] {
+        for wave in ["0", "7", "777", "65536"] {
+            for budget in [&[][..], &["--mem-budget", "64K"][..]] {
+                let got = digests(&[&["--order", order, "--wave", wave][..], budget].concat());
+                assert_eq!(got, reference, "order {order}, wave {wave}, {budget:?}");
+            }
+        }
+    }
+}
