@@ -264,10 +264,11 @@ thread_local! {
         const { std::cell::RefCell::new(None) };
 }
 
-/// The smallest block the slot count plans for: a budget of `B` bytes gets at most
-/// `B / MIN_SLOT_BYTES` slots (so slots, 64 bytes each, cost at most 1/256 of the budget), and
-/// the budget, not the slot count, bounds the cache unless blocks average less than this.
-pub const MIN_SLOT_BYTES: u64 = 16 * 1024;
+/// The smallest average block the slot count plans for: a budget of `B` bytes gets at most
+/// `B / MIN_SLOT_BYTES` slots (so slots, about 64 bytes each, cost at most 1/1024 of the
+/// budget, and little time to set up at open), and the budget, not the slot count, bounds the
+/// cache unless blocks average less than this (the default 256 KiB target gives about 90 KiB).
+pub const MIN_SLOT_BYTES: u64 = 64 * 1024;
 
 impl Slot {
     fn bytes(&self) -> &[u8] {
