@@ -467,16 +467,22 @@ fn bench(
         // image), whose shadow rays start in the blocks its primary rays just read.
         let t = Instant::now();
         let perm: Vec<u32> = match args.order() {
-            Order::None => (0..rays.len() as u32).collect(),
             Order::Morton => scene.morton_order(&rays),
             Order::Blocks => scene.block_order(&rays)?,
+            Order::None | Order::Given => (0..rays.len() as u32).collect(),
+        };
+        // A wave is a run of that order already: traced as given (not sorted again), unless
+        // the order is none.
+        let wave_order = match args.order() {
+            Order::None => Order::None,
+            _ => Order::Given,
         };
         primary.1 += t.elapsed().as_secs_f64();
         for idx in perm.chunks(wave) {
             let t = Instant::now();
             let wr: Vec<Ray> = idx.iter().map(|&i| rays[i as usize]).collect();
             let mut wh = vec![Hit::MISS; wr.len()];
-            primary.0 += scene.intersect_batch_ordered(&wr, &mut wh, args.order())?;
+            primary.0 += scene.intersect_batch_ordered(&wr, &mut wh, wave_order)?;
             for (&i, h) in idx.iter().zip(&wh) {
                 hits[i as usize] = *h;
             }

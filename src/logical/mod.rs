@@ -240,6 +240,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             // same answers as unordered, written in the caller's order.
             let perm = match order {
                 Order::Blocks => self.block_order(rays)?,
+                Order::Given => (0..rays.len() as u32).collect(),
                 _ => self.morton_order(rays),
             };
             let mut sorted = vec![out[0]; rays.len()];
@@ -336,6 +337,9 @@ pub enum Order {
     /// file order. Costs a walk of the top tree per ray; pays under a budget smaller than what
     /// the rays need.
     Blocks,
+    /// As given, handed to the threads in chunks in that order (like the sorted orders): for
+    /// rays the caller has already sorted, e.g. a slice of [`Scene::block_order`]'s order.
+    Given,
 }
 
 impl std::str::FromStr for Order {
@@ -358,6 +362,7 @@ impl std::fmt::Display for Order {
             Order::None => "none",
             Order::Morton => "morton",
             Order::Blocks => "blocks",
+            Order::Given => "given",
         })
     }
 }
