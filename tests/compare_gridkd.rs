@@ -40,7 +40,7 @@ fn shared_scene(rel: &str) -> PathBuf {
 }
 
 fn agree(a: Hit, b: Hit, diag: f64) -> bool {
-    a.is_hit() == b.is_hit() && (!a.is_hit() || ((a.t - b.t).abs() as f64) <= 1e-4 * diag)
+    a.agrees(&b, diag)
 }
 
 struct Set {

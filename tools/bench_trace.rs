@@ -157,10 +157,7 @@ fn main() {
                     .filter(|(p, o)| **p != (**o == 1))
                     .count();
             } else {
-                let agree = |a: &Hit, b: &Hit| {
-                    a.is_hit() == b.is_hit()
-                        && (!a.is_hit() || ((a.t - b.t).abs() as f64) <= 1e-4 * diag)
-                };
+                let agree = |a: &Hit, b: &Hit| a.agrees(b, diag);
                 par_map(rays, &mut obvhs_hits, |r| obvhs.intersect(r));
                 par_map(rays, &mut bvh_hits, |r| bvh.intersect(r));
                 disagree[0] = ours

@@ -61,7 +61,7 @@ use serde_json::{Value, json};
 /// Share of compared rays that must agree.
 const REQUIRED: f64 = 0.9999;
 /// Largest `t` difference, relative to the bounding-box diagonal, that still agrees.
-const TOLERANCE: f64 = 1e-4;
+const TOLERANCE: f64 = oavm::geom::AGREEMENT_TOLERANCE;
 /// Default brute-force subset per set: rays for meshes up to [`LARGE_MESH`] triangles, and above.
 const BRUTE_SMALL_MESH: usize = 10_000;
 const BRUTE_LARGE_MESH: usize = 2_000;
@@ -189,8 +189,8 @@ trait Answer: Copy + PartialEq + Send + Sync {
     fn is_hit(self) -> bool;
     /// The triangle hit, for closest-hit answers.
     fn prim(self) -> Option<u32>;
-    /// The agreement rule of `RAYS.md`; `tol` is `1e-4 * L`.
-    fn agrees(self, other: Self, tol: f64) -> bool;
+    /// The agreement rule of `RAYS.md` ([`Hit::agrees`]); `diag` is `L`.
+    fn agrees(self, other: Self, diag: f64) -> bool;
     fn json(self) -> Value;
 }
 
@@ -221,9 +221,8 @@ impl Answer for Hit {
     fn prim(self) -> Option<u32> {
         self.is_hit().then_some(self.prim)
     }
-    fn agrees(self, other: Hit, tol: f64) -> bool {
-        self.is_hit() == other.is_hit()
-            && (!self.is_hit() || (self.t as f64 - other.t as f64).abs() <= tol)
+    fn agrees(self, other: Hit, diag: f64) -> bool {
+        Hit::agrees(&self, &other, diag)
     }
     fn json(self) -> Value {
         if self.is_hit() {
@@ -261,7 +260,7 @@ impl Answer for bool {
     fn prim(self) -> Option<u32> {
         None
     }
-    fn agrees(self, other: bool, _tol: f64) -> bool {
+    fn agrees(self, other: bool, _diag: f64) -> bool {
         self == other
     }
     fn json(self) -> Value {
@@ -344,8 +343,8 @@ struct Ctx<'a, D> {
     mesh: &'a Mesh,
     scene: &'a Scene<D>,
     obvhs: &'a ObvhsScene,
-    /// `1e-4 * L`.
-    tol: f64,
+    /// `L`, the diagonal of the mesh's bounding box.
+    diag: f64,
     brute: usize,
     examples: usize,
 }
@@ -379,7 +378,7 @@ fn compare<A: Answer>(
     for (i, theirs) in pairs {
         c.compared += 1;
         let o = ours[i];
-        if o.agrees(theirs, ctx.tol) {
+        if o.agrees(theirs, ctx.diag) {
             if let (Some(p), Some(q)) = (o.prim(), theirs.prim()) {
                 c.both_hit += 1;
                 c.same_prim += usize::from(p == q);
@@ -590,7 +589,7 @@ fn check_set<A: Answer>(
     // Who is right where they differ: brute force on (up to JUDGED of) those rays, with OAVM's
     // watertight test and in f64.
     let differing: Vec<usize> = (0..rays.len())
-        .filter(|&i| !ours[i].agrees(theirs[i], ctx.tol))
+        .filter(|&i| !ours[i].agrees(theirs[i], ctx.diag))
         .take(JUDGED)
         .collect();
     if !differing.is_empty() {
@@ -599,8 +598,8 @@ fn check_set<A: Answer>(
             .map(|&i| {
                 [A::brute(ctx.mesh, &rays[i]), A::exact(ctx.mesh, &rays[i])].map(|judge| {
                     match (
-                        judge.agrees(ours[i], ctx.tol),
-                        judge.agrees(theirs[i], ctx.tol),
+                        judge.agrees(ours[i], ctx.diag),
+                        judge.agrees(theirs[i], ctx.diag),
                     ) {
                         (true, _) => [1, 1, 0, 0],
                         (false, true) => [1, 0, 1, 0],
@@ -675,7 +674,7 @@ fn check_scene(config: &Config, name: &str, path: &Path) -> Result<SceneReport, 
         mesh: &mesh,
         scene: &scene,
         obvhs: &obvhs,
-        tol: TOLERANCE * diagonal,
+        diag: diagonal,
         brute,
         examples: config.examples,
     };

@@ -84,11 +84,9 @@ enum Answer {
     Any(bool),
 }
 
-fn agree(a: Answer, b: Answer, tol: f64) -> bool {
+fn agree(a: Answer, b: Answer, diag: f64) -> bool {
     match (a, b) {
-        (Answer::Closest(x), Answer::Closest(y)) => {
-            x.is_hit() == y.is_hit() && (!x.is_hit() || ((x.t - y.t).abs() as f64) <= tol)
-        }
+        (Answer::Closest(x), Answer::Closest(y)) => x.agrees(&y, diag),
         (Answer::Any(x), Answer::Any(y)) => x == y,
         _ => false,
     }
@@ -128,7 +126,7 @@ fn run(c: &Config) -> Result<bool, String> {
         let mesh = oavm::mesh::load(path).map_err(|e| e.to_string())?;
         let tris = Triangles::from_mesh(&mesh).map_err(|e| e.to_string())?;
         let b = Bounds::of_points(tris.v.iter().flatten().copied());
-        let tol = 1e-4 * b.diagonal();
+        let diag = b.diagonal();
         let accs: Vec<Box<dyn Accelerator>> = STRUCTURES
             .iter()
             .map(|s| compare::build_structure(s, &mesh, &tris, &opts).map_err(|e| e.to_string()))
@@ -162,7 +160,7 @@ fn run(c: &Config) -> Result<bool, String> {
             };
             // Rays on which the structures do not all agree with OAVM.
             let split: Vec<usize> = (0..rays.len())
-                .filter(|&i| all.iter().any(|a| !agree(a[i], all[oavm][i], tol)))
+                .filter(|&i| all.iter().any(|a| !agree(a[i], all[oavm][i], diag)))
                 .take(c.judge)
                 .collect();
             let judged: Vec<usize> = {
@@ -179,11 +177,11 @@ fn run(c: &Config) -> Result<bool, String> {
             for (a, acc) in all.iter().zip(&accs) {
                 let sub_wrong = subset
                     .iter()
-                    .filter(|&&i| !agree(a[i], truth_of(i), tol))
+                    .filter(|&&i| !agree(a[i], truth_of(i), diag))
                     .count();
                 let split_wrong = split
                     .iter()
-                    .filter(|&&i| !agree(a[i], truth_of(i), tol))
+                    .filter(|&&i| !agree(a[i], truth_of(i), diag))
                     .count();
                 let sub_ok = sub_wrong as f64 <= (1.0 - REQUIRED) * subset.len() as f64;
                 let all_ok = split_wrong as f64 <= (1.0 - REQUIRED) * rays.len() as f64;

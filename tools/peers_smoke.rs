@@ -106,7 +106,7 @@ fn run() -> Result<bool, String> {
 
     let mut ok = true;
     if !speed_only {
-        ok &= check(&positions, &triangles, &sets, tol, &obvhs, &bvhc);
+        ok &= check(&positions, &triangles, &sets, diag, &obvhs, &bvhc);
         ok &= check_tiny_meshes();
     }
 
@@ -130,7 +130,7 @@ fn run() -> Result<bool, String> {
 
     if compare {
         let all: Vec<Ray> = sets.iter().flat_map(|s| s.rays.iter().copied()).collect();
-        ok &= compare_choices(&positions, &triangles, primary, &all, &obvhs, &bvhc, tol);
+        ok &= compare_choices(&positions, &triangles, primary, &all, &obvhs, &bvhc, diag);
     }
 
     println!(
@@ -151,7 +151,7 @@ fn check(
     positions: &[[f32; 3]],
     triangles: &[[u32; 3]],
     sets: &[RaySet],
-    tol: f32,
+    diag: f64,
     obvhs: &ObvhsScene,
     bvhc: &BvhCrateScene,
 ) -> bool {
@@ -196,7 +196,7 @@ fn check(
         ("obvhs vs bvh", &obvhs_hits, &bvh_hits),
     ];
     for (name, a, b) in pairs {
-        let agree: Vec<bool> = a.iter().zip(b).map(|(x, y)| agrees(*x, *y, tol)).collect();
+        let agree: Vec<bool> = a.iter().zip(b).map(|(x, y)| x.agrees(y, diag)).collect();
         ok &= report(name, sets, &agree, REQUIRED);
     }
     let prim_same = |a: &[Hit], b: &[Hit]| {
@@ -306,19 +306,11 @@ fn check(
     let agree: Vec<bool> = stock
         .iter()
         .zip(&reference)
-        .map(|(x, y)| agrees(*x, *y, tol))
+        .map(|(x, y)| x.agrees(y, diag))
         .collect();
     report("(info) obvhs stock ray_traverse", sets, &agree, 0.0);
 
     ok
-}
-
-fn agrees(a: Hit, b: Hit, tol: f32) -> bool {
-    match (a.is_hit(), b.is_hit()) {
-        (false, false) => true,
-        (true, true) => (a.t - b.t).abs() <= tol,
-        _ => false,
-    }
 }
 
 /// Empty, one-triangle and degenerate meshes, with rays whose answers are known exactly.
@@ -477,7 +469,7 @@ fn compare_choices(
     all: &[Ray],
     obvhs: &ObvhsScene,
     bvhc: &BvhCrateScene,
-    tol: f32,
+    diag: f64,
 ) -> bool {
     let mut ok = true;
     println!(
@@ -515,7 +507,7 @@ fn compare_choices(
             let good = hits
                 .iter()
                 .zip(first)
-                .filter(|(a, b)| agrees(**a, **b, tol))
+                .filter(|(a, b)| a.agrees(b, diag))
                 .count();
             if (good as f64) < REQUIRED * rays.len() as f64 {
                 println!(

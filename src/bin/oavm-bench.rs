@@ -230,7 +230,7 @@ fn bench_scene(
             } else {
                 hits.iter()
                     .zip(ref_hits)
-                    .filter(|(a, b)| !agree(a, b, diag))
+                    .filter(|(a, b)| !a.agrees(b, diag))
                     .count()
             };
             let mut mrays = Vec::new();
@@ -354,11 +354,6 @@ fn answers(acc: &dyn Accelerator, rays: &[Ray], any: bool) -> (Counters, (Vec<Hi
     }
 }
 
-/// RAYS.md's rule: both miss, or both hit with `|t1 - t2| <= 1e-4 * diagonal`.
-fn agree(a: &Hit, b: &Hit, diag: f64) -> bool {
-    a.is_hit() == b.is_hit() && (!a.is_hit() || ((a.t - b.t).abs() as f64) <= 1e-4 * diag)
-}
-
 fn print_scene(r: &SceneResult) -> Result<(), Error> {
     let mut t = format!(
         "\n{} ({} triangles, {} stored)\n{:<8} {:>10} {:>9} {:>9} {:>11}  {:<8} {:>10} {:>10} {:>10} {:>22}\n",
@@ -435,7 +430,7 @@ fn batch(args: &Args, names: &[&str], opts: &BuildOptions) -> Result<(), Error> 
         rays::write_hits(args.hits.as_deref().unwrap_or(rays_path), &hits)?;
         hits.iter()
             .zip(&ref_hits)
-            .filter(|(a, b)| !agree(a, b, diag))
+            .filter(|(a, b)| !a.agrees(b, diag))
             .count()
     };
     let answered = if any {

@@ -6,4 +6,4 @@ pub mod ray;
 pub mod triangle;
 pub mod tribox;
 
-pub use ray::{Hit, Ray};
+pub use ray::{AGREEMENT_TOLERANCE, Hit, Ray};

@@ -64,4 +64,18 @@ impl Hit {
     pub fn is_hit(&self) -> bool {
         self.prim != u32::MAX
     }
+
+    /// The agreement rule of `RAYS.md`, the one every comparison uses: both miss, or both hit
+    /// with `|t1 - t2| <= AGREEMENT_TOLERANCE * diagonal`, where `diagonal` is that of the
+    /// mesh's bounding box. (Either primitive id is right where two triangles are hit at the
+    /// same `t`, so ids are not compared.)
+    pub fn agrees(&self, other: &Hit, diagonal: f64) -> bool {
+        self.is_hit() == other.is_hit()
+            && (!self.is_hit()
+                || (self.t as f64 - other.t as f64).abs() <= AGREEMENT_TOLERANCE * diagonal)
+    }
 }
+
+/// `RAYS.md`: two hits agree when their `t` differ by at most this fraction of the diagonal of
+/// the mesh's bounding box.
+pub const AGREEMENT_TOLERANCE: f64 = 1e-4;

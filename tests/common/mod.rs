@@ -29,9 +29,9 @@ pub fn bounds(mesh: &Mesh) -> Bounds {
     Bounds::of_points(mesh.positions.iter().copied())
 }
 
-/// The agreement rule of RAYS.md: both miss, or both hit with |t1 - t2| <= 1e-4 * diagonal.
+/// The agreement rule of RAYS.md ([`Hit::agrees`]).
 pub fn agree(a: Hit, b: Hit, diag: f64) -> bool {
-    a.is_hit() == b.is_hit() && (!a.is_hit() || ((a.t - b.t).abs() as f64) <= 1e-4 * diag)
+    a.agrees(&b, diag)
 }
 
 /// Traces `rays` (closest hit and any hit) and compares every `stride`-th ray with brute force.
