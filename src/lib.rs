@@ -11,14 +11,19 @@
 //! Beside them: [`mesh`] reads meshes, [`build`] turns a mesh into the physical bytes, [`geom`]
 //! holds the geometry kernels every part shares.
 
+#![deny(unsafe_code)]
+
+#[allow(unsafe_code)]
+pub mod os;
+
 pub mod build;
-pub mod cli;
 pub mod compare;
 pub mod error;
 pub mod geom;
 pub mod logical;
 pub mod mapping;
 pub mod mesh;
+pub mod output;
 pub mod physical;
 pub mod rays;
 pub mod render;

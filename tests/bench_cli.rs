@@ -118,7 +118,7 @@ fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
         let acc = compare::build_structure(name, &mesh, &tris, &BuildOptions::default()).unwrap();
         let mut want = vec![Hit::MISS; rays_in.len()];
         compare::intersect_batch(acc.as_ref(), &rays_in, &mut want);
-        let got = rays::read_hits(&hits_path).unwrap();
+        let got = rays::read_hits(&hits_path, u64::MAX).unwrap();
         assert_eq!(got.len(), want.len());
         assert!(
             got.iter()
@@ -127,7 +127,7 @@ fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
             "{name}: the HITS file differs from the library's answers"
         );
         assert!(want.iter().filter(|h| h.is_hit()).count() > 100);
-        let occ = rays::read_occlusion(&occ_path).unwrap();
+        let occ = rays::read_occlusion(&occ_path, u64::MAX).unwrap();
         assert!(
             occ.iter().zip(&want).all(|(&o, h)| (o == 1) == h.is_hit()),
             "{name}: any hit and closest hit differ on full-length rays"

@@ -510,7 +510,7 @@ fn trace_renders_a_png() {
     assert!(distinct.len() > 50, "{} colours", distinct.len());
 
     // Rows or Morton tiles, any memory budget: the same image.
-    for extra in [&["--order", "none"][..], &["--mem-budget", "0"][..]] {
+    for extra in [&["--order", "none"][..], &["--mem-budget", "500K"][..]] {
         let other = dir.path().join("other.png");
         let o = run(oavm_trace()
             .arg(&file)
@@ -1035,24 +1035,65 @@ fn trace_says_when_the_file_is_a_directory() {
 }
 
 /// The tracer's default thread count: one per core, or eight per core under a memory budget
-/// (threads that wait on the disk); `--threads` overrides both.
+/// smaller than the file's blocks (threads that wait on the disk), lowered to what the budget
+/// holds (two of the largest blocks a thread and one more), never the budget raised;
+/// `--threads` overrides the default, and is lowered the same way, with a note.
 #[test]
-fn trace_threads_default_to_more_under_a_budget() {
+fn trace_threads_default_to_more_under_a_budget_and_never_raise_it() {
     let d = TempDir::new().unwrap();
-    let (file, _) = pack_bunny(d.path(), "bunny.oavm", &[]);
+    let (file, _) = pack_bunny(d.path(), "bunny.oavm", &["--block-size", "16K"]);
+    let scene = oavm::Scene::open(&file).unwrap();
+    let max = scene.file().header().max_block_raw_len;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u64;
-    for (extra, expect) in [
-        (&[][..], cores),
-        (&["--mem-budget", "1M"][..], 8 * cores),
-        (&["--mem-budget", "1M", "--threads", "3"][..], 3),
+    let roomy = ((2 * 8 * cores + 1) * max).to_string();
+    assert!(
+        (2 * 8 * cores + 1) * max < scene.decoded_bytes(),
+        "the budget must be smaller than the file"
+    );
+    let (five, seven) = ((5 * max).to_string(), (7 * max).to_string());
+    for (extra, expect, note) in [
+        (&[][..], cores, false),
+        (&["--mem-budget", roomy.as_str()][..], 8 * cores, false),
+        (&["--mem-budget", five.as_str()][..], 2, false),
+        (
+            &["--mem-budget", seven.as_str(), "--threads", "3"][..],
+            3,
+            false,
+        ),
+        (
+            &["--mem-budget", five.as_str(), "--threads", "3"][..],
+            2,
+            true,
+        ),
     ] {
         let o = run(oavm_trace()
             .arg(&file)
             .args(["--random", "2000", "--json"])
             .args(extra));
         assert_success(&o);
-        assert_eq!(uint(&json_of(&o), "threads"), expect, "{extra:?}");
+        let v = json_of(&o);
+        assert_eq!(uint(&v, "threads"), expect, "{extra:?}");
+        if let Some(budget) = extra.get(1) {
+            assert_eq!(
+                uint(&v, "pager_budget").to_string(),
+                *budget,
+                "never raised"
+            );
+            assert!(uint(&v, "pager_peak_resident_bytes") <= uint(&v, "pager_budget"));
+        }
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(err.contains("lowered to 2"), note, "{extra:?}: {err}");
     }
+    // A budget that cannot hold three blocks is an error that says what the file needs.
+    let o = run(oavm_trace()
+        .arg(&file)
+        .args(["--random", "20", "--mem-budget"])
+        .arg((3 * max - 1).to_string()));
+    let err = assert_error(&o, "oavm-trace", &file);
+    assert!(
+        err.contains(&format!("give a budget of {} bytes or more", 3 * max)),
+        "{err}"
+    );
 }
 
 /// Benchmark mode traces shadow rays in waves after their primary rays (`--wave`): the answers,

@@ -134,7 +134,7 @@ fn octree_counts_equal_oavms_on_the_bunny() {
             merge: false,
         },
     ] {
-        let (_, s) = oavm::build::build(&mesh, &opts, &|_| {}).expect("OAVM build");
+        let (_, s) = oavm::build::build(&mesh, &opts, &oavm::build::Quiet).expect("OAVM build");
         let octree = ClassicOctree::build(&t, &opts);
         assert_eq!(octree.stats().nodes, s.nodes, "{opts:?}");
         assert_eq!(

@@ -44,13 +44,14 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::{Mutex, Once, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 
+use oavm::build::{TreeParts, encode_with};
 use oavm::logical::SceneOptions;
 use oavm::physical::AlignedBytes;
 use oavm::physical::format::{
     BlockEntry, BlockHeader, Header, LevelEntry, NodeRecord, RankWord, SectionEntry, SectionKind,
     TriRecord, VolumeRecord,
 };
-use oavm::physical::writer::{BlockOptions, TreeParts, encode_with};
+use oavm::physical::writer::BlockOptions;
 use oavm::rays::{Bounds, Camera, SplitMix64, random_rays};
 use oavm::{BuildOptions, Error, FormatError, Hit, Mesh, Ray, Scene};
 use xxhash_rust::xxh3::xxh3_64;
@@ -635,13 +636,13 @@ struct Fixture {
 
 impl Fixture {
     fn new(name: &str, mesh: &Mesh, opts: BuildOptions, blocks: BlockOptions) -> Fixture {
-        let (parts, _) = oavm::build::build(mesh, &opts, &|_| {}).expect("build");
+        let (parts, _) = oavm::build::build(mesh, &opts, &oavm::build::Quiet).expect("build");
         let bytes = encode_with(&parts, &blocks)
             .expect("encode")
             .as_ref()
             .to_vec();
         let scene = open(&bytes).expect("the intact file opens");
-        let report = scene.verify();
+        let report = scene.verify().expect("verify");
         assert!(report.is_ok(), "{name}: intact file: {:?}", report.defects);
         let dir = directory(&bytes);
         assert!(dir.len() >= 8, "{name}: {} blocks, want many", dir.len());
@@ -1058,11 +1059,11 @@ fn pool2() -> &'static rayon::ThreadPool {
     })
 }
 
-/// Scene options for a budget of two blocks on 2 threads (the pager raises it to its minimum:
-/// three zstd slots).
+/// Scene options for the smallest budget that lets 2 threads trace: five blocks (two a thread
+/// and one more).
 fn tight_options(fix: &Fixture) -> SceneOptions {
     SceneOptions {
-        mem_budget: 2 * fix.max_raw,
+        mem_budget: Some(5 * fix.max_raw),
         threads: 2,
         check_blocks: true,
     }
@@ -1084,7 +1085,12 @@ fn evaluate(fix: &Fixture, bytes: &[u8], with_tight: bool) -> Verdict {
             pool2().install(|| trace(fix, &scene))
         })
     });
-    let defects = catching(|| scene.verify().defects);
+    let defects = catching(|| {
+        scene
+            .verify()
+            .map(|r| r.defects)
+            .unwrap_or_else(|e| vec![e.to_string()])
+    });
     Verdict::Opened {
         traced,
         tight,
@@ -1371,7 +1377,10 @@ fn layout_matches_the_spec() {
         }
         let checksum_defect = |b: &[u8]| {
             let scene = open(b).expect("opens");
-            let defects = scene.verify().defects;
+            let defects = scene
+                .verify()
+                .map(|r| r.defects)
+                .unwrap_or_else(|e| vec![e.to_string()]);
             defects.iter().any(|d| d.contains("checksum"))
         };
         assert!(
@@ -1544,7 +1553,7 @@ fn damaged_files_on_disk_fail_at_open() {
     let intact = dir.path().join("intact.oavm");
     std::fs::write(&intact, &fix.bytes).expect("write");
     let scene = Scene::open(&intact).expect("the intact file opens from disk");
-    assert!(scene.verify().is_ok());
+    assert!(scene.verify().unwrap().is_ok());
     // A block damaged on disk: the file opens (blocks are not read at open); tracing the mapped
     // file fails naming the block, verify reports its checksum.
     let blk = fix.largest;
@@ -1563,7 +1572,10 @@ fn damaged_files_on_disk_fail_at_open() {
             && err.contains(&damaged.display().to_string()),
         "{err}"
     );
-    let defects = scene.verify().defects;
+    let defects = scene
+        .verify()
+        .map(|r| r.defects)
+        .unwrap_or_else(|e| vec![e.to_string()]);
     assert!(
         defects
             .iter()
@@ -1653,7 +1665,8 @@ fn wrong_version_fails_at_open_and_says_to_repack() {
 /// A version-1 file, laid out as the version-1 writer did (format-spec.md at version 1, §2–§3:
 /// the same header without the block fields, then six flat sections: levels, nodes, ranks,
 /// volumes, refs, triangles, each at a multiple of 64, checksummed).
-fn encode_v1(p: &TreeParts) -> Vec<u8> {
+fn encode_v1(parts: &TreeParts) -> Vec<u8> {
+    let (p, h0) = (&parts.tree, &parts.header);
     let sections: [(&[u8], usize); 6] = [
         (bytemuck::cast_slice(&p.levels), p.levels.len()),
         (bytemuck::cast_slice(&p.nodes), p.nodes.len()),
@@ -1678,31 +1691,32 @@ fn encode_v1(p: &TreeParts) -> Vec<u8> {
     let h = &mut out;
     h[..8].copy_from_slice(b"\x89OAVM\r\n\x1a");
     write_u32(h, VERSION_AT, 1);
-    write_u32(h, 12, p.merged as u32);
+    write_u32(h, 12, h0.flags & 1);
     write_u32(h, 16, HEADER_LEN as u32);
     write_u32(h, 20, 6);
     write_u64(h, 24, HEADER_LEN as u64);
     write_u64(h, FILE_SIZE_AT, len);
     for k in 0..3 {
-        write_u64(h, ROOT_MIN_AT + 8 * k, p.root_min[k].to_bits());
-        write_u32(h, 72 + 4 * k, p.mesh_min[k].to_bits());
-        write_u32(h, 84 + 4 * k, p.mesh_max[k].to_bits());
+        write_u64(h, ROOT_MIN_AT + 8 * k, h0.root_min[k].to_bits());
+        write_u32(h, 72 + 4 * k, h0.mesh_min[k].to_bits());
+        write_u32(h, 84 + 4 * k, h0.mesh_max[k].to_bits());
     }
-    write_u64(h, ROOT_SIZE_AT, p.root_size.to_bits());
-    write_u64(h, 96, p.input_triangles);
-    write_u64(h, 104, p.empty_leaves);
-    write_u64(h, 112, p.solid_leaves);
+    write_u64(h, ROOT_SIZE_AT, h0.root_size.to_bits());
+    write_u64(h, 96, h0.input_triangles);
+    write_u64(h, 104, h0.empty_leaves);
+    write_u64(h, 112, h0.solid_leaves);
     write_u32(h, 120, p.levels.len() as u32);
     write_u32(h, 124, 21);
-    write_u32(h, 128, p.max_depth);
-    write_u32(h, 132, p.leaf_size);
+    write_u32(h, 128, h0.max_depth);
+    write_u32(h, 132, h0.leaf_size);
     fix_header_checksum(h);
     out
 }
 
 #[test]
 fn version_1_files_fail_at_open_and_say_to_repack() {
-    let (parts, _) = oavm::build::build(&dragon_part(600), &leaf4(), &|_| {}).expect("build");
+    let (parts, _) =
+        oavm::build::build(&dragon_part(600), &leaf4(), &oavm::build::Quiet).expect("build");
     let v1 = encode_v1(&parts);
     assert_version_error(&open_error(&v1, "a version-1 file"), 1, "a version-1 file");
     // Truncated: the version is still what is reported (checked before the file size).
@@ -2900,17 +2914,14 @@ fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
             let t = pool2().install(|| trace(fix, &scene));
             assert_eq!(t, Traced::Same, "{}: intact, round {round}", fix.name);
         }
-        let budget = scene.pager().budget();
+        let budget = scene.budget();
+        assert_eq!(budget, 5 * fix.max_raw, "{}: never raised", fix.name);
+        assert_eq!(scene.threads(), 2, "{}", fix.name);
         assert!(
-            budget <= 4 * fix.max_raw,
-            "{}: the budget is a few blocks ({budget} bytes)",
-            fix.name
-        );
-        assert!(
-            scene.pager().peak_resident_bytes() <= budget + 2 * fix.max_raw,
-            "{}: peak {} over budget {budget} plus a block per thread",
+            scene.peak_resident_bytes() <= budget,
+            "{}: peak {} over the budget {budget}",
             fix.name,
-            scene.pager().peak_resident_bytes()
+            scene.peak_resident_bytes()
         );
 
         let mut damaged = vec![0, fix.largest, fix.dir.len() / 2];
@@ -2976,7 +2987,10 @@ fn misaligned_buffers_give_errors_not_panics() {
                 if !scene.file().directory().is_empty() {
                     out.push("the directory was cast from a misaligned buffer".to_string());
                 }
-                let defects = scene.verify().defects;
+                let defects = scene
+                    .verify()
+                    .map(|r| r.defects)
+                    .unwrap_or_else(|e| vec![e.to_string()]);
                 if !defects.iter().any(|d| d.contains("not 8-byte aligned")) {
                     out.push(format!("verify does not report the alignment: {defects:?}"));
                 }
@@ -3120,7 +3134,10 @@ fn verify_catches_a_moved_root_cube() {
             matches!(traced, Traced::Different(_)),
             "{what}: the answers should change: {traced:?}"
         );
-        let defects = scene.verify().defects;
+        let defects = scene
+            .verify()
+            .map(|r| r.defects)
+            .unwrap_or_else(|e| vec![e.to_string()]);
         if defects.is_empty() {
             problems.push(format!(
                 "{what}: verify reports nothing; tracing gives {traced:?}"
@@ -3180,7 +3197,10 @@ fn verify_does_not_allocate_by_input_triangles() {
             write_u64(&mut b, 96, v);
             fix_header_checksum(&mut b);
             let scene = open(&b).expect("open does not check input_triangles");
-            let defects = scene.verify().defects;
+            let defects = scene
+                .verify()
+                .map(|r| r.defects)
+                .unwrap_or_else(|e| vec![e.to_string()]);
             assert!(
                 !defects.is_empty(),
                 "input_triangles {v}: verify reports nothing"
@@ -3212,7 +3232,10 @@ fn verify_checks_padding_inside_a_block() {
         for r in pads {
             let b = fix.rewrite(r.space, r.range.start, &[0x5a]);
             let scene = open(&b).expect("opens");
-            let defects = scene.verify().defects;
+            let defects = scene
+                .verify()
+                .map(|r| r.defects)
+                .unwrap_or_else(|e| vec![e.to_string()]);
             if defects.is_empty() {
                 problems.push(format!(
                     "{}: {} byte 0 set to 0x5a, checksums recomputed: verify reports nothing",

@@ -99,8 +99,9 @@ fn main() {
         let diag = b.diagonal();
 
         let t = Instant::now();
-        let (parts, stats) = oavm::build::build(&mesh, &args.opts, &|_| {}).expect("build");
-        let bytes = oavm::physical::writer::encode(&parts);
+        let (parts, stats) =
+            oavm::build::build(&mesh, &args.opts, &oavm::build::Quiet).expect("build");
+        let bytes = oavm::build::encode(&parts).expect("encode");
         let oavm_build = t.elapsed().as_secs_f64();
         let scene = Scene::from_bytes(bytes, "bench").expect("open");
         let t = Instant::now();

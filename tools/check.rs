@@ -178,7 +178,7 @@ fn parse_args(args: impl Iterator<Item = String>) -> Result<Option<Config>, Stri
 /// One kind of answer (closest hit or any hit), from each of the three tracers.
 trait Answer: Copy + PartialEq + Send + Sync {
     const QUERY: &'static str;
-    fn oavm<D: AsRef<[u8]> + oavm::physical::pager::BlockSource>(
+    fn oavm<D: AsRef<[u8]> + oavm::logical::BlockSource>(
         scene: &Scene<D>,
         rays: &[Ray],
     ) -> Result<Vec<Self>, String>;
@@ -196,7 +196,7 @@ trait Answer: Copy + PartialEq + Send + Sync {
 
 impl Answer for Hit {
     const QUERY: &'static str = "closest";
-    fn oavm<D: AsRef<[u8]> + oavm::physical::pager::BlockSource>(
+    fn oavm<D: AsRef<[u8]> + oavm::logical::BlockSource>(
         scene: &Scene<D>,
         rays: &[Ray],
     ) -> Result<Vec<Hit>, String> {
@@ -235,7 +235,7 @@ impl Answer for Hit {
 
 impl Answer for bool {
     const QUERY: &'static str = "any";
-    fn oavm<D: AsRef<[u8]> + oavm::physical::pager::BlockSource>(
+    fn oavm<D: AsRef<[u8]> + oavm::logical::BlockSource>(
         scene: &Scene<D>,
         rays: &[Ray],
     ) -> Result<Vec<bool>, String> {
@@ -356,7 +356,7 @@ fn stride_for(len: usize, want: usize) -> usize {
 
 /// Compares `ours[i]` with `theirs[j]` for the pairs `(i, j)` of `pairs`.
 fn compare<A: Answer>(
-    ctx: &Ctx<'_, impl AsRef<[u8]> + oavm::physical::pager::BlockSource>,
+    ctx: &Ctx<'_, impl AsRef<[u8]> + oavm::logical::BlockSource>,
     rays: &[Ray],
     ours: &[A],
     pairs: impl Iterator<Item = (usize, A)>,
@@ -542,7 +542,7 @@ struct SetReport {
 
 /// Traces `rays` with OAVM and compares with brute force (strided subset) and obvhs (every ray).
 fn check_set<A: Answer>(
-    ctx: &Ctx<'_, impl AsRef<[u8]> + oavm::physical::pager::BlockSource>,
+    ctx: &Ctx<'_, impl AsRef<[u8]> + oavm::logical::BlockSource>,
     name: &'static str,
     rays: &[Ray],
 ) -> Result<(SetReport, Vec<A>), String> {
@@ -651,8 +651,8 @@ fn check_scene(config: &Config, name: &str, path: &Path) -> Result<SceneReport, 
 
     let t = Instant::now();
     let (parts, stats) =
-        oavm::build::build(&mesh, &config.opts, &|_| {}).map_err(|e| e.to_string())?;
-    let bytes = oavm::physical::writer::encode(&parts);
+        oavm::build::build(&mesh, &config.opts, &oavm::build::Quiet).map_err(|e| e.to_string())?;
+    let bytes = oavm::build::encode(&parts).expect("encode");
     let scene = Scene::from_bytes(bytes, format!("{name}.oavm")).map_err(|e| e.to_string())?;
     let oavm_build = t.elapsed().as_secs_f64();
     let t = Instant::now();

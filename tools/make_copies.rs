@@ -21,7 +21,10 @@ use std::path::PathBuf;
 
 use clap::Parser;
 use oavm::Error;
-use oavm::cli::main_with;
+#[path = "../src/bin/cli/mod.rs"]
+mod cli;
+
+use cli::main_with;
 use oavm::rays::SplitMix64;
 use rayon::prelude::*;
 

@@ -33,8 +33,10 @@ fn main() {
     let b = Bounds::of_points(mesh.positions.iter().copied());
     let random = rays::random_rays(&b, n, seed);
     let primary = Camera::framing(&b).primary_rays(w, h);
-    let (parts, _) = oavm::build::build(&mesh, &BuildOptions::default(), &|_| {}).expect("build");
-    let scene = Scene::from_bytes(oavm::physical::writer::encode(&parts), "memory").expect("open");
+    let (parts, _) =
+        oavm::build::build(&mesh, &BuildOptions::default(), &oavm::build::Quiet).expect("build");
+    let scene =
+        Scene::from_bytes(oavm::build::encode(&parts).expect("encode"), "memory").expect("open");
     let mut hits = vec![Hit::MISS; primary.len()];
     scene.intersect_batch(&primary, &mut hits).expect("trace");
     let shadow = rays::shadow_rays(&primary, &hits, rays::default_light(&b));

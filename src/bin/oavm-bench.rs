@@ -9,7 +9,9 @@ use std::time::Instant;
 
 use clap::Parser;
 use oavm::build::{self, BuildOptions};
-use oavm::cli::main_with;
+mod cli;
+
+use cli::main_with;
 use oavm::compare::{self, Accelerator, Triangles};
 use oavm::rays::{self, Bounds, Camera};
 use oavm::{Counters, Error, Hit, Ray};
@@ -415,7 +417,13 @@ fn batch(args: &Args, names: &[&str], opts: &BuildOptions) -> Result<(), Error> 
     let (mesh, _) = load_scene(scene)?;
     let tris = Triangles::from_mesh(&mesh)?;
     let diag = Bounds::of_points(tris.v.iter().flatten().copied()).diagonal();
-    let rays = rays::read_rays(rays_path)?;
+    let out_path = args
+        .occluded
+        .as_deref()
+        .or(args.hits.as_deref())
+        .unwrap_or(rays_path);
+    let out = oavm::output::Output::create(out_path, &[scene, rays_path])?;
+    let rays = rays::read_rays(rays_path, u32::MAX as u64)?;
     let acc = compare::build_structure(name, &mesh, &tris, opts)?;
     let oavm = compare::OavmAccel::build(&mesh, opts)?;
     let any = args.occluded.is_some();
@@ -424,10 +432,10 @@ fn batch(args: &Args, names: &[&str], opts: &BuildOptions) -> Result<(), Error> 
     let seconds = t.elapsed().as_secs_f64();
     let (_, (ref_hits, ref_occ)) = answers(&oavm, &rays, any);
     let disagree = if any {
-        rays::write_occlusion(args.occluded.as_deref().unwrap_or(rays_path), &occ)?;
+        rays::write_into(out, &occ)?;
         occ.iter().zip(&ref_occ).filter(|(a, b)| a != b).count()
     } else {
-        rays::write_hits(args.hits.as_deref().unwrap_or(rays_path), &hits)?;
+        rays::write_into(out, &hits)?;
         hits.iter()
             .zip(&ref_hits)
             .filter(|(a, b)| !a.agrees(b, diag))

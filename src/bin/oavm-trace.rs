@@ -1,20 +1,24 @@
 //! `oavm-trace FILE.oavm`: traces rays through a packed file, memory-mapped, with no rebuild.
 //! Renders an image by default; traces ray files in batch mode, or rays it makes itself in
-//! benchmark mode; verifies files. Every trace runs within `--mem-budget` and reports what the
-//! pager read and what the process used (peak RSS, bytes read from the disk).
+//! benchmark mode; verifies files. Glue: the arguments become a typed [`Mode`], the library
+//! does the work, this prints what it reports.
 
-use std::io::Write;
+mod cli;
+
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::Parser;
-use oavm::cli::{main_with, parse_bytes, with_threads};
-use oavm::logical::{Order, SceneOptions};
+use oavm::logical::{
+    Answered, FrameOptions, IO_THREADS_PER_CORE, Order, SceneInfo, SceneOptions, SetReport,
+    VerifyReport,
+};
+use oavm::output::Output;
 use oavm::rays::{self, Bounds, Camera};
-use oavm::render::{self, RenderOptions};
-use oavm::{Counters, Error, Hit, Ray, Scene};
-use serde_json::{Value, json};
+use oavm::render::{self, RenderOptions, RenderStats};
+use oavm::{Error, Hit, Scene};
+use serde::Serialize;
 
 /// Traces rays through an .oavm file made by oavm-pack.
 ///
@@ -22,14 +26,15 @@ use serde_json::{Value, json};
 /// a BART scene, --view), shaded by a point light with shadows, and writes a PNG. With --rays and
 /// --hits (closest hit) or --occluded (any hit), traces a ray file in the formats of RAYS.md.
 /// With --random N or --primary WxH (and --shadow), traces rays it makes and reports the figures
-/// only. With --verify, checks every byte of the file.
+/// only. With --verify, checks every byte of the file. Outputs are written atomically, through
+/// symlinks, never over a directory, device or FIFO, nor over an input.
 #[derive(Parser, Debug)]
 #[command(name = "oavm-trace", version)]
 struct Args {
     /// The .oavm file.
     file: PathBuf,
     /// Batch mode: a RAYS file to trace.
-    #[arg(long, value_name = "RAYS")]
+    #[arg(long, value_name = "RAYS", conflicts_with_all = ["random", "primary", "verify"])]
     rays: Option<PathBuf>,
     /// Batch mode: write closest hits to this HITS file.
     #[arg(
@@ -43,12 +48,13 @@ struct Args {
     #[arg(long, value_name = "OCCL", requires = "rays")]
     occluded: Option<PathBuf>,
     /// Benchmark mode: trace N random rays (origins around the model, directions uniform; the
-    /// ray sets of `cargo run --example rays`), closest hit; nothing is written.
-    #[arg(long, value_name = "N", conflicts_with_all = ["rays", "primary"])]
-    random: Option<usize>,
+    /// ray sets of `cargo run --example rays`), closest hit; nothing is written. At most what
+    /// half of the available memory holds (64 bytes a ray).
+    #[arg(long, value_name = "N", conflicts_with_all = ["primary", "verify"])]
+    random: Option<u64>,
     /// Benchmark mode: trace the WxH primary rays of the camera (as for rendering: --eye,
     /// --target, --fov, --view...), closest hit; nothing is written.
-    #[arg(long, value_name = "WxH", value_parser = parse_size, conflicts_with = "rays")]
+    #[arg(long, value_name = "WxH", value_parser = cli::parse_size, conflicts_with = "verify")]
     primary: Option<(u32, u32)>,
     /// Benchmark mode: then trace a shadow ray (any hit) from every hit to the light.
     #[arg(long)]
@@ -56,242 +62,340 @@ struct Args {
     /// Benchmark mode with --shadow: trace in waves of N rays, taken in the tracing order
     /// (--order), each wave's shadow rays right after its primary ones, while the blocks they
     /// start in are still in memory, as a renderer would (0: all primary rays, then all shadow
-    /// rays). The answers are the same.
-    #[arg(long, value_name = "N", default_value_t = 65536)]
-    wave: usize,
-    /// Seed of --random.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Bytes of decoded blocks kept in memory (e.g. 512M, 1.5G; default: no limit). Raised to
-    /// what one block per thread needs for compressed files (see the report's pager budget).
-    #[arg(long, value_name = "SIZE", value_parser = parse_bytes)]
-    mem_budget: Option<u64>,
-    /// Do not check a raw block's checksum when it is paged in: only the pages a walk touches
-    /// are read (far less from the disk when rays pass through blocks), but a damaged block is
-    /// no longer caught by its checksum (reads stay bounds-checked: wrong answers, never a
-    /// crash). `--verify` checks everything regardless.
-    #[arg(long)]
-    no_block_checks: bool,
-    /// Order of tracing: morton (rays that enter the model near each other, in the same
-    /// direction octant, together; image tiles in Morton order), blocks (rays binned by the
-    /// first block they need, found in the top tree, then as morton) or none (as given; image
-    /// rows). The answers are the same; the blocks read again under a small --mem-budget are
-    /// not. Default: blocks with --mem-budget, morton without.
-    #[arg(long, value_parser = parse_order)]
-    order: Option<Order>,
+    /// rays; default 65536). The answers are the same.
+    #[arg(long, value_name = "N", requires = "shadow")]
+    wave: Option<usize>,
+    /// Seed of --random (default 1).
+    #[arg(long, requires = "random")]
+    seed: Option<u64>,
     /// Check every section, checksum and invariant; exit non-zero on any defect.
-    #[arg(long, conflicts_with_all = ["rays", "hits", "occluded", "random", "primary"])]
+    #[arg(long)]
     verify: bool,
-    /// Image to write (default: the file's name with .png).
-    #[arg(short, long, value_name = "PNG")]
+    /// Render mode: the image to write (default: the file's name with .png).
+    #[arg(short, long, value_name = "PNG", conflicts_with_all = ["rays", "random", "primary", "verify"])]
     output: Option<PathBuf>,
-    /// Image width (default 1024, or the --view scene's resolution).
-    #[arg(long)]
+    /// Render mode: image width (default 1024, or the --view scene's resolution).
+    #[arg(long, conflicts_with_all = ["rays", "random", "primary", "verify"])]
     width: Option<u32>,
-    /// Image height (default 768, or the --view scene's resolution).
-    #[arg(long)]
+    /// Render mode: image height (default 768, or the --view scene's resolution).
+    #[arg(long, conflicts_with_all = ["rays", "random", "primary", "verify"])]
     height: Option<u32>,
-    /// Take the camera from this BART AFF scene's viewpoint (`v`: from, at, up, and angle as the
-    /// vertical field of view) and the light from its first light (`l`), or the viewpoint
-    /// without one; the image size is the scene's resolution unless --width/--height are given.
-    #[arg(long, value_name = "SCENE.aff", conflicts_with_all = ["eye", "target", "fov", "up"])]
-    view: Option<PathBuf>,
-    /// With --view: take the camera from the scene's animated camera path (`k camera`) at its
-    /// first frame instead of its `v` block (BART's own animation frame).
-    #[arg(long, requires = "view")]
-    camera_path: bool,
-    /// Camera position (default: in front of the model, framing it).
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
-    eye: Option<[f64; 3]>,
-    /// Point the camera looks at (default: the model's centre).
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
-    target: Option<[f64; 3]>,
-    /// Camera up vector.
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, default_value = "0,1,0")]
-    up: [f64; 3],
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0)]
-    fov: f64,
-    /// Point light position (default: above, right and in front of the model).
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
-    light: Option<[f64; 3]>,
-    /// Worker threads (0: one per core; with --mem-budget, eight per core, so that some
-    /// threads trace while others wait for blocks from the disk).
-    #[arg(long, default_value_t = 0)]
-    threads: usize,
+    #[command(flatten)]
+    camera: cli::CameraArgs,
+    #[command(flatten)]
+    trace: cli::TraceArgs,
     /// Print one JSON object with the figures of the run.
     #[arg(long)]
     json: bool,
 }
 
+/// What a run does, from the arguments.
+#[derive(Debug)]
+enum Mode {
+    Render {
+        image: PathBuf,
+    },
+    Batch {
+        rays: PathBuf,
+        query: Query,
+    },
+    Bench {
+        set: RaySet,
+        shadow: bool,
+        wave: usize,
+    },
+    Verify,
+}
+
+#[derive(Debug)]
+enum Query {
+    /// Closest hits, to a HITS file.
+    Closest(PathBuf),
+    /// Any hit, to an OCCL file.
+    Any(PathBuf),
+}
+
+/// A camera, its light and its image size.
+type Shot = (Camera, [f32; 3], (u32, u32));
+
+#[derive(Clone, Copy, Debug)]
+enum RaySet {
+    Random { count: u64, seed: u64 },
+    Primary { width: u32, height: u32 },
+}
+
+/// Rays per wave by default (`--wave`).
+const DEFAULT_WAVE: usize = 65536;
+
 impl Args {
-    /// `--order`, or its default: binned by block under a budget (on the 130M-triangle file in
-    /// a 1.5 GiB cgroup, zstd, 10^6 random rays: 0.38 of the unlimited speed sorted by Morton
-    /// key, 0.80 binned; README, out of core), Morton otherwise (no top-tree walk per ray).
-    fn order(&self) -> Order {
-        self.order.unwrap_or(if self.mem_budget.is_some() {
-            Order::Blocks
-        } else {
-            Order::Morton
-        })
+    /// The mode the arguments ask for (clap has already refused the combinations that ask for
+    /// two).
+    fn mode(&self) -> Result<Mode, Error> {
+        if self.verify {
+            return Ok(Mode::Verify);
+        }
+        if let Some(rays) = &self.rays {
+            let query = match (&self.hits, &self.occluded) {
+                (Some(h), None) => Query::Closest(h.clone()),
+                (None, Some(o)) => Query::Any(o.clone()),
+                _ => {
+                    return Err(Error::Invalid(
+                        "--rays needs --hits (closest hit) or --occluded (any hit)".into(),
+                    ));
+                }
+            };
+            return Ok(Mode::Batch {
+                rays: rays.clone(),
+                query,
+            });
+        }
+        let set = match (self.random, self.primary) {
+            (Some(count), _) => Some(RaySet::Random {
+                count,
+                seed: self.seed.unwrap_or(1),
+            }),
+            (None, Some((width, height))) => Some(RaySet::Primary { width, height }),
+            (None, None) => None,
+        };
+        match set {
+            Some(set) => Ok(Mode::Bench {
+                set,
+                shadow: self.shadow,
+                wave: self.wave.unwrap_or(DEFAULT_WAVE),
+            }),
+            None if self.shadow => Err(Error::Invalid(
+                "--shadow needs --random N or --primary WxH".into(),
+            )),
+            None => Ok(Mode::Render {
+                image: self
+                    .output
+                    .clone()
+                    .unwrap_or_else(|| self.file.with_extension("png")),
+            }),
+        }
     }
-}
-
-fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
-        .collect::<Result<_, _>>()?;
-    match v[..] {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
-        _ => Err(format!("expected three finite numbers X,Y,Z, got {s:?}")),
-    }
-}
-
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
-    let dim = |v: &str| match v.trim().parse::<u32>() {
-        Ok(n) if (1..=16384).contains(&n) => Ok(n),
-        _ => Err(format!("{s:?}: sizes are 1 to 16384 pixels")),
-    };
-    Ok((dim(w)?, dim(h)?))
-}
-
-fn parse_order(s: &str) -> Result<Order, String> {
-    s.parse()
 }
 
 fn main() -> ExitCode {
     let start = Instant::now();
     let args = Args::parse();
-    main_with("oavm-trace", || {
-        with_threads(thread_count(&args), || run(&args, start))
-    })
-}
-
-/// Threads waiting on the disk per core when a budget makes the tracer read blocks again: on
-/// the 130M-triangle file in a 1.5 GiB cgroup, 16 threads on 2 cores traced 1.7 to 2.2 times
-/// as fast as 2 (README, out of core), and no slower without a limit.
-const IO_THREADS_PER_CORE: usize = 8;
-
-/// `--threads`, or its default (0 lets rayon take one per core).
-fn thread_count(args: &Args) -> usize {
-    match (args.threads, args.mem_budget) {
-        (0, Some(_)) => {
-            std::thread::available_parallelism().map_or(1, |n| n.get()) * IO_THREADS_PER_CORE
-        }
-        (n, _) => n,
-    }
+    cli::main_with("oavm-trace", || run(&args, start))
 }
 
 fn run(args: &Args, start: Instant) -> Result<(), Error> {
-    if args.rays.is_some() && args.hits.is_none() && args.occluded.is_none() {
-        return Err(Error::Invalid(
-            "--rays needs --hits (closest hit) or --occluded (any hit)".into(),
-        ));
-    }
-    if args.shadow && args.random.is_none() && args.primary.is_none() {
-        return Err(Error::Invalid(
-            "--shadow needs --random N or --primary WxH".into(),
-        ));
+    let mode = args.mode()?;
+    if let Mode::Verify = mode {
+        return verify(args);
     }
     let t = Instant::now();
     let scene = Scene::open_with(
         &args.file,
         &SceneOptions {
-            mem_budget: args.mem_budget.unwrap_or(u64::MAX),
-            threads: 0,
-            check_blocks: !args.no_block_checks,
+            mem_budget: args.trace.mem_budget,
+            threads: args
+                .trace
+                .threads
+                .unwrap_or(cli::cores() * IO_THREADS_PER_CORE),
+            check_blocks: !args.trace.no_block_checks,
         },
     )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
-    let mut report = Report {
+    let threads = match args.trace.threads {
+        Some(n) if n > scene.threads() => {
+            eprintln!(
+                "oavm-trace: note: --threads {n} lowered to {}: a memory budget of {} bytes holds \
+                 two of this file's largest blocks ({} bytes) per thread and one more",
+                scene.threads(),
+                scene.budget(),
+                scene.file().header().max_block_raw_len
+            );
+            scene.threads()
+        }
+        Some(n) => n.max(1),
+        None => scene.default_threads(cli::cores()),
+    };
+    let order = args.trace.order.unwrap_or_else(|| scene.default_order());
+    let mut ctx = Run {
         args,
+        scene: &scene,
         start,
         open_ms,
-        threads: rayon::current_num_threads(),
-        start_to_first_ray_ms: 0.0,
+        threads,
+        order,
+        first_ray_ms: 0.0,
         io_before: None,
     };
+    cli::with_threads(threads, || match mode {
+        Mode::Render { image } => ctx.render(&image),
+        Mode::Batch { rays, query } => ctx.batch(&rays, &query),
+        Mode::Bench { set, shadow, wave } => ctx.bench(set, shadow, wave),
+        Mode::Verify => Ok(()),
+    })
+}
 
-    if args.verify {
-        let t = Instant::now();
-        let report = scene.verify();
-        let seconds = t.elapsed().as_secs_f64();
-        if args.json {
-            print(
-                &json!({ "file": args.file, "ok": report.is_ok(), "seconds": seconds, "report": report }),
-            )?;
-        } else if report.is_ok() {
-            print_text(&format!(
-                "{}: ok ({} bytes, {} sections, every checksum and invariant holds; {:.3} s)\n",
-                args.file.display(),
-                report.bytes_checked,
-                report.sections_checked,
-                seconds
-            ))?;
-        }
-        if !report.is_ok() {
-            for d in &report.defects {
-                eprintln!("oavm-trace: {}: {d}", args.file.display());
-            }
-            return Err(Error::Invalid(format!(
-                "{}: verification failed ({} defects)",
-                args.file.display(),
-                report.defects.len()
-            )));
-        }
-        return Ok(());
-    }
-
-    if let Some(rays_path) = &args.rays {
-        return batch(&scene, rays_path, &mut report);
-    }
-
-    let h = scene.file().header();
-    let bounds = Bounds {
-        min: h.mesh_min,
-        max: h.mesh_max,
-    };
-    let (camera, light, (width, height)) = camera(args, &bounds)?;
-    if args.random.is_some() || args.primary.is_some() {
-        return bench(&scene, &bounds, &camera, light, &mut report);
-    }
-
-    // Default: render.
-    let opts = RenderOptions {
-        width: args.width.unwrap_or(width),
-        height: args.height.unwrap_or(height),
-        camera,
-        light,
-        order: args.order(),
-    };
-    report.first_ray();
-    let (image, stats) = render::render(&scene, &opts)?;
-    let out = args
-        .output
-        .clone()
-        .unwrap_or_else(|| default_png(&args.file));
-    render::write_png(&out, &image)?;
-    let rays = stats.primary.rays + stats.shadow.rays;
-    let mrays = rays as f64 / stats.seconds.max(1e-12) / 1e6;
-    let all = stats.primary + stats.shadow;
+/// `--verify`: every byte, checksum and invariant.
+fn verify(args: &Args) -> Result<(), Error> {
+    let t = Instant::now();
+    let scene = Scene::open(&args.file)?;
+    let report = scene.verify()?;
+    let seconds = t.elapsed().as_secs_f64();
     if args.json {
-        let mut v = report.common(&scene);
-        v["image"] = json!(out);
-        v["rays"] = json!(rays);
-        v["seconds"] = json!(stats.seconds);
-        v["mrays_per_s"] = json!(mrays);
-        v["page"] = page_json(&all);
-        v["render"] = json!(stats);
-        print(&v)?;
-    } else {
-        print_text(&format!(
+        #[derive(Serialize)]
+        struct Verified<'a> {
+            file: &'a Path,
+            ok: bool,
+            seconds: f64,
+            report: &'a VerifyReport,
+        }
+        cli::print_json(&Verified {
+            file: &args.file,
+            ok: report.is_ok(),
+            seconds,
+            report: &report,
+        })?;
+    } else if report.is_ok() {
+        cli::print_text(&format!(
+            "{}: ok ({} bytes, {} sections, every checksum and invariant holds; {seconds:.3} s)\n",
+            args.file.display(),
+            report.bytes_checked,
+            report.sections_checked,
+        ))?;
+    }
+    if !report.is_ok() {
+        for d in &report.defects {
+            eprintln!("oavm-trace: {}: {d}", args.file.display());
+        }
+        return Err(Error::Invalid(format!(
+            "{}: verification failed ({} defects)",
+            args.file.display(),
+            report.defects.len()
+        )));
+    }
+    Ok(())
+}
+
+/// One tracing run: the scene and what every mode reports besides its rays.
+struct Run<'a> {
+    args: &'a Args,
+    scene: &'a Scene,
+    /// `main`'s entry (the time before it, exec and loading, is not counted).
+    start: Instant,
+    open_ms: f64,
+    threads: usize,
+    order: Order,
+    first_ray_ms: f64,
+    /// The process's `read_bytes` just before the first ray.
+    io_before: Option<u64>,
+}
+
+/// The figures every tracing mode reports with `--json`, around the mode's own (`body`).
+#[derive(Serialize)]
+struct Report<'a, T: Serialize> {
+    file: &'a Path,
+    #[serde(flatten)]
+    scene: SceneInfo,
+    threads: usize,
+    order: Order,
+    open_ms: f64,
+    start_to_first_ray_ms: f64,
+    /// The budget asked for (`None`: the default, see `pager_budget`).
+    mem_budget: Option<u64>,
+    block_checks: bool,
+    peak_rss_bytes: Option<u64>,
+    disk_read_bytes_before_trace: Option<u64>,
+    disk_read_bytes_trace: Option<u64>,
+    #[serde(flatten)]
+    body: T,
+}
+
+impl Run<'_> {
+    /// Marks the moment the first ray is ready to be traced.
+    fn first_ray(&mut self) {
+        self.first_ray_ms = self.start.elapsed().as_secs_f64() * 1e3;
+        self.io_before = oavm::os::read_bytes();
+    }
+
+    fn report<T: Serialize>(&self, body: T) -> Report<'_, T> {
+        let io_after = oavm::os::read_bytes();
+        Report {
+            file: &self.args.file,
+            scene: self.scene.info(),
+            threads: self.threads,
+            order: self.order,
+            open_ms: self.open_ms,
+            start_to_first_ray_ms: self.first_ray_ms,
+            mem_budget: self.args.trace.mem_budget,
+            block_checks: !self.args.trace.no_block_checks,
+            peak_rss_bytes: oavm::os::peak_rss_bytes(),
+            disk_read_bytes_before_trace: self.io_before,
+            disk_read_bytes_trace: io_after
+                .zip(self.io_before)
+                .map(|(a, b)| a.saturating_sub(b)),
+            body,
+        }
+    }
+
+    /// The pager's figures for a set, as a clause of the text report.
+    fn paging_text(&self, s: &SetReport) -> String {
+        let p = &s.page;
+        format!(
+            "; pager: {} blocks asked, {} misses ({:.1} % hits), {:.1} MB read ({:.0} B/ray), \
+             peak {:.1} MB resident of {:.1} MB",
+            p.counters.requested,
+            p.counters.misses,
+            100.0 * p.hit_rate,
+            p.counters.bytes_read as f64 / 1e6,
+            p.bytes_read_per_ray,
+            self.scene.peak_resident_bytes() as f64 / 1e6,
+            self.scene.budget() as f64 / 1e6,
+        )
+    }
+
+    /// The most rays a run may hold: what half of the available memory holds.
+    fn max_rays(&self) -> u64 {
+        let avail = oavm::os::available_memory().unwrap_or(oavm::logical::FALLBACK_MEM_BUDGET);
+        oavm::logical::max_rays(avail / 2)
+    }
+
+    /// Render mode: the image, written only once every pixel is traced.
+    fn render(&mut self, image: &Path) -> Result<(), Error> {
+        let out = Output::create(image, &[&self.args.file])?;
+        let (camera, light, (width, height)) = self.shot()?;
+        let opts = RenderOptions {
+            width: self.args.width.unwrap_or(width),
+            height: self.args.height.unwrap_or(height),
+            camera,
+            light,
+            order: self.order,
+        };
+        self.first_ray();
+        let (img, stats) = render::render(self.scene, &opts)?;
+        render::write_png(out, &img)?;
+        let all = stats.primary + stats.shadow;
+        let total = SetReport::new(&all, stats.seconds, Answered::Mixed);
+        if self.args.json {
+            #[derive(Serialize)]
+            struct Rendered<'a> {
+                image: &'a Path,
+                rays: u64,
+                seconds: f64,
+                mrays_per_s: f64,
+                page: oavm::logical::PageReport,
+                render: RenderStats,
+            }
+            return cli::print_json(&self.report(Rendered {
+                image,
+                rays: total.rays,
+                seconds: total.seconds,
+                mrays_per_s: total.mrays_per_s,
+                page: total.page,
+                render: stats,
+            }));
+        }
+        cli::print_text(&format!(
             "wrote {} ({}x{}): {} primary rays ({} hit), {} shadow rays ({} shadowed), {:.3} s, \
-             {mrays:.2} Mrays/s on {} threads (open {:.3} ms){}\n",
-            out.display(),
+             {:.2} Mrays/s on {} threads (open {:.3} ms){}\n",
+            image.display(),
             stats.width,
             stats.height,
             stats.primary.rays,
@@ -299,392 +403,228 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
             stats.shadow.rays,
             stats.shadowed,
             stats.seconds,
-            report.threads,
-            report.open_ms,
-            report.paging_text(&scene, &all),
-        ))?;
+            total.mrays_per_s,
+            self.threads,
+            self.open_ms,
+            self.paging_text(&total),
+        ))
     }
-    Ok(())
-}
 
-/// A camera, its light and its image size.
-type Shot = (Camera, [f32; 3], (u32, u32));
-
-/// The camera, light and image size of the render and of --primary: from --view, or framing
-/// the model and adjusted by --eye, --target, --up, --fov; the light from --light, else the
-/// scene's, else the default.
-fn camera(args: &Args, bounds: &Bounds) -> Result<Shot, Error> {
-    let (camera, scene_light, size) = if let Some(view_path) = &args.view {
-        let aff = oavm::mesh::load_aff(view_path, None)?;
-        let v = if args.camera_path {
-            aff.camera_path.ok_or_else(|| {
-                Error::Invalid(format!(
-                    "{}: the scene has no camera path (`k camera` and a `v` block) for --camera-path",
-                    view_path.display()
-                ))
-            })?
+    /// Batch mode: traces a RAYS file and writes the answers (only once every ray is answered;
+    /// the output's place is checked before the trace).
+    fn batch(&mut self, rays_path: &Path, query: &Query) -> Result<(), Error> {
+        let (out_path, closest) = match query {
+            Query::Closest(p) => (p, true),
+            Query::Any(p) => (p, false),
+        };
+        let out = Output::create(out_path, &[&self.args.file, rays_path])?;
+        let rays = rays::read_rays(rays_path, self.max_rays())?;
+        self.first_ray();
+        let t = Instant::now();
+        let set = if closest {
+            let mut hits = vec![Hit::MISS; rays.len()];
+            let c = self
+                .scene
+                .intersect_batch_ordered(&rays, &mut hits, self.order)?;
+            let seconds = t.elapsed().as_secs_f64();
+            rays::write_into(out, &hits)?;
+            let n = hits.iter().filter(|h| h.is_hit()).count() as u64;
+            SetReport::new(&c, seconds, Answered::Hits(n))
         } else {
-            aff.view.ok_or_else(|| {
-                Error::Invalid(format!(
-                    "{}: the scene has no viewpoint (`v` block) for --view",
-                    view_path.display()
-                ))
-            })?
+            let mut occ = vec![0u8; rays.len()];
+            let c = self
+                .scene
+                .occluded_batch_ordered(&rays, &mut occ, self.order)?;
+            let seconds = t.elapsed().as_secs_f64();
+            rays::write_into(out, &occ)?;
+            let n = occ.iter().filter(|&&o| o == 1).count() as u64;
+            SetReport::new(&c, seconds, Answered::Occluded(n))
         };
-        let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
-            .map_err(|e| Error::Invalid(format!("{}: viewpoint: {e}", view_path.display())))?;
-        let light = aff.lights.first().copied().unwrap_or(v.from);
-        (camera, Some(light), v.resolution)
-    } else {
-        let mut camera = Camera::framing(bounds);
-        if let Some(target) = args.target {
-            camera.target = target;
+        if self.args.json {
+            return cli::print_json(&self.report(&set));
         }
-        if let Some(eye) = args.eye {
-            camera.eye = eye;
-        }
-        camera.up = args.up;
-        camera.fov_y = args.fov;
-        if !(camera.fov_y > 0.0 && camera.fov_y < 180.0) || camera.eye == camera.target {
-            return Err(Error::Invalid(
-                "the camera needs 0 < --fov < 180 and --eye apart from --target".into(),
-            ));
-        }
-        (camera, None, (1024, 768))
-    };
-    let light = args
-        .light
-        .or(scene_light)
-        .map(|l| l.map(|c| c as f32))
-        .unwrap_or_else(|| rays::default_light(bounds));
-    Ok((camera, light, size))
-}
-
-/// Batch mode: traces a RAYS file and writes the answers (only once every ray is answered).
-fn batch(scene: &Scene, rays_path: &Path, report: &mut Report) -> Result<(), Error> {
-    let args = report.args;
-    let rays = rays::read_rays(rays_path)?;
-    report.first_ray();
-    let t = Instant::now();
-    let (c, seconds, answers, label, out_path) = if let Some(hits_path) = &args.hits {
-        let mut hits = vec![Hit::MISS; rays.len()];
-        let c = scene.intersect_batch_ordered(&rays, &mut hits, args.order())?;
-        let seconds = t.elapsed().as_secs_f64();
-        rays::write_hits(hits_path, &hits)?;
-        let n = hits.iter().filter(|h| h.is_hit()).count();
-        (c, seconds, n, "hits", hits_path)
-    } else {
-        let occl_path = args
-            .occluded
-            .as_ref()
-            .ok_or_else(|| Error::Invalid("no output".into()))?;
-        let mut occ = vec![0u8; rays.len()];
-        let c = scene.occluded_batch_ordered(&rays, &mut occ, args.order())?;
-        let seconds = t.elapsed().as_secs_f64();
-        rays::write_occlusion(occl_path, &occ)?;
-        let n = occ.iter().filter(|&&o| o == 1).count();
-        (c, seconds, n, "occluded", occl_path)
-    };
-    let per_ray = |x: u64| x as f64 / (c.rays.max(1)) as f64;
-    let mrays = rays.len() as f64 / seconds.max(1e-12) / 1e6;
-    if args.json {
-        let mut v = report.common(scene);
-        merge(&mut v, set_json(label, answers, &c, seconds));
-        print(&v)?;
-    } else {
-        print_text(&format!(
-            "{} rays, {answers} {label}, {seconds:.3} s, {mrays:.2} Mrays/s on {} threads \
-             (open {:.3} ms); per ray: {:.1} nodes, {:.1} volumes, {:.1} triangles{}; wrote {}\n",
-            rays.len(),
-            report.threads,
-            report.open_ms,
-            per_ray(c.nodes_visited),
-            per_ray(c.volumes_crossed),
-            per_ray(c.triangles_tested),
-            report.paging_text(scene, &c),
+        let (n, label) = match (set.hits, set.occluded) {
+            (Some(n), _) => (n, "hits"),
+            (_, n) => (n.unwrap_or(0), "occluded"),
+        };
+        cli::print_text(&format!(
+            "{} rays, {n} {label}, {:.3} s, {:.2} Mrays/s on {} threads (open {:.3} ms); per \
+             ray: {:.1} nodes, {:.1} volumes, {:.1} triangles{}; wrote {}\n",
+            set.rays,
+            set.seconds,
+            set.mrays_per_s,
+            self.threads,
+            self.open_ms,
+            set.nodes_visited_per_ray,
+            set.volumes_crossed_per_ray,
+            set.triangles_tested_per_ray,
+            self.paging_text(&set),
             out_path.display()
-        ))?;
+        ))
     }
-    Ok(())
-}
 
-/// The shadow rays (`rays::shadow_ray`) of those of `rays` that `hits` says hit, with the index
-/// (from `index`, one per ray) of the ray each comes from.
-fn shadow_set(
-    rays: &[Ray],
-    hits: &[Hit],
-    index: Vec<u32>,
-    light: [f32; 3],
-) -> (Vec<Ray>, Vec<u32>) {
-    rays.iter()
-        .zip(hits)
-        .zip(index)
-        .filter(|((_, h), _)| h.is_hit())
-        .map(|((r, h), i)| (rays::shadow_ray(r, h.t, light), i))
-        .unzip()
-}
+    /// Benchmark mode: traces --random or --primary rays (closest hit), then with --shadow a
+    /// shadow ray from every hit (in waves, --wave); reports each set and the total, writes
+    /// nothing.
+    fn bench(&mut self, set: RaySet, shadow: bool, wave: usize) -> Result<(), Error> {
+        let (camera, light, _) = self.shot()?;
+        let count = match set {
+            RaySet::Random { count, .. } => count,
+            RaySet::Primary { width, height } => width as u64 * height as u64,
+        };
+        let max = self.max_rays();
+        if count > max {
+            return Err(Error::Invalid(format!(
+                "{count} rays: at most {max} fit in half of the available memory \
+                 ({} bytes a ray); trace them in several runs",
+                oavm::logical::BYTES_PER_RAY
+            )));
+        }
+        let (name, rays) = match set {
+            RaySet::Random { count, seed } => (
+                "random",
+                rays::random_rays(&self.bounds(), count as usize, seed),
+            ),
+            RaySet::Primary { width, height } => ("primary", camera.primary_rays(width, height)),
+        };
+        self.first_ray();
+        let frame = self.scene.trace_frame(
+            &rays,
+            &FrameOptions {
+                light: shadow.then_some(light),
+                wave,
+                order: self.order,
+            },
+        )?;
 
-/// Benchmark mode: traces --random or --primary rays (closest hit), then with --shadow a shadow
-/// ray from every hit (in waves, --wave); reports each set and the total, writes nothing.
-fn bench(
-    scene: &Scene,
-    bounds: &Bounds,
-    camera: &Camera,
-    light: [f32; 3],
-    report: &mut Report,
-) -> Result<(), Error> {
-    let args = report.args;
-    let (name, rays) = match (args.random, args.primary) {
-        (Some(n), _) => ("random", rays::random_rays(bounds, n, args.seed)),
-        (None, Some((w, h))) => ("primary", camera.primary_rays(w, h)),
-        (None, None) => return Err(Error::Invalid("no ray set".into())),
-    };
-    report.first_ray();
-    let mut hits = vec![Hit::MISS; rays.len()];
-    // Per primary ray with a hit: its shadow ray's answer.
-    let mut occ_of = vec![0u8; if args.shadow { rays.len() } else { 0 }];
-    let (mut primary, mut shadow) = ((Counters::default(), 0.0), (Counters::default(), 0.0));
-    let wave = match args.wave {
-        0 => rays.len().max(1),
-        n => n,
-    };
-    if !args.shadow || wave >= rays.len() {
-        let t = Instant::now();
-        primary.0 = scene.intersect_batch_ordered(&rays, &mut hits, args.order())?;
-        primary.1 = t.elapsed().as_secs_f64();
-        if args.shadow {
-            let t = Instant::now();
-            let (sr, owners) = shadow_set(&rays, &hits, (0..rays.len() as u32).collect(), light);
-            let mut occ = vec![0u8; sr.len()];
-            shadow.0 = scene.occluded_batch_ordered(&sr, &mut occ, args.order())?;
-            shadow.1 = t.elapsed().as_secs_f64();
-            for (&i, o) in owners.iter().zip(&occ) {
-                occ_of[i as usize] = *o;
-            }
+        /// One set's figures, with a digest of its answers.
+        #[derive(Serialize)]
+        struct Set {
+            set: &'static str,
+            /// xxh3-64 of the set's answers (closest hits as their HITS records, or the OCCL
+            /// bytes): runs that agree ray for ray have the same digest.
+            answers_xxh3: String,
+            #[serde(flatten)]
+            report: SetReport,
         }
-    } else {
-        // Waves of consecutive rays in the tracing order: each a region of space (and of the
-        // image), whose shadow rays start in the blocks its primary rays just read.
-        let t = Instant::now();
-        let perm: Vec<u32> = match args.order() {
-            Order::Morton => scene.morton_order(&rays),
-            Order::Blocks => scene.block_order(&rays)?,
-            Order::None | Order::Given => (0..rays.len() as u32).collect(),
-        };
-        // A wave is a run of that order already: traced as given (not sorted again), unless
-        // the order is none.
-        let wave_order = match args.order() {
-            Order::None => Order::None,
-            _ => Order::Given,
-        };
-        primary.1 += t.elapsed().as_secs_f64();
-        for idx in perm.chunks(wave) {
-            let t = Instant::now();
-            let wr: Vec<Ray> = idx.iter().map(|&i| rays[i as usize]).collect();
-            let mut wh = vec![Hit::MISS; wr.len()];
-            primary.0 += scene.intersect_batch_ordered(&wr, &mut wh, wave_order)?;
-            for (&i, h) in idx.iter().zip(&wh) {
-                hits[i as usize] = *h;
-            }
-            primary.1 += t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let (sr, owners) = shadow_set(&wr, &wh, idx.to_vec(), light);
-            let mut occ = vec![0u8; sr.len()];
-            shadow.0 += scene.occluded_batch_ordered(&sr, &mut occ, args.order())?;
-            for (&i, o) in owners.iter().zip(&occ) {
-                occ_of[i as usize] = *o;
-            }
-            shadow.1 += t.elapsed().as_secs_f64();
+        let digest = |bytes: &[u8]| format!("{:016x}", xxhash_rust::xxh3::xxh3_64(bytes));
+        let hits = frame.hits.iter().filter(|h| h.is_hit()).count() as u64;
+        let mut sets = vec![Set {
+            set: name,
+            answers_xxh3: digest(bytemuck::cast_slice(&frame.hits)),
+            report: SetReport::new(
+                &frame.primary.counters,
+                frame.primary.seconds,
+                Answered::Hits(hits),
+            ),
+        }];
+        if shadow {
+            let n = frame.occluded.iter().filter(|&&o| o == 1).count() as u64;
+            sets.push(Set {
+                set: "shadow",
+                answers_xxh3: digest(&frame.occluded),
+                report: SetReport::new(
+                    &frame.shadow.counters,
+                    frame.shadow.seconds,
+                    Answered::Occluded(n),
+                ),
+            });
         }
-    }
-    let mut sets = Vec::new();
-    let n = hits.iter().filter(|h| h.is_hit()).count();
-    let digest = answers_digest(bytemuck::cast_slice(&hits));
-    sets.push((name, "hits", n, primary.0, primary.1, digest));
-    let (mut total, mut seconds) = primary;
-    if args.shadow {
-        // In the order of `rays::shadow_rays`: the primary rays' order, those with a hit.
-        let occ: Vec<u8> = hits
-            .iter()
-            .zip(&occ_of)
-            .filter(|(h, _)| h.is_hit())
-            .map(|(_, &o)| o)
-            .collect();
-        let n = occ.iter().filter(|&&o| o == 1).count();
-        sets.push((
-            "shadow",
-            "occluded",
-            n,
-            shadow.0,
-            shadow.1,
-            answers_digest(&occ),
-        ));
-        (total, seconds) = (total + shadow.0, seconds + shadow.1);
-    }
-    if args.json {
-        let mut v = report.common(scene);
-        merge(&mut v, set_json("", 0, &total, seconds));
-        v["sets"] = sets
-            .iter()
-            .map(|&(set, label, n, c, s, digest)| {
-                let mut v = json!({ "set": set, "answers_xxh3": format!("{digest:016x}") });
-                merge(&mut v, set_json(label, n, &c, s));
-                v
-            })
-            .collect();
-        print(&v)?;
-    } else {
+        let total = SetReport::new(
+            &(frame.primary.counters + frame.shadow.counters),
+            frame.primary.seconds + frame.shadow.seconds,
+            Answered::Mixed,
+        );
+        if self.args.json {
+            #[derive(Serialize)]
+            struct Bench {
+                #[serde(flatten)]
+                total: SetReport,
+                sets: Vec<Set>,
+            }
+            return cli::print_json(&self.report(Bench { total, sets }));
+        }
         let mut text = String::new();
-        for &(set, label, n, c, s, _) in &sets {
+        for s in &sets {
+            let (n, label) = match (s.report.hits, s.report.occluded) {
+                (Some(n), _) => (n, "hits"),
+                (_, n) => (n.unwrap_or(0), "occluded"),
+            };
             text += &format!(
-                "{set}: {} rays, {n} {label}, {s:.3} s, {:.2} Mrays/s{}\n",
-                c.rays,
-                c.rays as f64 / s.max(1e-12) / 1e6,
-                report.paging_text(scene, &c)
+                "{}: {} rays, {n} {label}, {:.3} s, {:.2} Mrays/s{}\n",
+                s.set,
+                s.report.rays,
+                s.report.seconds,
+                s.report.mrays_per_s,
+                self.paging_text(&s.report)
             );
         }
         text += &format!(
             "{} threads, order {}, open {:.3} ms, first ray {:.3} ms after start\n",
-            report.threads,
-            args.order(),
-            report.open_ms,
-            report.start_to_first_ray_ms
+            self.threads, self.order, self.open_ms, self.first_ray_ms
         );
-        print_text(&text)?;
-    }
-    Ok(())
-}
-
-/// What every tracing mode reports besides its rays: times, the pager, the process's memory
-/// and disk reads.
-struct Report<'a> {
-    args: &'a Args,
-    /// `main`'s entry (the time before it, exec and loading, is not counted).
-    start: Instant,
-    open_ms: f64,
-    threads: usize,
-    start_to_first_ray_ms: f64,
-    /// The process's `read_bytes` just before the first ray.
-    io_before: Option<u64>,
-}
-
-impl Report<'_> {
-    /// Marks the moment the first ray is ready to be traced.
-    fn first_ray(&mut self) {
-        self.start_to_first_ray_ms = self.start.elapsed().as_secs_f64() * 1e3;
-        self.io_before = proc_field("/proc/self/io", "read_bytes:");
+        cli::print_text(&text)
     }
 
-    fn common(&self, scene: &Scene) -> Value {
-        let io_after = proc_field("/proc/self/io", "read_bytes:");
-        let pager = scene.pager();
-        json!({
-            "file": self.args.file,
-            "file_bytes": scene.file().bytes().len(),
-            "threads": self.threads,
-            "order": self.args.order(),
-            "open_ms": self.open_ms,
-            "start_to_first_ray_ms": self.start_to_first_ray_ms,
-            "mem_budget": self.args.mem_budget,
-            "block_checks": !self.args.no_block_checks,
-            "pager_budget": pager.budget(),
-            "pager_peak_resident_bytes": pager.peak_resident_bytes(),
-            "pager_slots": pager.slot_count(),
-            "blocks": scene.file().directory().len(),
-            "max_block_raw_len": scene.file().header().max_block_raw_len,
-            "peak_rss_bytes": proc_field("/proc/self/status", "VmHWM:").map(|kb| kb * 1024),
-            "disk_read_bytes_before_trace": self.io_before,
-            "disk_read_bytes_trace": io_after.zip(self.io_before).map(|(a, b)| a.saturating_sub(b)),
-        })
+    /// The model's bounds, from the header.
+    fn bounds(&self) -> Bounds {
+        let h = self.scene.file().header();
+        Bounds {
+            min: h.mesh_min,
+            max: h.mesh_max,
+        }
     }
 
-    /// The pager's figures for `c`, as a clause of the text report.
-    fn paging_text(&self, scene: &Scene, c: &Counters) -> String {
-        let p = &c.page;
-        format!(
-            "; pager: {} blocks asked, {} misses ({:.1} % hits), {:.1} MB read ({:.0} B/ray), \
-             peak {:.1} MB resident{}",
-            p.requested,
-            p.misses,
-            100.0 * hit_rate(c),
-            p.bytes_read as f64 / 1e6,
-            p.bytes_read as f64 / c.rays.max(1) as f64,
-            scene.pager().peak_resident_bytes() as f64 / 1e6,
-            match self.args.mem_budget {
-                Some(_) => format!(" of {:.1} MB", scene.pager().budget() as f64 / 1e6),
-                None => String::new(),
+    /// The camera, light and image size of the render and of --primary: from --view, or
+    /// framing the model and adjusted by --eye, --target, --up, --fov; the light from --light,
+    /// else the scene's, else the default.
+    fn shot(&self) -> Result<Shot, Error> {
+        let c = &self.args.camera;
+        let bounds = self.bounds();
+        let (camera, scene_light, size) = if let Some(view_path) = &c.view {
+            let aff = oavm::mesh::load_aff(view_path, None)?;
+            let v = if c.camera_path {
+                aff.camera_path.ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "{}: the scene has no camera path (`k camera` and a `v` block) for \
+                         --camera-path",
+                        view_path.display()
+                    ))
+                })?
+            } else {
+                aff.view.ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "{}: the scene has no viewpoint (`v` block) for --view",
+                        view_path.display()
+                    ))
+                })?
+            };
+            let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
+                .map_err(|e| Error::Invalid(format!("{}: viewpoint: {e}", view_path.display())))?;
+            let light = aff.lights.first().copied().unwrap_or(v.from);
+            (camera, Some(light), v.resolution)
+        } else {
+            let mut camera = Camera::framing(&bounds);
+            if let Some(target) = c.target {
+                camera.target = target;
             }
-        )
+            if let Some(eye) = c.eye {
+                camera.eye = eye;
+            }
+            camera.up = c.up.unwrap_or([0.0, 1.0, 0.0]);
+            camera.fov_y = c.fov.unwrap_or(40.0);
+            if !(camera.fov_y > 0.0 && camera.fov_y < 180.0) || camera.eye == camera.target {
+                return Err(Error::Invalid(
+                    "the camera needs 0 < --fov < 180 and --eye apart from --target".into(),
+                ));
+            }
+            (camera, None, (1024, 768))
+        };
+        let light = c
+            .light
+            .or(scene_light)
+            .map(|l| l.map(|x| x as f32))
+            .unwrap_or_else(|| rays::default_light(&bounds));
+        Ok((camera, light, size))
     }
-}
-
-fn hit_rate(c: &Counters) -> f64 {
-    c.page.hits as f64 / c.page.requested.max(1) as f64
-}
-
-/// The pager's counters of `c`, with the hit rate and bytes read per ray.
-fn page_json(c: &Counters) -> Value {
-    let mut v = json!(c.page);
-    v["hit_rate"] = json!(hit_rate(c));
-    v["bytes_read_per_ray"] = json!(c.page.bytes_read as f64 / c.rays.max(1) as f64);
-    v
-}
-
-/// The figures of one set of rays: `answered` is `label` (hits, occluded; none if empty).
-/// xxh3-64 of a set's answers (closest hits as their HITS records, or the OCCL bytes): runs
-/// that agree ray for ray have the same digest.
-fn answers_digest(bytes: &[u8]) -> u64 {
-    xxhash_rust::xxh3::xxh3_64(bytes)
-}
-
-fn set_json(label: &str, answered: usize, c: &Counters, seconds: f64) -> Value {
-    let per_ray = |x: u64| x as f64 / (c.rays.max(1)) as f64;
-    let mut v = json!({
-        "rays": c.rays,
-        "seconds": seconds,
-        "mrays_per_s": c.rays as f64 / seconds.max(1e-12) / 1e6,
-        "nodes_visited": c.nodes_visited,
-        "leaves_visited": c.leaves_visited,
-        "volumes_crossed": c.volumes_crossed,
-        "leaves_culled": c.leaves_culled,
-        "links_culled": c.links_culled,
-        "triangles_tested": c.triangles_tested,
-        "nodes_visited_per_ray": per_ray(c.nodes_visited),
-        "leaves_visited_per_ray": per_ray(c.leaves_visited),
-        "triangles_tested_per_ray": per_ray(c.triangles_tested),
-        "page": page_json(c),
-    });
-    if !label.is_empty() {
-        v[label] = json!(answered);
-    }
-    v
-}
-
-fn merge(into: &mut Value, from: Value) {
-    if let (Value::Object(a), Value::Object(b)) = (into, from) {
-        a.extend(b);
-    }
-}
-
-/// The number after `key` in a `/proc` file of `key value` lines (`None` if unreadable: not
-/// Linux, or a sandbox without it).
-fn proc_field(path: &str, key: &str) -> Option<u64> {
-    let text = std::fs::read_to_string(path).ok()?;
-    let line = text.lines().find(|l| l.starts_with(key))?;
-    line[key.len()..].split_whitespace().next()?.parse().ok()
-}
-
-fn default_png(file: &Path) -> PathBuf {
-    file.with_extension("png")
-}
-
-fn print(v: &serde_json::Value) -> Result<(), Error> {
-    print_text(&(serde_json::to_string_pretty(v).unwrap_or_default() + "\n"))
-}
-
-fn print_text(s: &str) -> Result<(), Error> {
-    std::io::stdout()
-        .lock()
-        .write_all(s.as_bytes())
-        .map_err(|e| Error::io("stdout", e))
 }

@@ -113,8 +113,8 @@ pub struct OavmAccel {
 impl OavmAccel {
     pub fn build(mesh: &Mesh, opts: &BuildOptions) -> Result<OavmAccel, Error> {
         let t = std::time::Instant::now();
-        let (parts, s) = crate::build::build(mesh, opts, &|_| {})?;
-        let bytes = crate::physical::writer::encode(&parts);
+        let (parts, s) = crate::build::build(mesh, opts, &crate::build::Quiet)?;
+        let bytes = crate::build::encode(&parts)?;
         let build_seconds = t.elapsed().as_secs_f64();
         let scene = Scene::from_bytes(bytes, "memory")?;
         let stats = StructureStats {

@@ -178,7 +178,7 @@ impl ClassicOctree {
             }
         }
         // The root cube and lattice mapping of `build::prepare`, expression for expression.
-        let (root_min, root_size) = crate::build::root_cube(lo, hi);
+        let (root_min, root_size) = crate::physical::format::root_cube(lo, hi);
         let scale = LATTICE_SIZE as f64 / root_size;
         tree.root_min = root_min;
         tree.scale = scale;
@@ -479,7 +479,7 @@ mod tests {
     /// for a few thousand rays against brute force.
     fn check(t: &Triangles, o: &BuildOptions) -> ClassicOctree {
         let oct = ClassicOctree::build(t, o);
-        let (_, s) = crate::build::build(&mesh_of(t), o, &|_| {}).expect("OAVM build");
+        let (_, s) = crate::build::build(&mesh_of(t), o, &crate::build::Quiet).expect("OAVM build");
         assert_eq!(oct.stats().nodes, s.nodes, "nodes");
         assert_eq!(
             oct.stats().pointers,

@@ -3,6 +3,7 @@
 
 pub mod brute;
 pub mod ray;
+pub mod reference;
 pub mod triangle;
 pub mod tribox;
 

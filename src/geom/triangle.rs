@@ -7,8 +7,16 @@
 //! function is exactly zero in f32 it is recomputed in f64 (the paper's fallback), so points on an
 //! edge are classified consistently.
 //!
-//! Deviation from the paper: no backface culling, and the `t` range test divides once after the
-//! sign tests instead of the paper's sign-xor trick; both give the same answers.
+//! Deviations from the paper: no backface culling, and the `t` range test divides once after
+//! the sign tests instead of the paper's sign-xor trick; both give the same answers. Two rules
+//! of `RAYS.md` the paper does not have: a hit whose `t` is not finite (a subnormal direction
+//! makes `1 / d` infinite) is a miss, since `+inf` means a miss; and a ray whose origin lies on
+//! the triangle hits it at `t = tmin` whatever its direction. The paper's `t` of such a ray is
+//! 0 only up to rounding (its terms cancel), so when the point is inside but `t` falls short of
+//! `tmin` by no more than the rounding error of `t` (bounded as pbrt-v4 bounds it: Pharr, Jakob
+//! and Humphreys, *Physically Based Rendering*, 4th ed., "Robust Triangle Intersections"), the
+//! hit counts at `tmin`.
+//! That bound is only computed on that rare path.
 
 use glam::Vec4;
 
@@ -93,12 +101,55 @@ impl RayShear {
         let all_pos = (u >= 0.0) & (v_ >= 0.0) & (w >= 0.0);
         let all_neg = (u <= 0.0) & (v_ <= 0.0) & (w <= 0.0);
         let det = u + v_ + w;
-        let t_scaled = u * (self.sz * a[2]) + v_ * (self.sz * b[2]) + w * (self.sz * c[2]);
+        let (az, bz, cz) = (self.sz * a[2], self.sz * b[2], self.sz * c[2]);
+        let t_scaled = u * az + v_ * bz + w * cz;
         let t = t_scaled / det;
         // det == 0 gives t = NaN or inf; NaN fails the range test, and det != 0 is required.
-        // Non-finite vertices (rejected by the builder) give NaN too.
-        let hit = (all_pos | all_neg) & (det != 0.0) & (t >= tmin) & (t <= tmax);
-        hit.then_some(t)
+        // Non-finite vertices (rejected by the builder) give NaN too; an infinite t is a miss.
+        let hit = (all_pos | all_neg) & (det != 0.0) & (t <= tmax) & (t < f32::INFINITY);
+        if hit && t >= tmin {
+            return Some(t);
+        }
+        let sheared = Sheared {
+            x: [ax, bx, cx],
+            y: [ay, by, cy],
+            z: [az, bz, cz],
+            e: [u, v_, w],
+            det,
+        };
+        (hit && t >= tmin - sheared.t_error()).then_some(tmin)
+    }
+}
+
+/// What the error bound of `t` needs of one triangle, sheared into the ray's frame.
+struct Sheared {
+    x: [f32; 3],
+    y: [f32; 3],
+    /// Scaled by `sz`.
+    z: [f32; 3],
+    /// The edge functions `u, v, w`.
+    e: [f32; 3],
+    det: f32,
+}
+
+/// `gamma(n)` of pbrt-v4: a bound on the relative error of `n` rounded f32 operations.
+fn gamma(n: f32) -> f32 {
+    let eps = f32::EPSILON * 0.5;
+    n * eps / (1.0 - n * eps)
+}
+
+impl Sheared {
+    /// A bound on the rounding error of `t`: pbrt-v4's `deltaT` of its robust triangle test,
+    /// doubled because our `x, y` are sheared from the unscaled `z`.
+    #[cold]
+    fn t_error(&self) -> f32 {
+        let max = |v: [f32; 3]| v[0].abs().max(v[1].abs()).max(v[2].abs());
+        let (mx, my, mz, me) = (max(self.x), max(self.y), max(self.z), max(self.e));
+        let dz = gamma(3.0) * mz;
+        let dx = gamma(5.0) * (mx + mz);
+        let dy = gamma(5.0) * (my + mz);
+        let de = 2.0 * (gamma(2.0) * mx * my + dy * mx + dx * my);
+        2.0 * 3.0 * (gamma(3.0) * me * mz + de * mz + dz * me) / self.det.abs()
     }
 }
 
@@ -170,13 +221,35 @@ impl RayShear {
         let all_pos = u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero);
         let all_neg = u.cmple(zero) & v.cmple(zero) & w.cmple(zero);
         let det = u + v + w;
-        let t_scaled = u * (sz * az) + v * (sz * bz) + w * (sz * cz);
+        let (szaz, szbz, szcz) = (sz * az, sz * bz, sz * cz);
+        let t_scaled = u * szaz + v * szbz + w * szcz;
         let t = t_scaled / det;
         let hit = (all_pos | all_neg)
             & det.cmpne(zero)
-            & t.cmpge(Vec4::splat(tmin))
-            & t.cmple(Vec4::splat(tmax));
-        (hit.bitmask(), t.to_array())
+            & t.cmple(Vec4::splat(tmax))
+            & t.cmplt(Vec4::splat(f32::INFINITY));
+        let near = hit.bitmask() & !t.cmpge(Vec4::splat(tmin)).bitmask();
+        let mut mask = hit.bitmask() & !near;
+        let mut ts = t.to_array();
+        if near != 0 {
+            // Inside, but short of tmin: within the rounding of t, a hit at tmin (the scalar
+            // test's rule, lane by lane with the same values).
+            let lane = |v: Vec4, l: usize| v.to_array()[l];
+            for l in (0..4).filter(|l| near >> l & 1 == 1) {
+                let sheared = Sheared {
+                    x: [lane(ax, l), lane(bx, l), lane(cx, l)],
+                    y: [lane(ay, l), lane(by, l), lane(cy, l)],
+                    z: [lane(szaz, l), lane(szbz, l), lane(szcz, l)],
+                    e: [lane(u, l), lane(v, l), lane(w, l)],
+                    det: lane(det, l),
+                };
+                if ts[l] >= tmin - sheared.t_error() {
+                    mask |= 1 << l;
+                    ts[l] = tmin;
+                }
+            }
+        }
+        (mask, ts)
     }
 }
 

@@ -35,13 +35,16 @@ use std::hint::select_unpredictable;
 
 use serde::Serialize;
 
+use super::pager::{BlockBytes, PageCounters, PageError};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
-use crate::physical::file::{BlockView, block_view};
-use crate::physical::format::{BlockEntry, CELL_MARGIN, LinkBounds, TriRecord, leaf_refs};
-use crate::physical::pager::{BlockBytes, PageCounters, PageError};
+use crate::physical::BlockView;
+use crate::physical::format::{
+    BlockEntry, CELL_MARGIN, KIND_EMPTY, KIND_LINK, KIND_SOLID, LinkBounds, NodeRecord, TriRecord,
+    leaf_refs,
+};
 
 /// Work counters of a batch of rays (summed over its rays).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -131,7 +134,7 @@ impl From<TraceError> for crate::error::FormatError {
 }
 
 /// Where a tree's blocks come from: the pager of an opened file.
-pub trait BlockFetch: Sync {
+pub(crate) trait BlockFetch: Sync {
     /// The raw bytes of block `block`, counting the request in `c`.
     fn fetch(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError>;
 }
@@ -211,7 +214,7 @@ enum Step {
 
 impl<'a> Tree<'a> {
     /// A tree over a validated top tree, the (untrusted) block directory and a pager.
-    pub fn new(
+    pub(crate) fn new(
         top: TreeMap<'a>,
         link_bounds: &'a [LinkBounds],
         directory: &'a [BlockEntry],
@@ -285,7 +288,7 @@ impl<'a> Tree<'a> {
                 None => None,
                 Some((b, bytes)) => {
                     let checked = match self.directory.get(*b as usize) {
-                        Some(e) => block_view(bytes, *b, e),
+                        Some(e) => BlockView::parse(bytes, *b, e),
                         None => Err("link to a block past the directory"),
                     };
                     match checked {
@@ -402,13 +405,13 @@ impl<'a> Tree<'a> {
                 let (level, rec) =
                     self.top
                         .descend(w.level, &mut w.tpath, w.q, &mut k.nodes_visited)?;
-                if rec.kind_bits() == 3 && !self.link_may_hit(r, w, level) {
+                if rec.kind_bits() == KIND_LINK && !self.link_may_hit(r, w, level) {
                     // Its block holds nothing this ray can hit: cross its cell as if empty.
                     k.links_culled += 1;
                     w.cur = None;
                     culled = true;
                     (level, rec)
-                } else if rec.kind_bits() == 3 {
+                } else if rec.kind_bits() == KIND_LINK {
                     let (b, root) = rec.link_bits();
                     w.cur = Some((b, level));
                     w.level = level;
@@ -450,7 +453,7 @@ impl<'a> Tree<'a> {
             };
             let (lo, hi) = match rec.kind_bits() {
                 _ if culled => (cell_lo, cell_lo.map(|x| x + size)),
-                0 => {
+                KIND_EMPTY => {
                     // Empty: its merged volume, rebuilt from the shape in the record (spec
                     // §4.2), jumped past whole.
                     k.volumes_crossed += 1;
@@ -464,7 +467,7 @@ impl<'a> Tree<'a> {
                     }
                     shape.box_around(q)
                 }
-                1 if block.is_some() => {
+                KIND_SOLID if block.is_some() => {
                     let (inline_count, b) = rec.solid_bits();
                     // The leaf's tight bounds (spec §4.2), widened by the cell margin: a ray that
                     // misses them over [tmin, best] cannot hit any of the leaf's triangles inside
@@ -612,7 +615,7 @@ impl<'a> Tree<'a> {
         w: &mut WalkState,
         held: Option<&Held<'_>>,
         k: &mut Counters,
-    ) -> Result<(u32, crate::physical::format::NodeRecord), Corruption> {
+    ) -> Result<(u32, NodeRecord), Corruption> {
         let (Some((b, rl)), Some(h)) = (w.cur, held) else {
             return Err(Corruption {
                 what: "walk inside a block it does not hold",

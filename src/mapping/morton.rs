@@ -24,12 +24,7 @@
 //!   x - 1:  ((code & XMASK) - 1) & XMASK   |  code & !XMASK
 //! ```
 
-/// Bits of lattice coordinates: codes of the deepest level use `3 * LATTICE_BITS = 63` bits.
-pub const LATTICE_BITS: u32 = 21;
-/// Number of lattice cells along each axis of the root.
-pub const LATTICE_SIZE: u32 = 1 << LATTICE_BITS;
-/// Deepest level a tree may have (level 0 is the root).
-pub const MAX_LEVEL: u32 = LATTICE_BITS;
+pub use crate::physical::format::{LATTICE_BITS, LATTICE_SIZE, MAX_LEVEL};
 
 /// The x bits of a code: bit 0, 3, 6, ... (`001` repeated; 21 times for 63 bits).
 const XMASK: u64 = 0x1249_2492_4924_9249;

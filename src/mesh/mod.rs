@@ -11,7 +11,6 @@
 //! vertex `i` (PLY vertex record `i`, OBJ `v` line `i + 1`), used or not.
 
 pub mod aff;
-mod error;
 pub mod kb;
 mod obj;
 mod ply;
@@ -19,8 +18,8 @@ pub mod stream;
 
 use std::path::Path;
 
+pub use crate::error::{MeshError, Place};
 pub use aff::{AffCounts, AffScene, AffView, load_aff, parse_aff, parse_aff_with};
-pub use error::{MeshError, Place};
 pub use obj::parse_obj;
 pub use ply::parse_ply;
 

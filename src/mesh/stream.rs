@@ -27,7 +27,7 @@ use memmap2::Advice;
 use super::ply::{BinaryPly, IndexCheck, Sink, check_vertex};
 use super::{Fan, MeshError, Place};
 use crate::error::Error;
-use crate::physical::mmap::{MappedFile, page_size};
+use crate::os::{MappedFile, page_size};
 
 /// How far a pass reads between two releases of the pages behind it (and two progress calls).
 pub const RELEASE_EVERY: usize = 16 << 20;
@@ -42,6 +42,8 @@ pub type StreamTriangle = (u32, [[f32; 3]; 3]);
 /// A binary PLY file, mapped, its header read and checked. See the module documentation.
 pub struct PlyStream {
     map: MappedFile,
+    /// The file, as given.
+    path: std::path::PathBuf,
     ply: BinaryPly,
     /// The file's name in errors: its path, as [`load`](super::load) gives it.
     name: String,
@@ -64,7 +66,12 @@ impl PlyStream {
              it to binary_little_endian",
         )?;
         map.advise(Advice::Sequential);
-        Ok(PlyStream { map, ply, name })
+        Ok(PlyStream {
+            map,
+            path: path.to_owned(),
+            ply,
+            name,
+        })
     }
 
     /// Records declared by the `vertex` element.
@@ -80,6 +87,16 @@ impl PlyStream {
     /// The file's size in bytes (what `progress` counts toward).
     pub fn file_len(&self) -> u64 {
         self.map.as_ref().len() as u64
+    }
+
+    /// `Err(Error::Changed)` if the file changed since it was mapped (truncated or written in
+    /// place by another program): what the passes read from it cannot be trusted. Call it
+    /// after each pass.
+    pub fn check_unchanged(&self) -> Result<(), Error> {
+        self.map.check_unchanged().map_err(|source| Error::Changed {
+            path: self.path.clone(),
+            source,
+        })
     }
 
     /// Pass 1: the vertex positions, `positions[i]` being vertex record `i` (exactly those of

@@ -218,6 +218,13 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
             header.root_min, header.root_size
         )));
     }
+    if !(MIN_ROOT_SIZE..=MAX_ROOT_SIZE).contains(&header.root_size) {
+        return Err(header_err(format!(
+            "root cube edge {:e} is outside {MIN_ROOT_SIZE:e}..{MAX_ROOT_SIZE:e}, the scales \
+             this version traces correctly: rescale the mesh and repack it",
+            header.root_size
+        )));
+    }
     let mesh_ok = (0..3).all(|k| {
         header.mesh_min[k].is_finite()
             && header.mesh_max[k].is_finite()
@@ -382,97 +389,6 @@ fn read_levels(
     Ok(levels)
 }
 
-/// A block's records, cast in place from its raw bytes (spec §8).
-#[derive(Clone, Copy, Debug)]
-pub struct BlockView<'a> {
-    pub header: BlockHeader,
-    pub levels: &'a [LevelEntry],
-    pub nodes: &'a [NodeRecord],
-    pub ranks: &'a [RankWord],
-    pub volumes: &'a [VolumeRecord],
-    pub refs: &'a [u32],
-    pub triangles: &'a [TriRecord],
-}
-
-/// Reads the raw bytes of block `id` (described by `entry`): checks its header against the
-/// entry, its layout against its length and its level table against its counts, all in
-/// `O(levels)`, and casts its records in place. Errors say what is wrong.
-pub fn block_view<'a>(
-    raw: &'a [u8],
-    id: u32,
-    entry: &BlockEntry,
-) -> Result<BlockView<'a>, &'static str> {
-    let hsize = std::mem::size_of::<BlockHeader>();
-    if raw.len() as u64 != entry.raw_len || raw.len() < hsize {
-        return Err("block length differs from its directory entry");
-    }
-    let header: BlockHeader = bytemuck::pod_read_unaligned(&raw[..hsize]);
-    if header.tag != BLOCK_TAG {
-        return Err("block does not start with its tag");
-    }
-    if header.block_id != id as u64 {
-        return Err("block holds another block's id");
-    }
-    if header.root_level != entry.root_level
-        || header.root_count != entry.root_count
-        || header.triangle_count != entry.triangles as u64
-    {
-        return Err("block header differs from its directory entry");
-    }
-    if header.level_count == 0
-        || header.root_count == 0
-        || header.root_level as u64 + header.level_count as u64 > MAX_LEVEL as u64 + 1
-    {
-        return Err("block level count or root level out of range");
-    }
-    let Some((ranges, len)) = block_layout(&header) else {
-        return Err("block counts overflow");
-    };
-    if len != raw.len() as u64 {
-        return Err("block counts do not match its length");
-    }
-    let cast = |i: usize| &raw[ranges[i].start as usize..ranges[i].end as usize];
-    let (Ok(levels), Ok(nodes), Ok(ranks), Ok(volumes), Ok(refs), Ok(triangles)) = (
-        bytemuck::try_cast_slice::<u8, LevelEntry>(cast(0)),
-        bytemuck::try_cast_slice::<u8, NodeRecord>(cast(1)),
-        bytemuck::try_cast_slice::<u8, RankWord>(cast(2)),
-        bytemuck::try_cast_slice::<u8, VolumeRecord>(cast(3)),
-        bytemuck::try_cast_slice::<u8, u32>(cast(4)),
-        bytemuck::try_cast_slice::<u8, TriRecord>(cast(5)),
-    ) else {
-        return Err("block bytes are not aligned");
-    };
-    let (mut node_start, mut rank_start) = (0u64, 0u64);
-    let mut expected = header.root_count as u64;
-    for e in levels {
-        if e.node_count != expected
-            || e.internal_count > e.node_count
-            || e.node_start != node_start
-            || e.rank_start != rank_start
-        {
-            return Err("block level table is inconsistent");
-        }
-        node_start = node_start.saturating_add(e.node_count);
-        rank_start = rank_start.saturating_add(e.node_count.div_ceil(64));
-        expected = e.internal_count.saturating_mul(8);
-        if node_start > header.node_count {
-            return Err("block level table is inconsistent");
-        }
-    }
-    if expected != 0 || node_start != header.node_count || rank_start != header.rank_count {
-        return Err("block level table is inconsistent");
-    }
-    Ok(BlockView {
-        header,
-        levels,
-        nodes,
-        ranks,
-        volumes,
-        refs,
-        triangles,
-    })
-}
-
 /// A byte buffer aligned for casting records in place (backed by `u64`s), for files held in
 /// memory: tests, and files produced by the builder before they are written.
 #[derive(Clone, Default)]
@@ -482,6 +398,14 @@ pub struct AlignedBytes {
 }
 
 impl AlignedBytes {
+    /// `len` zero bytes.
+    pub fn zeroed(len: usize) -> AlignedBytes {
+        AlignedBytes {
+            words: vec![0u64; len.div_ceil(8)],
+            len,
+        }
+    }
+
     pub fn from_slice(bytes: &[u8]) -> AlignedBytes {
         let mut words = vec![0u64; bytes.len().div_ceil(8)];
         bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);

@@ -15,6 +15,14 @@ pub const VERSION: u32 = 3;
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
 
+/// Spec §2 (`lattice_bits`), §4: bits per axis of the integer lattice over the root cube that
+/// node codes, volumes and traversal use. Codes of the deepest level use `3 * 21 = 63` bits.
+pub const LATTICE_BITS: u32 = 21;
+/// Number of lattice cells along each axis of the root cube.
+pub const LATTICE_SIZE: u32 = 1 << LATTICE_BITS;
+/// Deepest level a tree may have (level 0 is the root): one level per lattice bit.
+pub const MAX_LEVEL: u32 = LATTICE_BITS;
+
 /// Spec §6: every cell is enlarged by this many lattice units (of the `2^21` lattice; `2^-20` of
 /// the root's edge) on each side when triangles are assigned to it, and solid leaves' tight
 /// bounds are widened by as much. A triangle lying on, or within floating-point error of, a face
@@ -32,7 +40,7 @@ pub const KNOWN_FLAGS: u32 = FLAG_MERGED | FLAG_COMPRESSED;
 
 /// Spec §2: the file header, at offset 0 (256 bytes).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, serde::Serialize)]
 pub struct Header {
     pub magic: [u8; 8],
     pub version: u32,
@@ -142,7 +150,7 @@ impl SectionKind {
 
 /// Spec §3: one entry of the section table (48 bytes).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, serde::Serialize)]
 pub struct SectionEntry {
     /// A [`SectionKind`].
     pub kind: u32,
@@ -203,7 +211,7 @@ impl LinkBounds {
 
 /// Spec §4.1: where each level's records start (32 bytes per level).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, serde::Serialize)]
 pub struct LevelEntry {
     pub node_count: u64,
     /// Internal nodes of this level; the next level has exactly 8 times as many nodes.
@@ -300,9 +308,7 @@ impl VolumeShape {
             axes: (bits & 7) as u8,
             level: ((bits >> 3) & 31) as u8,
         };
-        let ok = bits >> 8 == 0
-            && s.level as u32 <= crate::mapping::morton::MAX_LEVEL
-            && (s.level > 0 || s.axes == 0);
+        let ok = bits >> 8 == 0 && s.level as u32 <= MAX_LEVEL && (s.level > 0 || s.axes == 0);
         ok.then_some(s)
     }
 
@@ -311,7 +317,7 @@ impl VolumeShape {
     /// which ends a walk.
     #[inline(always)]
     pub fn box_around(self, q: [u32; 3]) -> ([u32; 3], [u32; 3]) {
-        let size = 1u32 << (crate::mapping::morton::MAX_LEVEL - (self.level as u32).min(21));
+        let size = 1u32 << (MAX_LEVEL - (self.level as u32).min(MAX_LEVEL));
         let mut lo = [0; 3];
         let mut hi = [0; 3];
         for k in 0..3 {
@@ -354,10 +360,14 @@ pub const MAX_INLINE_REFS: u32 = 63;
 const KIND_SHIFT: u32 = 30;
 const COUNT_SHIFT: u32 = 24;
 const BOUNDS_MASK: u32 = (1 << COUNT_SHIFT) - 1;
-const KIND_EMPTY: u32 = 0;
-const KIND_SOLID: u32 = 1;
-const KIND_INTERNAL: u32 = 2;
-const KIND_LINK: u32 = 3;
+/// Spec §4.2: the kind bits ([`NodeRecord::kind_bits`]) of an empty leaf.
+pub const KIND_EMPTY: u32 = 0;
+/// The kind bits of a solid leaf.
+pub const KIND_SOLID: u32 = 1;
+/// The kind bits of an internal node.
+pub const KIND_INTERNAL: u32 = 2;
+/// The kind bits of a link (top tree only, spec §8.1).
+pub const KIND_LINK: u32 = 3;
 /// Largest root index a link can hold (bits 0..29 of `meta`).
 pub const MAX_LINK_ROOT: u32 = (1 << KIND_SHIFT) - 1;
 
@@ -396,13 +406,19 @@ impl NodeRecord {
         }
     }
 
+    /// Whether the record is an internal node (its kind bits; what the rank directory marks).
+    #[inline(always)]
+    pub fn is_internal(self) -> bool {
+        self.kind_bits() == KIND_INTERNAL
+    }
+
     /// A link's block and root, unvalidated (see [`Self::kind_bits`]).
     #[inline(always)]
     pub fn link_bits(self) -> (u32, u32) {
         (self.payload, self.meta & MAX_LINK_ROOT)
     }
 
-    /// The kind bits (`0` empty leaf, `1` solid leaf, `2` internal, `3` invalid), for the tracer's
+    /// The kind bits ([`KIND_EMPTY`], [`KIND_SOLID`], [`KIND_INTERNAL`], [`KIND_LINK`]), for the tracer's
     /// fast path, which then reads the fields below without the validation of [`Self::kind`]:
     /// any bits give a box or a range it bounds-checks, and `verify` reports them.
     #[inline(always)]
@@ -508,7 +524,7 @@ pub const RAW_BLOCK_ALIGN: u64 = 4096;
 
 /// Spec §8: one entry of the block directory (48 bytes).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable, serde::Serialize)]
 pub struct BlockEntry {
     /// Offset of the block's stored bytes in the file.
     pub offset: u64,
@@ -529,8 +545,13 @@ pub struct BlockEntry {
 const _: () = assert!(std::mem::size_of::<BlockEntry>() == 48);
 
 /// Spec §2: the largest `max_block_raw_len` a reader accepts (1 GiB): what one decoded block
-/// may make a reader allocate, whatever the file says.
+/// may make a reader allocate, whatever the file says. A writer refuses to write a larger block.
 pub const MAX_BLOCK_RAW_LEN: u64 = 1 << 30;
+
+/// Spec §8.2: a zstd block decodes to at most this many times its stored size. A writer stores
+/// a block that would compress better than this raw; a reader refuses a zstd block whose entry
+/// claims more, so a small frame cannot make it decode (and hold) a great deal.
+pub const MAX_ZSTD_RATIO: u64 = 64;
 
 /// Spec §8: the tag that starts every block's raw bytes ("OBLK", little-endian).
 pub const BLOCK_TAG: u32 = u32::from_le_bytes(*b"OBLK");
@@ -579,6 +600,36 @@ pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; 6], u64)>
     }
     Some((out, at))
 }
+
+/// Spec §2: the root cube for mesh bounds `lo..hi`: centred on the mesh, edge = the largest
+/// extent plus 1/1024, so the mesh sits strictly inside; a mesh with no extent (one point) gets
+/// an edge of `1e-6` of its largest coordinate magnitude, or 1. Returns the lowest corner and
+/// the edge. The builder fits it; `verify` recomputes it to check a file's header.
+pub fn root_cube(lo: [f32; 3], hi: [f32; 3]) -> ([f64; 3], f64) {
+    let centre: [f64; 3] = std::array::from_fn(|k| (lo[k] as f64 + hi[k] as f64) * 0.5);
+    let extent = (0..3)
+        .map(|k| hi[k] as f64 - lo[k] as f64)
+        .fold(0.0, f64::max);
+    let mut root_size = extent * (1.0 + 1.0 / 1024.0);
+    if !(root_size > 0.0 && root_size.is_normal()) {
+        let mag = centre.iter().map(|c| c.abs()).fold(0.0, f64::max);
+        root_size = if mag > 0.0 { mag * 1e-6 } else { 1.0 };
+    }
+    (
+        std::array::from_fn(|k| centre[k] - root_size * 0.5),
+        root_size,
+    )
+}
+
+/// Spec §2: the smallest root cube edge a file may have. The triangle test works in f32, and
+/// the `t` of a hit is a product of three coordinate differences over a product of two: at the
+/// bunny scaled so that its root cube's edge is 1.5e-13, that product underflows and 97 % of
+/// the hits the f64 reference finds get a wrong `t` (at 1.5e-11, none). A writer refuses a
+/// smaller mesh; a reader refuses a file that records one.
+pub const MIN_ROOT_SIZE: f64 = 1e-10;
+/// Spec §2: the largest root cube edge: at 1.5e15 the same product overflows and every hit is
+/// lost (at 1.5e13, none); this leaves rays from a hundred times the mesh's size away room.
+pub const MAX_ROOT_SIZE: f64 = 1e11;
 
 /// Rounds `x` up to the next multiple of [`SECTION_ALIGN`].
 pub fn align_up(x: u64) -> u64 {

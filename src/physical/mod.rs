@@ -1,14 +1,23 @@
-//! The physical layer: the bytes of an `.oavm` file (format-spec.md), mapping the file,
-//! validating it at open, verifying it in full, and writing it.
+//! The physical layer (OAVM paper §2.1): the bytes of an `.oavm` file, as `format-spec.md`
+//! specifies them. It owns the records and constants of the format ([`format`]), opening a
+//! file with `O(1)` checks and casting its sections in place ([`OavmFile`]), reading a block
+//! the one way the pager and `verify` both use ([`BlockReader`], [`BlockView`]), the link
+//! bounds beside the top tree's links ([`bounds`]), the byte-level part of verification
+//! ([`verify`]) and writing a file ([`writer`]).
+//!
+//! It imports nothing above it: no Morton codes, no tree walks (those are the mapping and
+//! logical layers', which read the records this layer casts).
 
-pub mod blocks;
+mod block;
 pub mod bounds;
-pub mod file;
+mod file;
 pub mod format;
-pub mod mmap;
-pub mod pager;
+mod inspect;
 pub mod verify;
 pub mod writer;
 
+pub use block::{BlockError, BlockReader, BlockView, ReadBlock};
 pub use file::{AlignedBytes, OavmFile};
-pub use mmap::MappedFile;
+pub use inspect::{
+    DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel, inspect,
+};

@@ -1,66 +1,62 @@
-//! Full verification of an opened file (`oavm-trace FILE --verify`): every byte is covered by a
-//! checksum or a check. Opening already validated the header, the section table (both under the
-//! header checksum) and the top tree's level table; this adds every section's and every block's
-//! checksum, zero padding, every block's decoding and layout, and the invariants of format-spec
-//! §10 on the contents of the top tree and of every block, and the links between them.
+//! The byte-level part of full verification (spec §11, "Verify"): every section's checksum,
+//! zero padding between sections, between blocks and between a block's parts, blocks in order
+//! inside the blocks section. With the header checksum (checked at open) and each block's own
+//! checksum (checked when the block is read, [`super::block::BlockReader::read`]) they cover
+//! every byte of the file. The structural invariants are checked above this layer
+//! (`crate::logical::verify`), which drives the whole verification.
 
-use serde::Serialize;
-
-use rayon::prelude::*;
-
-use super::file::{AlignedBytes, OavmFile, block_view};
+use super::file::OavmFile;
 use super::format::*;
-use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
-use crate::mapping::TreeMap;
-use crate::mapping::morton::{LATTICE_SIZE, MAX_LEVEL, cell_origin, cell_size};
 
-/// What verification found. `defects` is empty for a sound file.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct VerifyReport {
-    pub bytes_checked: u64,
-    pub sections_checked: u32,
-    pub defects: Vec<String>,
-}
-
-impl VerifyReport {
-    pub fn is_ok(&self) -> bool {
-        self.defects.is_empty()
-    }
-}
-
-/// At most this many defects are listed; the rest are counted.
-const MAX_LISTED: usize = 50;
-
-struct Defects {
+/// Defects found, in order; at most [`Defects::MAX_LISTED`] are listed, the rest counted.
+#[derive(Debug, Default)]
+pub struct Defects {
     list: Vec<String>,
     more: usize,
 }
 
 impl Defects {
-    fn push(&mut self, d: String) {
-        if self.list.len() < MAX_LISTED {
+    /// Defects listed before the rest are only counted.
+    pub const MAX_LISTED: usize = 50;
+
+    pub fn push(&mut self, d: String) {
+        if self.list.len() < Self::MAX_LISTED {
             self.list.push(d);
         } else {
             self.more += 1;
         }
     }
+
+    /// Appends `other`'s defects (listed ones first, as far as room is left).
+    pub fn append(&mut self, other: Defects) {
+        for d in other.list {
+            self.push(d);
+        }
+        self.more += other.more;
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.list.is_empty()
+    }
+
+    /// The list, ending with a count of those not listed.
+    pub fn into_list(self) -> Vec<String> {
+        let mut list = self.list;
+        if self.more > 0 {
+            list.push(format!("... and {} more defects", self.more));
+        }
+        list
+    }
 }
 
-/// Verifies everything open did not.
-pub fn verify<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>) -> VerifyReport {
-    let mut d = Defects {
-        list: Vec::new(),
-        more: 0,
-    };
+/// Checks every section's checksum (but the blocks', which carry their own), the zero
+/// padding before each section, and the buffer's alignment. Returns the sections checked.
+pub fn check_sections<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects) -> u32 {
     let bytes = file.bytes();
-    let header = *file.header();
-
-    // Checksums and padding: with the header checksum and the blocks' own checksums they cover
-    // every byte.
     let mut covered = (std::mem::size_of::<Header>()
         + SectionKind::ALL.len() * std::mem::size_of::<SectionEntry>())
         as u64;
-    let mut sections_checked = 0;
+    let mut checked = 0;
     for kind in SectionKind::ALL {
         let s = file.section(kind);
         if let Some(pad) = bytes.get(covered as usize..s.offset as usize)
@@ -82,128 +78,23 @@ pub fn verify<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>) -> VerifyReport {
                 ));
             }
         }
-        sections_checked += 1;
+        checked += 1;
         covered = s.offset + s.length;
     }
     if !file.is_aligned() {
         d.push("the buffer holding the file is not 8-byte aligned; records cannot be read".into());
     }
-
-    check_structure(file, &header, &mut d);
-
-    let mut defects = d.list;
-    if d.more > 0 {
-        defects.push(format!("... and {} more defects", d.more));
-    }
-    VerifyReport {
-        bytes_checked: bytes.len() as u64,
-        sections_checked,
-        defects,
-    }
+    checked
 }
 
-/// A unit to check: the top tree, or one block's subtrees.
-struct Unit<'a> {
-    /// "top tree" or "block N", to start its defects with.
-    label: String,
-    map: TreeMap<'a>,
-    /// Morton codes of its level-0 nodes.
-    root_codes: Vec<u64>,
-    volumes: &'a [VolumeRecord],
-    refs: &'a [u32],
-    tris: &'a [TriRecord],
-    top: bool,
-}
-
-/// What a unit contributes to the file's totals.
-#[derive(Default)]
-struct UnitTotals {
-    empty: u64,
-    solid: u64,
-    /// Links (top tree only): block, root, level, code, index in the node records.
-    links: Vec<(u32, u32, u32, u64, u64)>,
-    lo: [f32; 3],
-    hi: [f32; 3],
-    triangles: u64,
-}
-
-fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d: &mut Defects) {
-    // The root cube follows from the mesh bounds (spec §2).
-    let (root_min, root_size) = crate::build::root_cube(header.mesh_min, header.mesh_max);
-    if root_min != header.root_min || root_size != header.root_size {
-        d.push(format!(
-            "header: root cube (min {:?}, size {}) is not the one the mesh bounds give (min {root_min:?}, size {root_size})",
-            header.root_min, header.root_size
-        ));
-    }
-
-    // The top tree.
-    let top = Unit {
-        label: "top tree".into(),
-        map: TreeMap::new(
-            file.levels(),
-            file.records(SectionKind::Nodes),
-            file.records(SectionKind::Ranks),
-        ),
-        root_codes: vec![0],
-        volumes: file.records(SectionKind::Volumes),
-        refs: &[],
-        tris: &[],
-        top: true,
-    };
-    let top_totals = check_unit(&top, header, d);
-
-    // Links: every block root linked exactly once, from its level.
-    let directory = file.directory();
-    // (The map holds one entry per link: its size follows the top tree's, never the
-    // directory's claims.)
-    let mut roots: std::collections::HashMap<(u32, u32), (u64, LinkBounds)> =
-        std::collections::HashMap::new();
-    // Link bounds: well-formed on links, zero elsewhere (open checked there is one per node);
-    // each link's are compared with its block's leaves when the block is checked.
-    let link_bounds: &[LinkBounds] = file.records(SectionKind::LinkBounds);
-    let top_nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
-    for (i, (rec, lb)) in top_nodes.iter().zip(link_bounds).enumerate() {
-        let is_link = matches!(rec.kind(), Some(NodeKind::Link { .. }));
-        if is_link && !lb.is_valid() {
-            d.push(format!(
-                "top tree node {i}: link bounds {lb:?} have lo > hi or reserved bytes set"
-            ));
-        } else if !is_link && *lb != LinkBounds::default() {
-            d.push(format!(
-                "top tree node {i}: link bounds {lb:?} on a node that is not a link"
-            ));
-        }
-    }
-    for &(b, root, level, code, at) in &top_totals.links {
-        let bounds = link_bounds.get(at as usize).copied().unwrap_or_default();
-        let Some(entry) = directory.get(b as usize) else {
-            d.push(format!(
-                "top tree: a link at level {level} to block {b}, past the {} blocks",
-                directory.len()
-            ));
-            continue;
-        };
-        if entry.root_level != level {
-            d.push(format!(
-                "top tree: a link at level {level} to block {b}, whose roots are at level {}",
-                entry.root_level
-            ));
-        }
-        if root >= entry.root_count {
-            d.push(format!(
-                "top tree: a link to root {root} of block {b}, which has {}",
-                entry.root_count
-            ));
-        } else if roots.insert((b, root), (code, bounds)).is_some() {
-            d.push(format!("block {b}: root {root} is linked twice"));
-        }
-    }
-
-    // The blocks: stored one after another inside the blocks section, each checksummed, decoded
-    // and checked like the top tree (in parallel; each decoded block is dropped when checked).
+/// Checks that the blocks lie one after another inside the blocks section, each aligned for
+/// its codec, with zero padding between them, and that `max_block_raw_len` is the largest
+/// block's. Returns, per block, whether it is well placed (a misplaced block is not read).
+pub fn check_block_placement<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects) -> Vec<bool> {
     let bytes = file.bytes();
     let section = *file.section(SectionKind::Blocks);
+    let directory = file.directory();
+    let mut placed = Vec::with_capacity(directory.len());
     let mut prev_end = section.offset;
     let mut max_raw = 0u64;
     for (b, e) in directory.iter().enumerate() {
@@ -221,6 +112,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
                 "block {b}: {} bytes at offset {} are misplaced (after {prev_end}, {align}-aligned, inside the blocks section)",
                 e.stored_len, e.offset
             ));
+            placed.push(false);
             continue;
         }
         if let Some(pad) = bytes.get(prev_end as usize..e.offset as usize)
@@ -230,6 +122,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
         }
         prev_end = end.unwrap_or(prev_end);
         max_raw = max_raw.max(e.raw_len);
+        placed.push(true);
     }
     if prev_end != section.offset + section.length && directory.is_empty() == (section.length == 0)
     {
@@ -238,542 +131,33 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, header: &Header, d
             section.offset + section.length
         ));
     }
+    let header = file.header();
     if max_raw != header.max_block_raw_len {
         d.push(format!(
             "header: max_block_raw_len {} but the largest block is {max_raw} bytes",
             header.max_block_raw_len
         ));
     }
-    // Distinct triangles, by primitive id: a bitset of `input_triangles` bits, at most as many
-    // bytes as the file has (a header claiming more is reported, and the count skipped), so
-    // that no header makes verify allocate more than the file's size.
-    let plausible = header.input_triangles <= 8 * bytes.len() as u64;
-    if !plausible {
-        d.push(format!(
-            "header: input_triangles {} is implausible for a file of {} bytes",
-            header.input_triangles,
-            bytes.len()
-        ));
-    }
-    let prims_seen: Vec<std::sync::atomic::AtomicU64> = (0..if plausible {
-        header.input_triangles.div_ceil(64)
-    } else {
-        0
-    })
-        .map(|_| std::sync::atomic::AtomicU64::new(0))
-        .collect();
-    let results: Vec<(Vec<String>, usize, UnitTotals)> = (0..directory.len())
-        .into_par_iter()
-        .map(|b| {
-            let mut bd = Defects {
-                list: Vec::new(),
-                more: 0,
-            };
-            let totals = check_block(file, header, b as u32, &roots, &prims_seen, &mut bd);
-            (bd.list, bd.more, totals)
-        })
-        .collect();
-
-    let mut totals = top_totals;
-    let mut first_bounds = true;
-    for (list, more, t) in results {
-        for x in list {
-            d.push(x);
-        }
-        d.more += more;
-        totals.empty += t.empty;
-        totals.solid += t.solid;
-        totals.triangles += t.triangles;
-        if t.triangles > 0 {
-            for k in 0..3 {
-                if first_bounds {
-                    totals.lo[k] = t.lo[k];
-                    totals.hi[k] = t.hi[k];
-                } else {
-                    totals.lo[k] = totals.lo[k].min(t.lo[k]);
-                    totals.hi[k] = totals.hi[k].max(t.hi[k]);
-                }
-            }
-            first_bounds = false;
-        }
-    }
-    if totals.empty != header.empty_leaves || totals.solid != header.solid_leaves {
-        d.push(format!(
-            "{} empty and {} solid leaves, the header says {} and {}",
-            totals.empty, totals.solid, header.empty_leaves, header.solid_leaves
-        ));
-    }
-    if totals.triangles != header.block_triangles {
-        d.push(format!(
-            "blocks hold {} triangle records, the header says {}",
-            totals.triangles, header.block_triangles
-        ));
-    }
-    let distinct: u64 = prims_seen
-        .iter()
-        .map(|w| w.load(std::sync::atomic::Ordering::Relaxed).count_ones() as u64)
-        .sum();
-    if plausible && distinct != header.stored_triangles {
-        d.push(format!(
-            "blocks hold {distinct} distinct triangles, the header says {}",
-            header.stored_triangles
-        ));
-    }
-    if !first_bounds && (totals.lo != header.mesh_min || totals.hi != header.mesh_max) {
-        d.push(format!(
-            "header: mesh bounds {:?}..{:?} are not the triangles' bounds {:?}..{:?}",
-            header.mesh_min, header.mesh_max, totals.lo, totals.hi
-        ));
-    }
+    placed
 }
 
-/// Checks block `b`: its checksum, its decoding, its header and level table, then its
-/// contents as a unit whose roots have the codes its links give.
-fn check_block<D: AsRef<[u8]> + Sync>(
-    file: &OavmFile<D>,
-    header: &Header,
-    b: u32,
-    roots: &std::collections::HashMap<(u32, u32), (u64, LinkBounds)>,
-    prims_seen: &[std::sync::atomic::AtomicU64],
-    d: &mut Defects,
-) -> UnitTotals {
-    let e = file.directory()[b as usize];
-    let Some(stored) = file
-        .bytes()
-        .get(e.offset as usize..(e.offset.saturating_add(e.stored_len)) as usize)
-    else {
-        return UnitTotals::default(); // reported as misplaced
+/// Checks the zero padding between the parts of block `b`'s raw bytes (spec §8.3), whose
+/// layout `header` gives (already checked against its length).
+pub fn check_block_padding(raw: &[u8], header: &BlockHeader, b: u32, d: &mut Defects) {
+    let Some((ranges, _)) = block_layout(header) else {
+        return;
     };
-    let computed = checksum(stored);
-    if computed != e.checksum {
-        d.push(format!(
-            "block {b}: checksum mismatch (stored {:#018x}, computed {computed:#018x})",
-            e.checksum
-        ));
-        return UnitTotals::default();
-    }
-    if e.raw_len > header.max_block_raw_len {
-        d.push(format!(
-            "block {b}: raw length {} above the header's maximum {}",
-            e.raw_len, header.max_block_raw_len
-        ));
-        return UnitTotals::default();
-    }
-    let decoded: AlignedBytes;
-    let raw: &[u8] = match e.codec {
-        CODEC_RAW if e.raw_len == e.stored_len => stored,
-        CODEC_ZSTD => {
-            let mut out = vec![0u8; e.raw_len as usize];
-            match zstd::bulk::Decompressor::new()
-                .and_then(|mut z| z.decompress_to_buffer(stored, &mut out[..]))
-            {
-                Ok(n) if n as u64 == e.raw_len => {}
-                Ok(n) => {
-                    d.push(format!(
-                        "block {b}: decodes to {n} bytes, its entry says {}",
-                        e.raw_len
-                    ));
-                    return UnitTotals::default();
-                }
-                Err(err) => {
-                    d.push(format!("block {b}: does not decode: {err}"));
-                    return UnitTotals::default();
-                }
-            }
-            decoded = AlignedBytes::from_slice(&out);
-            decoded.as_ref()
-        }
-        c => {
+    let mut at = std::mem::size_of::<BlockHeader>() as u64;
+    for r in ranges {
+        if raw
+            .get(at as usize..r.start as usize)
+            .is_some_and(|pad| pad.iter().any(|&x| x != 0))
+        {
             d.push(format!(
-                "block {b}: unknown codec {c} or a raw block whose lengths differ"
-            ));
-            return UnitTotals::default();
-        }
-    };
-    let view = match block_view(raw, b, &e) {
-        Ok(v) => v,
-        Err(what) => {
-            d.push(format!("block {b}: {what}"));
-            return UnitTotals::default();
-        }
-    };
-    // Zero padding between the block's parts (the layout was checked by block_view).
-    if let Some((ranges, _)) = block_layout(&view.header) {
-        let mut at = std::mem::size_of::<BlockHeader>() as u64;
-        for r in ranges {
-            if raw
-                .get(at as usize..r.start as usize)
-                .is_some_and(|pad| pad.iter().any(|&x| x != 0))
-            {
-                d.push(format!(
-                    "block {b}: padding at bytes {at}..{} is not zero",
-                    r.start
-                ));
-            }
-            at = r.end;
-        }
-    }
-    let Some(linked) = (0..view.header.root_count)
-        .map(|j| roots.get(&(b, j)).copied())
-        .collect::<Option<Vec<(u64, LinkBounds)>>>()
-    else {
-        d.push(format!("block {b}: a root has no link in the top tree"));
-        return UnitTotals::default();
-    };
-    // Each link's bounds are exactly what the root's solid leaves give (spec §8.1); records
-    // that give none are reported by the unit check below.
-    if let Ok(computed) = super::bounds::root_bounds(view.levels, view.nodes) {
-        for (j, (c, (_, stored))) in computed.iter().zip(&linked).enumerate() {
-            if c != stored {
-                d.push(format!(
-                    "block {b}: the link to root {j} has bounds {:?}..{:?}, its leaves give {:?}..{:?}",
-                    stored.lo, stored.hi, c.lo, c.hi
-                ));
-            }
-        }
-    }
-    let root_codes = linked.iter().map(|&(code, _)| code).collect();
-    let unit = Unit {
-        label: format!("block {b}"),
-        map: TreeMap::with_base(view.levels, view.nodes, view.ranks, view.header.root_level),
-        root_codes,
-        volumes: view.volumes,
-        refs: view.refs,
-        tris: view.triangles,
-        top: false,
-    };
-    let mut totals = check_unit(&unit, header, d);
-    totals.triangles = view.triangles.len() as u64;
-    for t in view.triangles {
-        if let Some(w) = prims_seen.get(t.prim as usize / 64) {
-            w.fetch_or(1 << (t.prim % 64), std::sync::atomic::Ordering::Relaxed);
-        }
-    }
-    totals
-}
-
-/// Checks one unit: node kinds, rank words, leaf order of references, volumes, triangles.
-fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
-    let mut totals = UnitTotals {
-        lo: [f32::INFINITY; 3],
-        hi: [f32::NEG_INFINITY; 3],
-        ..UnitTotals::default()
-    };
-    let label = &u.label;
-    let base = u.map.base();
-    let levels = u.map.levels();
-    let (volumes, refs, tris) = (u.volumes, u.refs, u.tris);
-    let merged = header.flags & FLAG_MERGED != 0;
-
-    // Node kinds, rank directory, and the leaves (for the order checks below).
-    let mut leaves: Vec<(u64, u32, u64, NodeKind)> = Vec::new();
-    for (ll, lv) in levels.iter().enumerate() {
-        let l = base + ll as u32;
-        let mut internal = 0u64;
-        let mut rank = 0u64;
-        for w in 0..lv.node_count.div_ceil(64) {
-            let Some(word) = u.map.rank_word(l, w) else {
-                d.push(format!("{label} level {l}: rank word {w} missing"));
-                break;
-            };
-            let mut bits = 0u64;
-            for i in 64 * w..(64 * w + 64).min(lv.node_count) {
-                let Ok(rec) = u.map.node(l, i) else {
-                    break;
-                };
-                match rec.kind() {
-                    None => d.push(format!(
-                        "{label} level {l} node {i}: invalid record {rec:?}"
-                    )),
-                    Some(NodeKind::Internal) => {
-                        bits |= 1 << (i % 64);
-                        internal += 1;
-                    }
-                    Some(NodeKind::Solid { .. }) if u.top => d.push(format!(
-                        "{label} level {l} node {i}: a solid leaf in the top tree"
-                    )),
-                    Some(NodeKind::Link { .. }) if !u.top => {
-                        d.push(format!("{label} level {l} node {i}: a link inside a block"))
-                    }
-                    Some(k) => {
-                        match k {
-                            NodeKind::Empty { .. } => totals.empty += 1,
-                            NodeKind::Solid { .. } => totals.solid += 1,
-                            _ => {}
-                        }
-                        leaves.push((0, l, i, k));
-                    }
-                }
-            }
-            if word.internal != bits || word.rank != rank {
-                d.push(format!(
-                    "{label} level {l} rank word {w}: stores bits {:#x} rank {}, the nodes give {bits:#x} and {rank}",
-                    word.internal, word.rank
-                ));
-            }
-            rank += bits.count_ones() as u64;
-        }
-        if internal != lv.internal_count {
-            d.push(format!(
-                "{label} level {l}: {internal} internal nodes, the level table says {}",
-                lv.internal_count
+                "block {b}: padding at bytes {at}..{} is not zero",
+                r.start
             ));
         }
+        at = r.end;
     }
-
-    // Leaf codes, for depth-first order: found from the roots by rank, never trusted from data.
-    let codes = level_codes(u, d);
-    for leaf in leaves.iter_mut() {
-        let (l, i) = (leaf.1, leaf.2);
-        let code = codes
-            .get((l - base) as usize)
-            .and_then(|c| c.get(i as usize))
-            .copied()
-            .unwrap_or(0);
-        leaf.0 = crate::mapping::morton::encode(cell_origin(code, l));
-        if let NodeKind::Link { block, root } = leaf.3 {
-            totals
-                .links
-                .push((block, root, l, code, u.map.node_start(l) + i));
-        }
-    }
-    leaves.sort_unstable_by_key(|&(key, ..)| key);
-
-    // Solid leaves tile the references in depth-first order; empty leaves' volumes contain them.
-    // (Triangles are marked used from the leaves' ranges: a count word is not a reference.)
-    let mut tri_used = vec![false; tris.len()];
-    let mut next_ref = 0u64;
-    let mut volume_used = vec![false; volumes.len()];
-    for &(key, l, i, kind) in &leaves {
-        let lo = crate::mapping::morton::decode(key);
-        let size = cell_size(l);
-        match kind {
-            NodeKind::Solid {
-                first,
-                inline_count,
-                bounds,
-            } => {
-                if first as u64 != next_ref {
-                    d.push(format!(
-                        "{label} level {l} node {i}: references start at {first}, expected {next_ref} (leaf order)"
-                    ));
-                }
-                match leaf_refs(refs, first, inline_count) {
-                    None => {
-                        d.push(format!("{label} level {l} node {i}: references run past the refs or have a bad count word"));
-                        next_ref = first as u64 + inline_count.max(1) as u64;
-                    }
-                    Some((leaf, range)) => {
-                        next_ref = range.end as u64;
-                        for &t in leaf {
-                            match tri_used.get_mut(t as usize) {
-                                Some(used) => *used = true,
-                                None => d.push(format!(
-                                    "{label} level {l} node {i}: triangle {t} out of range"
-                                )),
-                            }
-                        }
-                        if !leaf.windows(2).all(|w| w[0] < w[1]) {
-                            d.push(format!(
-                                "{label} level {l} node {i}: references are not strictly increasing"
-                            ));
-                        }
-                        if let Some(what) = bounds_defect(header, tris, leaf, lo, size, bounds) {
-                            d.push(format!("{label} level {l} node {i}: {what}"));
-                        }
-                    }
-                }
-            }
-            NodeKind::Empty { volume, shape } => match volumes.get(volume as usize) {
-                None => d.push(format!(
-                    "{label} level {l} node {i}: volume {volume} out of range"
-                )),
-                Some(v) => {
-                    volume_used[volume as usize] = true;
-                    let contains = (0..3).all(|k| v.lo[k] <= lo[k] && lo[k] + size <= v.hi[k]);
-                    if !contains {
-                        d.push(format!(
-                            "{label} level {l} node {i}: volume {volume} does not contain the leaf"
-                        ));
-                    }
-                    let (slo, shi) = shape.box_around(lo);
-                    if !merged && (shape.level as u32 != l || shape.axes != 0) {
-                        d.push(format!("{label} level {l} node {i}: merged volume {shape:?} in a file built without merging"));
-                    }
-                    if shape.level as u32 > l || slo != v.lo || shi != v.hi {
-                        d.push(format!(
-                            "{label} level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
-                        ));
-                    }
-                }
-            },
-            NodeKind::Internal | NodeKind::Link { .. } => {}
-        }
-    }
-    if next_ref != refs.len() as u64 {
-        d.push(format!(
-            "{label}: leaves reference {next_ref} of {} stored references",
-            refs.len()
-        ));
-    }
-
-    // Volumes: valid boxes in the lattice, used, and overlapping no solid leaf (nor, in the top
-    // tree, any block's subtree).
-    for (i, v) in volumes.iter().enumerate() {
-        if !(0..3).all(|k| v.lo[k] < v.hi[k] && v.hi[k] <= LATTICE_SIZE) {
-            d.push(format!(
-                "{label} volume {i}: {v:?} is not a box inside the lattice"
-            ));
-            continue;
-        }
-        if !volume_used[i] {
-            d.push(format!("{label} volume {i}: referenced by no empty leaf"));
-        }
-        if let Some(what) = solid_leaf_inside(u, v) {
-            d.push(format!("{label} volume {i}: {what}"));
-        }
-    }
-
-    // Triangles (each referenced by some leaf's references, marked above).
-    for (i, t) in tris.iter().enumerate() {
-        if !t.v.iter().flatten().all(|c| c.is_finite()) {
-            d.push(format!("{label} triangle {i}: non-finite coordinates"));
-        }
-        if t.prim as u64 >= header.input_triangles {
-            d.push(format!(
-                "{label} triangle {i}: primitive id {} beyond the input's {} triangles",
-                t.prim, header.input_triangles
-            ));
-        }
-        if !tri_used[i] {
-            d.push(format!("{label} triangle {i}: referenced by no leaf"));
-        }
-        for p in &t.v {
-            for (k, &c) in p.iter().enumerate() {
-                totals.lo[k] = totals.lo[k].min(c);
-                totals.hi[k] = totals.hi[k].max(c);
-            }
-        }
-    }
-    totals
-}
-
-/// The Morton codes of a unit's nodes, by local level, generated from its roots by rank: level
-/// `l + 1`'s codes are the children of level `l`'s internal nodes, in order.
-fn level_codes(u: &Unit, d: &mut Defects) -> Vec<Vec<u64>> {
-    let base = u.map.base();
-    let mut codes: Vec<Vec<u64>> = vec![u.root_codes.clone()];
-    for (ll, lv) in u.map.levels().iter().enumerate().skip(1) {
-        let l = base + ll as u32;
-        let prev = &codes[ll - 1];
-        let mut next = Vec::with_capacity(lv.node_count.min(1 << 24) as usize);
-        for (i, &code) in prev.iter().enumerate() {
-            if let Ok(rec) = u.map.node(l - 1, i as u64)
-                && rec.kind() == Some(NodeKind::Internal)
-            {
-                next.extend((0..8).map(|o| code << 3 | o));
-            }
-        }
-        if next.len() as u64 != lv.node_count {
-            d.push(format!(
-                "{} level {l}: {} nodes, but the level above has children for {}",
-                u.label,
-                lv.node_count,
-                next.len()
-            ));
-        }
-        codes.push(next);
-    }
-    codes
-}
-
-/// Checks that a solid leaf's tight bounds contain every part of its triangles inside its cell
-/// (recomputed by clipping, as the builder does).
-fn bounds_defect(
-    header: &Header,
-    tris: &[TriRecord],
-    leaf: &[u32],
-    cell_lo: [u32; 3],
-    size: u32,
-    bounds: LeafBounds,
-) -> Option<String> {
-    let scale = LATTICE_SIZE as f64 / header.root_size;
-    let m = CELL_MARGIN;
-    let lo: [f64; 3] = std::array::from_fn(|k| cell_lo[k] as f64 - m);
-    let hi: [f64; 3] = std::array::from_fn(|k| (cell_lo[k] + size) as f64 + m);
-    let s16 = size as f64 / 16.0;
-    for &t in leaf {
-        let tri = tris.get(t as usize)?;
-        let v: [[f64; 3]; 3] = std::array::from_fn(|i| {
-            std::array::from_fn(|k| (tri.v[i][k] as f64 - header.root_min[k]) * scale)
-        });
-        // The triangle must overlap the widened cell by the builder's own exact test (spec §6).
-        let c: [f64; 3] = std::array::from_fn(|k| (lo[k] + hi[k]) * 0.5);
-        let h: [f64; 3] = std::array::from_fn(|k| (hi[k] - lo[k]) * 0.5);
-        if !triangle_overlaps_box(&v, c, h) {
-            return Some(format!(
-                "references triangle {t}, which does not overlap its cell"
-            ));
-        }
-        let Some((a, b)) = clipped_bounds(&v, lo, hi) else {
-            continue;
-        };
-        for k in 0..3 {
-            // The stored box, widened by the margin as the tracer widens it.
-            let slo = cell_lo[k] as f64 + bounds.lo[k] as f64 * s16 - m;
-            let shi = cell_lo[k] as f64 + (bounds.hi[k] as f64 + 1.0) * s16 + m;
-            // Allow the rounding of recomputing the clip (far below the margin).
-            if a[k] < slo - 1e-6 || b[k] > shi + 1e-6 {
-                return Some(format!(
-                    "tight bounds {bounds:?} do not contain triangle {t}"
-                ));
-            }
-        }
-    }
-    None
-}
-
-/// Describes a solid leaf (or, in the top tree, a block's subtree) whose interior overlaps box
-/// `v`, if there is one.
-fn solid_leaf_inside(u: &Unit, v: &VolumeRecord) -> Option<String> {
-    let map = &u.map;
-    let base = map.base();
-    let mut stack: Vec<(u32, u64, [u32; 3])> = u
-        .root_codes
-        .iter()
-        .enumerate()
-        .map(|(j, &code)| (base, j as u64, cell_origin(code, base)))
-        .collect();
-    let mut budget = map.levels().iter().map(|l| l.node_count).sum::<u64>();
-    while let Some((l, idx, lo)) = stack.pop() {
-        budget = budget.checked_sub(1)?;
-        let size = cell_size(l);
-        let overlaps = (0..3).all(|k| lo[k] < v.hi[k] && v.lo[k] < lo[k] + size);
-        if !overlaps {
-            continue;
-        }
-        match map.node(l, idx).ok()?.kind()? {
-            NodeKind::Solid { .. } => {
-                return Some(format!(
-                    "covers part of solid leaf at level {l}, lattice {lo:?}"
-                ));
-            }
-            NodeKind::Link { block, .. } => {
-                return Some(format!(
-                    "covers part of block {block}'s subtree at level {l}, lattice {lo:?}"
-                ));
-            }
-            NodeKind::Empty { .. } => {}
-            NodeKind::Internal if l < MAX_LEVEL => {
-                let half = cell_size(l + 1);
-                for o in 0..8u32 {
-                    let child = map.child(l, idx, o).ok()?;
-                    let clo = std::array::from_fn(|k| lo[k] + ((o >> k) & 1) * half);
-                    stack.push((l + 1, child, clo));
-                }
-            }
-            NodeKind::Internal => return None,
-        }
-    }
-    None
 }

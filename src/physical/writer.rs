@@ -1,88 +1,14 @@
-//! Writing an `.oavm` file: laying the sections out (spec §2–§3) and replacing the destination
-//! atomically.
+//! Writing an `.oavm` file in one pass (spec §2-§3, §8): blocks encoded and stored as they
+//! come ([`store_block`], [`FileWriter::push`]), then the directory, the top tree and its link
+//! bounds, then the header. Where the bytes go is a [`Sink`]: a buffer or a file (which the
+//! caller makes safe and atomic, `crate::output`).
 
 use std::io::Write;
-use std::path::Path;
 
 use bytemuck::Zeroable;
 
-use super::file::AlignedBytes;
 use super::format::*;
 use crate::error::Error;
-use crate::mapping::morton::LATTICE_BITS;
-
-/// A whole tree as the in-memory builder lays it out: every level, node, volume, reference and
-/// triangle in one flat set of arrays (the layout of a single unit, spec §4–§6), plus what the
-/// header says about it. The writer splits it into blocks ([`super::blocks`]).
-#[derive(Clone, Debug, Default)]
-pub struct TreeParts {
-    pub root_min: [f64; 3],
-    pub root_size: f64,
-    pub mesh_min: [f32; 3],
-    pub mesh_max: [f32; 3],
-    pub input_triangles: u64,
-    pub empty_leaves: u64,
-    pub solid_leaves: u64,
-    pub max_depth: u32,
-    pub leaf_size: u32,
-    pub merged: bool,
-    pub levels: Vec<LevelEntry>,
-    pub nodes: Vec<NodeRecord>,
-    pub ranks: Vec<RankWord>,
-    pub volumes: Vec<VolumeRecord>,
-    pub refs: Vec<u32>,
-    pub triangles: Vec<TriRecord>,
-}
-
-impl TreeParts {
-    /// The header fields of the tree.
-    pub fn meta(&self) -> FileMeta {
-        FileMeta {
-            root_min: self.root_min,
-            root_size: self.root_size,
-            mesh_min: self.mesh_min,
-            mesh_max: self.mesh_max,
-            input_triangles: self.input_triangles,
-            stored_triangles: self.triangles.len() as u64,
-            empty_leaves: self.empty_leaves,
-            solid_leaves: self.solid_leaves,
-            level_count: self.levels.len() as u32,
-            max_depth: self.max_depth,
-            leaf_size: self.leaf_size,
-            merged: self.merged,
-        }
-    }
-
-    /// The tree as one unit (its arrays, borrowed).
-    pub fn unit(&self) -> UnitRef<'_> {
-        UnitRef {
-            levels: &self.levels,
-            nodes: &self.nodes,
-            ranks: &self.ranks,
-            volumes: &self.volumes,
-            refs: &self.refs,
-            triangles: &self.triangles,
-        }
-    }
-}
-
-/// What the header records about the tree (spec §2).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct FileMeta {
-    pub root_min: [f64; 3],
-    pub root_size: f64,
-    pub mesh_min: [f32; 3],
-    pub mesh_max: [f32; 3],
-    pub input_triangles: u64,
-    pub stored_triangles: u64,
-    pub empty_leaves: u64,
-    pub solid_leaves: u64,
-    /// Levels of the whole tree (top and blocks).
-    pub level_count: u32,
-    pub max_depth: u32,
-    pub leaf_size: u32,
-    pub merged: bool,
-}
 
 /// The records of one unit: the top tree, or the subtrees of one block (spec §7, §8).
 #[derive(Clone, Debug, Default)]
@@ -176,10 +102,33 @@ pub struct StoredBlock {
     pub root_bounds: Vec<LinkBounds>,
 }
 
-/// The raw bytes of a block (spec §8): header, level table, nodes, ranks, volumes, refs,
-/// triangles, each part at a multiple of 64 bytes from the start.
-pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
-    let header = BlockHeader {
+/// The local level and reference count of the leaf with the most references in `unit`.
+fn largest_leaf(unit: UnitRef<'_>) -> (usize, usize) {
+    let mut best = (0, 0);
+    for (l, e) in unit.levels.iter().enumerate() {
+        let recs = unit
+            .nodes
+            .get(e.node_start as usize..(e.node_start + e.node_count) as usize)
+            .unwrap_or(&[]);
+        for rec in recs {
+            if let Some(NodeKind::Solid {
+                first,
+                inline_count,
+                ..
+            }) = rec.kind()
+                && let Some((refs, _)) = leaf_refs(unit.refs, first, inline_count)
+                && refs.len() > best.1
+            {
+                best = (l, refs.len());
+            }
+        }
+    }
+    best
+}
+
+/// The header of the block `unit` would make (spec §8.3).
+fn block_header(unit: UnitRef<'_>, root_level: u32, id: u32) -> BlockHeader {
+    BlockHeader {
         tag: BLOCK_TAG,
         level_count: unit.levels.len() as u32,
         root_level,
@@ -190,7 +139,14 @@ pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
         ref_count: unit.refs.len() as u64,
         triangle_count: unit.triangles.len() as u64,
         block_id: id as u64,
-    };
+    }
+}
+
+/// The raw bytes of a block (spec §8.3): header, level table, nodes, ranks, volumes, refs,
+/// triangles, each part at a multiple of 64 bytes from the start. The caller has checked its
+/// size ([`store_block`]).
+pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
+    let header = block_header(unit, root_level, id);
     let (ranges, len) = block_layout(&header).expect("block counts fit in memory");
     let mut out = vec![0u8; len as usize];
     out[..std::mem::size_of::<BlockHeader>()].copy_from_slice(bytemuck::bytes_of(&header));
@@ -208,22 +164,37 @@ pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
     out
 }
 
-/// Encodes block `id` and stores it as `opts` say: zstd-compressed if that makes it smaller.
+/// Encodes block `id` and stores it as `opts` say: zstd-compressed if that makes it smaller
+/// and the ratio stays within [`MAX_ZSTD_RATIO`] (else raw). Refuses a block a reader would
+/// refuse: one larger than [`MAX_BLOCK_RAW_LEN`] (a leaf whose triangles cannot be separated,
+/// such as many copies of one triangle).
 pub fn store_block(
     unit: UnitRef<'_>,
     root_level: u32,
     id: u32,
     opts: &BlockOptions,
 ) -> Result<StoredBlock, Error> {
+    let raw_len = block_layout(&block_header(unit, root_level, id)).map_or(u64::MAX, |(_, n)| n);
+    if raw_len > MAX_BLOCK_RAW_LEN {
+        let largest = largest_leaf(unit);
+        return Err(Error::Build(format!(
+            "block {id} would be {raw_len} bytes, more than the {MAX_BLOCK_RAW_LEN} bytes a \
+             reader accepts (format-spec §2): a leaf at level {} holds {} triangle references \
+             that subdivision cannot separate (many triangles at one place, or the depth limit); \
+             raise --max-depth, or remove the duplicate triangles",
+            root_level as usize + largest.0,
+            largest.1
+        )));
+    }
     let root_bounds = super::bounds::root_bounds(unit.levels, unit.nodes)
         .map_err(|e| Error::Build(format!("block {id}: {e}")))?;
     let raw = encode_block(unit, root_level, id);
-    let raw_len = raw.len() as u64;
     let (codec, bytes) = match opts.compress {
         Some(level) => {
             let z = zstd::bulk::compress(&raw, level)
                 .map_err(|e| Error::Build(format!("compressing block {id}: {e}")))?;
-            if z.len() < raw.len() {
+            let ratio_ok = raw_len <= (z.len() as u64).saturating_mul(MAX_ZSTD_RATIO);
+            if z.len() < raw.len() && ratio_ok {
                 (CODEC_ZSTD, z)
             } else {
                 (CODEC_RAW, raw)
@@ -301,9 +272,9 @@ impl Sink for FileSink {
     }
 }
 
-/// Writes a version-2 file in one pass (spec §2): a placeholder header and section table, the
-/// blocks as they come, then the block directory and the top tree, then the real header.
-/// Nothing but the blocks is held, and those only until they are written.
+/// Writes a file in one pass (spec §2): a placeholder header and section table, the blocks as
+/// they come, then the block directory and the top tree, then the real header. Nothing but the
+/// blocks is held, and those only until they are written.
 pub struct FileWriter<S: Sink> {
     sink: S,
     at: u64,
@@ -413,7 +384,9 @@ impl<S: Sink> FileWriter<S> {
     }
 
     /// Writes the directory, the top tree and the header; returns the sink and the file size.
-    pub fn finish(mut self, meta: &FileMeta, top: UnitRef<'_>) -> std::io::Result<(S, u64)> {
+    /// `meta` holds the header fields the builder knows (root cube, mesh bounds, triangle,
+    /// leaf and level counts, build options, the `MERGED` flag); the writer sets the rest.
+    pub fn finish(mut self, meta: &Header, top: UnitRef<'_>) -> std::io::Result<(S, u64)> {
         let mut entries = [SectionEntry::zeroed(); SectionKind::ALL.len()];
         entries[0] = SectionEntry {
             kind: SectionKind::Blocks as u32,
@@ -473,7 +446,7 @@ impl<S: Sink> FileWriter<S> {
             self.at += bytes.len() as u64;
         }
         let file_size = self.at;
-        let mut flags = if meta.merged { FLAG_MERGED } else { 0 };
+        let mut flags = meta.flags & FLAG_MERGED;
         if self.compressed {
             flags |= FLAG_COMPRESSED;
         }
@@ -512,127 +485,5 @@ impl<S: Sink> FileWriter<S> {
         self.sink.patch(0, bytemuck::bytes_of(&header))?;
         self.sink.patch(header_size, table)?;
         Ok((self.sink, file_size))
-    }
-}
-
-/// Lays a whole in-memory tree out as the bytes of a file: split into blocks as `opts` say
-/// ([`super::blocks::partition`]), blocks encoded in parallel.
-pub fn encode_with(parts: &TreeParts, opts: &BlockOptions) -> Result<AlignedBytes, Error> {
-    let mut w = FileWriter::new(Vec::new()).map_err(|e| Error::Build(e.to_string()))?;
-    let top = write_tree(parts, opts, &mut w)?;
-    let (bytes, _) = w
-        .finish(&parts.meta(), top.as_ref())
-        .map_err(|e| Error::Build(e.to_string()))?;
-    Ok(AlignedBytes::from_slice(&bytes))
-}
-
-/// [`encode_with`] with the default block options; panics only if the tree's own indices are
-/// inconsistent (a builder bug), which `encode_with` reports as an error.
-pub fn encode(parts: &TreeParts) -> AlignedBytes {
-    encode_with(parts, &BlockOptions::default()).expect("a consistent tree encodes")
-}
-
-/// Splits `parts` into blocks, writes them to `w` and returns the top tree.
-pub fn write_tree<S: Sink>(
-    parts: &TreeParts,
-    opts: &BlockOptions,
-    w: &mut FileWriter<S>,
-) -> Result<UnitParts, Error> {
-    use rayon::prelude::*;
-    let first = w.block_count();
-    let split = super::blocks::partition(parts.unit(), 0, &[0], opts.block_size, first)?;
-    // Encode (and compress) in parallel, a bounded batch at a time, writing in order.
-    for batch in split.blocks.chunks(64) {
-        let stored: Vec<StoredBlock> = batch
-            .par_iter()
-            .map(|b| store_block(b.unit.as_ref(), b.root_level, b.id, opts))
-            .collect::<Result<_, _>>()?;
-        for s in stored {
-            let expected = s.entry_id;
-            let id = w.push(s).map_err(|e| Error::Build(e.to_string()))?;
-            debug_assert_eq!(id, expected);
-        }
-    }
-    super::blocks::assemble_top(split.top)
-}
-
-/// `e` without the temporary file's path that `tempfile` appends to its errors (as
-/// ` at path "..."`, in a wrapper that exposes neither the inner error nor the OS code).
-fn os_error(e: std::io::Error) -> std::io::Error {
-    if e.raw_os_error().is_some() {
-        return e;
-    }
-    let text = e.to_string();
-    match text.split_once(" at path ") {
-        Some((msg, _)) => std::io::Error::new(e.kind(), msg.to_string()),
-        None => e,
-    }
-}
-
-/// Writes `bytes` to `path` atomically: into a temporary file in the same directory, flushed to
-/// disk, then renamed over `path`. On any error the temporary file is removed and `path` is left
-/// as it was, so no partial output is ever visible.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Error> {
-    write_atomic_with(path, |file| file.write_all(bytes))
-}
-
-/// Creates `path` atomically from what `fill` writes into a fresh temporary file in the same
-/// directory: flushed to disk, then renamed over `path`. On any error (of `fill` too) the
-/// temporary file is removed and `path` is left as it was.
-pub fn write_atomic_with<T>(
-    path: &Path,
-    fill: impl FnOnce(&mut std::fs::File) -> std::io::Result<T>,
-) -> Result<T, Error> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    // Errors name the file asked for, never the temporary one (whose name means nothing to the
-    // user); the OS error alone says what went wrong.
-    let err = |e: std::io::Error| Error::io(path, os_error(e));
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".oavm-pack-").suffix(".tmp");
-    // A temporary file is private (0600); the output should get the permissions of any new
-    // file (0666 less the umask), which the rename keeps.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        builder.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    let mut tmp = builder.tempfile_in(dir).map_err(err)?;
-    let out = fill(tmp.as_file_mut()).map_err(err)?;
-    tmp.as_file().sync_all().map_err(err)?;
-    tmp.persist(path).map_err(|e| err(e.error))?;
-    Ok(out)
-}
-
-/// Writes the file of `parts` to `path` atomically, split into blocks as `opts` say; returns
-/// its size and block count. Only one batch of encoded blocks is held at a time.
-pub fn write_file(
-    path: &Path,
-    parts: &TreeParts,
-    opts: &BlockOptions,
-) -> Result<(u64, u32), Error> {
-    let mut build_error = None;
-    let result = write_atomic_with(path, |file| {
-        let sink = FileSink {
-            out: std::io::BufWriter::with_capacity(1 << 20, file.try_clone()?),
-        };
-        let mut w = FileWriter::new(sink)?;
-        let top = match write_tree(parts, opts, &mut w) {
-            Ok(top) => top,
-            Err(e) => {
-                build_error = Some(e);
-                return Err(std::io::Error::other("build failed"));
-            }
-        };
-        let blocks = w.block_count();
-        let (mut sink, size) = w.finish(&parts.meta(), top.as_ref())?;
-        sink.out.flush()?;
-        Ok((size, blocks))
-    });
-    match (build_error, result) {
-        (Some(e), _) => Err(e),
-        (None, r) => r,
     }
 }

@@ -85,11 +85,6 @@ impl SpillBuckets {
         })
     }
 
-    /// Number of buckets.
-    pub fn buckets(&self) -> usize {
-        self.buckets.len()
-    }
-
     /// Adds `rec` to bucket `bucket`; if that fills its buffer, the buffer is written to the
     /// spill file as a run.
     pub fn push(&mut self, bucket: u32, rec: &TriRecord) -> Result<(), Error> {
@@ -131,6 +126,7 @@ impl SpillBuckets {
     }
 
     /// Whether no record was pushed to any bucket.
+    #[cfg(test)]
     pub fn is_empty(&self) -> bool {
         self.buckets
             .iter()
@@ -176,6 +172,7 @@ impl SpillBuckets {
     }
 
     /// Bytes allocated for the buffers now: at most `max(buffer_bytes, buckets * 40)`.
+    #[cfg(test)]
     pub fn buffered_bytes(&self) -> usize {
         self.buffered
     }
@@ -214,3 +211,6 @@ impl SpillBuckets {
         )
     }
 }
+
+#[cfg(test)]
+mod tests;

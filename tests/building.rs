@@ -1,50 +1,42 @@
-//! The streaming pack (`oavm-pack --mem-budget`, `build::streaming`): a small budget splits the
-//! bunny into hundreds of chunks, and the file must still verify and answer every ray exactly
-//! as the in-memory pack's file does; temporary files never outlive the pack; bad input leaves
-//! no output.
+//! Building: the streaming pack (`oavm-pack --mem-budget`) against the in-memory pack (a small
+//! budget splits the bunny into hundreds of chunks, and the file must still verify and answer
+//! every ray exactly as the in-memory pack's file does), its memory bound measured on the real
+//! binary, temporary files that never outlive a pack, bad input that leaves no output, and the
+//! writer's limits.
 
 mod common;
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use oavm::build::streaming::{Quiet, pack_streaming};
-use oavm::build::{self, BuildOptions};
+use common::*;
+use oavm::build::{self, PackOptions, Quiet};
 use oavm::physical::writer::BlockOptions;
 use oavm::rays::{self, Bounds, Camera};
 use oavm::{Hit, Scene};
 use tempfile::TempDir;
 
 fn bunny() -> oavm::mesh::Mesh {
-    oavm::mesh::load(&common::shared_scene("bunny/bun_zipper.ply")).expect("bunny")
+    load_shared("bunny/bun_zipper.ply")
 }
 
-/// Writes `mesh` as a binary little-endian PLY, with quads made of some triangle pairs' ids
-/// left as triangles (ids are what RAYS.md counts).
 fn write_binary_ply(mesh: &oavm::mesh::Mesh, path: &Path) {
-    let mut out = Vec::new();
-    write!(
-        out,
-        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\n\
-         property float y\nproperty float z\nelement face {}\n\
-         property list uchar int vertex_indices\nend_header\n",
-        mesh.positions.len(),
-        mesh.triangles.len()
-    )
-    .unwrap();
-    for p in &mesh.positions {
-        for c in p {
-            out.extend_from_slice(&c.to_le_bytes());
-        }
-    }
-    for t in &mesh.triangles {
-        out.push(3);
-        for i in t {
-            out.extend_from_slice(&(*i as i32).to_le_bytes());
-        }
-    }
-    fs::write(path, out).unwrap();
+    fs::write(path, binary_ply(mesh)).unwrap();
+}
+
+/// Packs `ply` into `out` within `budget` (streaming) with `blocks`.
+fn pack_streaming(
+    ply: &Path,
+    out: &Path,
+    blocks: BlockOptions,
+    budget: u64,
+) -> Result<build::PackReport, oavm::Error> {
+    let opts = PackOptions {
+        blocks,
+        mem_budget: Some(budget),
+        ..PackOptions::default()
+    };
+    build::pack(ply, out, &opts, &Quiet)
 }
 
 fn ray_sets(mesh: &oavm::mesh::Mesh) -> Vec<oavm::Ray> {
@@ -80,7 +72,7 @@ fn a_tiny_budget_gives_the_same_answers_as_the_in_memory_pack() {
     let ply = dir.path().join("bunny.ply");
     write_binary_ply(&mesh, &ply);
     let in_memory = dir.path().join("memory.oavm");
-    build::pack(&ply, &in_memory, &BuildOptions::default(), &|_| {}).unwrap();
+    build::pack(&ply, &in_memory, &PackOptions::default(), &Quiet).unwrap();
     let rays = ray_sets(&mesh);
     let expected = answers(&in_memory, &rays);
 
@@ -98,15 +90,7 @@ fn a_tiny_budget_gives_the_same_answers_as_the_in_memory_pack() {
             block_size: 16 << 10,
             compress,
         };
-        let report = pack_streaming(
-            &ply,
-            &out,
-            &BuildOptions::default(),
-            &blocks,
-            budget,
-            &Quiet,
-        )
-        .unwrap();
+        let report = pack_streaming(&ply, &out, blocks, budget).unwrap();
         let st = report.streaming.as_ref().expect("a streaming report");
         assert!(
             st.chunks >= min_chunks,
@@ -115,7 +99,7 @@ fn a_tiny_budget_gives_the_same_answers_as_the_in_memory_pack() {
         );
         assert_eq!(report.stats.input_triangles, mesh.triangles.len() as u64);
         let scene = Scene::open(&out).unwrap();
-        let v = scene.verify();
+        let v = scene.verify().unwrap();
         assert!(v.is_ok(), "budget {budget}: {:?}", v.defects);
         assert_eq!(
             answers(&out, &rays),
@@ -144,8 +128,6 @@ fn bad_input_gives_an_error_and_no_output() {
     let ply = dir.path().join("bunny.ply");
     write_binary_ply(&mesh, &ply);
     let bytes = fs::read(&ply).unwrap();
-    let opts = BuildOptions::default();
-    let blocks = BlockOptions::default();
 
     // Truncated body; an index past the vertices; an ascii PLY (the streaming path reads binary
     // only); a missing file.
@@ -156,7 +138,7 @@ fn bad_input_gives_an_error_and_no_output() {
     bad_index[n - 4..].copy_from_slice(&(1i32 << 30).to_le_bytes());
     let out_of_range = dir.path().join("index.ply");
     fs::write(&out_of_range, &bad_index).unwrap();
-    let ascii = common::shared_scene("bunny/bun_zipper.ply");
+    let ascii = shared_scene("bunny/bun_zipper.ply");
     let missing = dir.path().join("missing.ply");
     for (input, says) in [
         (&truncated, "truncated.ply"),
@@ -165,7 +147,7 @@ fn bad_input_gives_an_error_and_no_output() {
         (&missing, "missing.ply"),
     ] {
         let out = dir.path().join("out.oavm");
-        let err = pack_streaming(input, &out, &opts, &blocks, 64 << 20, &Quiet)
+        let err = pack_streaming(input, &out, BlockOptions::default(), 64 << 20)
             .err()
             .unwrap_or_else(|| panic!("{} packed", input.display()))
             .to_string();

@@ -1,4 +1,4 @@
-//! Splitting a tree into blocks (format-spec §7–§8): which subtrees go together into a block,
+//! Splitting a tree into blocks (format-spec §8; a decision of the builder's): which subtrees go together into a block,
 //! the block's own records with local indices, and the top tree that links to them.
 //!
 //! **Which subtrees.** Every node gets an estimate of its subtree's raw bytes (records, rank
@@ -28,10 +28,10 @@ use std::collections::HashMap;
 
 use rayon::prelude::*;
 
-use super::format::*;
-use super::writer::{UnitParts, UnitRef};
 use crate::error::Error;
-use crate::mapping::morton::MAX_LEVEL;
+use crate::mapping::{rank, rank_words};
+use crate::physical::format::*;
+use crate::physical::writer::{UnitParts, UnitRef};
 
 /// One block's subtrees, with local indices.
 #[derive(Clone, Debug)]
@@ -97,12 +97,6 @@ fn level_ranks<'a>(tree: &UnitRef<'a>, l: usize) -> Result<&'a [RankWord], Error
     tree.ranks
         .get(e.rank_start as usize..(e.rank_start + e.node_count.div_ceil(64)) as usize)
         .ok_or_else(|| bad(format!("level {l} runs past the rank words")))
-}
-
-/// Position of internal node `i` among its level's internal nodes (spec §4.3).
-fn rank(ranks: &[RankWord], i: usize) -> usize {
-    let w = &ranks[i / 64];
-    w.rank as usize + (w.internal & ((1u64 << (i % 64)) - 1)).count_ones() as usize
 }
 
 /// Splits `tree` (a unit whose level 0 holds nodes of absolute level `base_level` with codes
@@ -405,28 +399,14 @@ fn lay_levels(records: Vec<Vec<NodeRecord>>) -> (Vec<LevelEntry>, Vec<NodeRecord
     let mut nodes = Vec::with_capacity(records.iter().map(Vec::len).sum());
     let mut ranks = Vec::new();
     for recs in records {
-        let mut entry = LevelEntry {
+        let (words, internal_count) = rank_words(recs.iter().map(|r| r.is_internal()));
+        levels.push(LevelEntry {
             node_count: recs.len() as u64,
-            internal_count: 0,
+            internal_count,
             node_start: nodes.len() as u64,
             rank_start: ranks.len() as u64,
-        };
-        let mut rank = 0u64;
-        for chunk in recs.chunks(64) {
-            let mut bits = 0u64;
-            for (j, r) in chunk.iter().enumerate() {
-                if r.kind_bits() == 2 {
-                    bits |= 1 << j;
-                }
-            }
-            ranks.push(RankWord {
-                internal: bits,
-                rank,
-            });
-            rank += bits.count_ones() as u64;
-        }
-        entry.internal_count = rank;
-        levels.push(entry);
+        });
+        ranks.extend(words);
         nodes.extend(recs);
     }
     (levels, nodes, ranks)

@@ -1,4 +1,4 @@
-//! The pager (`src/physical/pager.rs`) on synthetic block files: every block reads back as
+//! The pager on synthetic block files: every block reads back as
 //! written (raw and zstd, any budget, 1 to 8 threads), the counters add up get by get, resident
 //! memory stays within the effective budget plus one block per thread, damaged blocks and
 //! directory entries give an error naming the block (every time, never a panic) while the other
@@ -14,12 +14,17 @@ use std::sync::Mutex;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use oavm::physical::AlignedBytes;
-use oavm::physical::MappedFile;
-use oavm::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD, RAW_BLOCK_ALIGN, checksum};
-use oavm::physical::pager::{
-    BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions,
+use super::{
+    BlockBytes, BlockSource, MIN_SLOT_BYTES, PageCounters, PageError, Pager, PagerOptions,
 };
+use crate::os::MappedFile;
+use crate::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD, RAW_BLOCK_ALIGN, checksum};
+use crate::physical::{AlignedBytes, BlockReader};
+
+/// Bytes before the first block (a stand-in for the header) and after the last one: outside
+/// the blocks section.
+const HEAD: usize = 256;
+const TAIL: usize = 100;
 
 /// splitmix64: a small seeded generator (the tests need repeatable bytes, not good randomness).
 struct Rng(u64);
@@ -56,7 +61,7 @@ struct Synth {
 impl Synth {
     fn build(n: usize, mix: Mix, max_len: usize, seed: u64) -> Synth {
         let mut rng = Rng(seed);
-        let mut file = vec![0x5a; 256];
+        let mut file = vec![0x5a; HEAD];
         let (mut dir, mut blocks) = (Vec::new(), Vec::new());
         for i in 0..n {
             let len = 1 + rng.below(max_len as u64) as usize;
@@ -101,7 +106,7 @@ impl Synth {
             file.extend_from_slice(&stored);
             blocks.push(data);
         }
-        file.extend_from_slice(&[0xee; 100]);
+        file.extend_from_slice(&[0xee; TAIL]);
         let max_raw_len = blocks.iter().map(|b| b.len() as u64).max().unwrap_or(1);
         Synth {
             file,
@@ -119,10 +124,18 @@ impl Synth {
         PagerOptions {
             budget,
             threads,
-            max_raw_len: self.max_raw_len,
-            compressed: self.dir.iter().any(|e| e.codec == CODEC_ZSTD),
             check_raw: true,
         }
+    }
+
+    /// The reader of the file's blocks: its blocks section runs from the end of the header's
+    /// stand-in to the start of the tail.
+    fn reader(&self) -> BlockReader {
+        BlockReader::for_section(
+            (HEAD as u64, (self.file.len() - TAIL) as u64),
+            self.max_raw_len,
+            self.dir.iter().any(|e| e.codec == CODEC_ZSTD),
+        )
     }
 
     /// Changes a block's entry and its stored bytes, and rewrites the checksum so that only
@@ -146,11 +159,11 @@ struct Bound<'a, S: BlockSource> {
 }
 
 impl<'a, S: BlockSource> Bound<'a, S> {
-    fn new(src: &'a S, dir: &'a [BlockEntry], opts: PagerOptions) -> Self {
+    fn new(src: &'a S, s: &'a Synth, opts: PagerOptions) -> Self {
         Bound {
-            pager: Pager::new(dir, opts),
+            pager: Pager::new(&s.dir, s.reader(), opts),
             src,
-            dir,
+            dir: &s.dir,
         }
     }
 
@@ -238,9 +251,14 @@ fn sum(cs: &[PageCounters]) -> PageCounters {
     cs.iter().fold(PageCounters::default(), |a, &c| a + c)
 }
 
-/// The bound of the module docs: the effective budget plus one block per thread in `get`.
+/// The bound of the module docs: the budget (or, below what a block per thread and one more
+/// need, that) plus one block per thread in `get`.
 fn check_bound<S: BlockSource>(p: &Bound<S>, s: &Synth, threads: usize, what: &str) {
-    let bound = p.budget().saturating_add(threads as u64 * s.max_raw_len);
+    let floor = (threads as u64 + 1) * s.max_raw_len;
+    let bound = p
+        .budget()
+        .max(floor)
+        .saturating_add(threads as u64 * s.max_raw_len);
     assert!(
         p.peak_resident_bytes() <= bound,
         "{what}: peak {} > budget {} + {threads} x {}",
@@ -250,7 +268,7 @@ fn check_bound<S: BlockSource>(p: &Bound<S>, s: &Synth, threads: usize, what: &s
     );
     // Once every get has returned, each thread has evicted its own excess.
     assert!(
-        p.resident_bytes() <= p.budget(),
+        p.resident_bytes() <= p.budget().max(floor),
         "{what}: {} resident after the gets, budget {}",
         p.resident_bytes(),
         p.budget()
@@ -266,7 +284,7 @@ fn every_block_reads_back_under_any_budget_and_threads() {
         for budget in [u64::MAX, total / 4, 1, 0] {
             for threads in [1, 2, 4, 8] {
                 let what = format!("{mix:?}, budget {budget}, {threads} threads");
-                let p = Bound::new(&src, &s.dir, s.opts(budget, threads));
+                let p = Bound::new(&src, &s, s.opts(budget, threads));
                 // Every block once, in order, then random gets on all the threads.
                 let mut first = PageCounters::default();
                 for b in 0..s.blocks.len() as u32 {
@@ -328,7 +346,7 @@ fn evicted_raw_blocks_are_released_whole_and_accounted() {
             released: Mutex::new(Vec::new()),
         };
         let budget = 3 * s.max_raw_len;
-        let p = Bound::new(&src, &s.dir, s.opts(budget, threads));
+        let p = Bound::new(&src, &s, s.opts(budget, threads));
         assert_eq!(
             p.budget(),
             budget,
@@ -372,7 +390,7 @@ fn clock_gives_a_block_got_again_a_second_chance() {
         prefetched: Mutex::new(Vec::new()),
         released: Mutex::new(Vec::new()),
     };
-    let p = Bound::new(&src, &s.dir, s.opts(3000, 1));
+    let p = Bound::new(&src, &s, s.opts(3000, 1));
     let mut c = PageCounters::default();
     let mut trace = String::new();
     for b in [0, 1, 2, 3, 1, 4, 1, 3, 4, 2] {
@@ -395,7 +413,7 @@ fn clock_gives_a_block_got_again_a_second_chance() {
     assert_eq!(p.resident_bytes(), 3000);
     assert_eq!(p.peak_resident_bytes(), 4000);
 
-    let p = Bound::new(&src, &s.dir, s.opts(u64::MAX, 1));
+    let p = Bound::new(&src, &s, s.opts(u64::MAX, 1));
     let mut c = PageCounters::default();
     for _ in 0..3 {
         for b in 0..10 {
@@ -408,13 +426,13 @@ fn clock_gives_a_block_got_again_a_second_chance() {
 
 #[test]
 fn a_slot_freed_by_a_failed_decode_is_used_before_any_blocks() {
-    // Zstd blocks A B C D X (X bad), three slots (budget 0, two threads).
+    // Zstd blocks A B C D X (X bad), three slots (two threads), a budget of three blocks.
     let mut s = Synth::build(5, Mix::Zstd, 3000, 23);
     let x = 4;
     let off = s.dir[x].offset as usize;
     s.file[off + 5] ^= 0xff;
     let src = s.source();
-    let p = Bound::new(&src, &s.dir, s.opts(0, 2));
+    let p = Bound::new(&src, &s, s.opts(3 * s.max_raw_len, 2));
     assert_eq!(p.slot_count(), 3);
     let mut c = PageCounters::default();
     let mut trace = String::new();
@@ -435,7 +453,7 @@ fn a_slot_freed_by_a_failed_decode_is_used_before_any_blocks() {
 
 /// The same blocks laid out again (after their bytes were changed).
 fn rebuild(s: &Synth) -> Synth {
-    let mut file = vec![0x5a; 256];
+    let mut file = vec![0x5a; HEAD];
     let mut dir = Vec::new();
     for (e, data) in s.dir.iter().zip(&s.blocks) {
         assert_eq!(e.codec, CODEC_RAW);
@@ -449,6 +467,7 @@ fn rebuild(s: &Synth) -> Synth {
         });
         file.extend_from_slice(data);
     }
+    file.extend_from_slice(&[0xee; TAIL]);
     let max_raw_len = s.blocks.iter().map(|b| b.len() as u64).max().unwrap();
     Synth {
         file,
@@ -463,14 +482,12 @@ fn zstd_slots_hold_at_most_their_share() {
     let s = Synth::build(40, Mix::Zstd, 20_000, 31);
     let src = s.source();
     for (budget, threads) in [(0, 1), (0, 8), (5 * s.max_raw_len, 2), (u64::MAX, 4)] {
-        let p = Bound::new(&src, &s.dir, s.opts(budget, threads));
+        let p = Bound::new(&src, &s, s.opts(budget, threads));
         // Slots for blocks of MIN_SLOT_BYTES (at least threads + 1, at most one per block);
-        // the budget, raised to hold threads + 1 of the largest blocks, bounds their bytes.
-        let slots = (budget / oavm::physical::pager::MIN_SLOT_BYTES)
-            .max(threads as u64 + 1)
-            .min(40);
+        // the budget, never raised, bounds their bytes (plus a block per thread in a get).
+        let slots = (budget / MIN_SLOT_BYTES).max(threads as u64 + 1).min(40);
         assert_eq!(p.slot_count() as u64, slots);
-        assert_eq!(p.budget(), budget.max((threads as u64 + 1) * s.max_raw_len));
+        assert_eq!(p.budget(), budget);
         let c = sum(&run_threads(&p, &s, threads, 2000, 7));
         // Each slot's buffer is at most its block's size rounded to 8, and about twice that.
         assert!(p.resident_bytes() <= slots * (2 * s.max_raw_len + 8 * 64));
@@ -493,7 +510,7 @@ fn zstd_cache_holds_blocks_by_their_size() {
     let src = s.source();
     let total: u64 = s.dir.iter().map(|e| e.raw_len).sum();
     assert!(total / s.max_raw_len < 24, "blocks of mixed sizes");
-    let p = Bound::new(&src, &s.dir, s.opts(total + 24 * 64, 1));
+    let p = Bound::new(&src, &s, s.opts(total + 24 * 64, 1));
     let mut c = PageCounters::default();
     for _ in 0..2 {
         for b in 0..24 {
@@ -503,7 +520,7 @@ fn zstd_cache_holds_blocks_by_their_size() {
     assert_eq!((c.misses, c.hits), (24, 24), "{c:?}");
     // Half the bytes: evictions, the budget held, some hits all the same (a block read twice
     // in a row is never evicted in between).
-    let p = Bound::new(&src, &s.dir, s.opts(total / 2, 1));
+    let p = Bound::new(&src, &s, s.opts(total / 2, 1));
     let mut c = PageCounters::default();
     for b in (0..24).flat_map(|b| [b, b, (b + 23) % 24]) {
         checked_get(&p, &s, b, &mut c);
@@ -523,7 +540,7 @@ fn zstd_cache_holds_blocks_by_their_size() {
 fn expect_bad(s: &Synth, b: u32, expect: &str) {
     let src = s.source();
     for budget in [u64::MAX, 0] {
-        let p = Bound::new(&src, &s.dir, s.opts(budget, 2));
+        let p = Bound::new(&src, s, s.opts(budget, 2));
         let mut c = PageCounters::default();
         let first = p.get(b, &mut c).err().expect("a bad block gives an error");
         assert_eq!(first.block, b);
@@ -555,7 +572,7 @@ fn expect_bad(s: &Synth, b: u32, expect: &str) {
         assert!(errors.iter().all(|e| e.as_ref() == Some(&first)));
     }
     // And a fresh pager, on 4 threads at once: every thread gets the error.
-    let p = Bound::new(&src, &s.dir, s.opts(0, 4));
+    let p = Bound::new(&src, s, s.opts(0, 4));
     let errors: Vec<Option<PageError>> = rayon::ThreadPoolBuilder::new()
         .num_threads(4)
         .build()
@@ -595,8 +612,16 @@ fn directory_entries_outside_the_file_or_misaligned_are_errors() {
             bad.dir[b].offset = offset;
             bad.dir[b].stored_len = stored_len;
             bad.dir[b].raw_len = stored_len.min(bad.max_raw_len);
-            expect_bad(&bad, b as u32, "outside the file");
+            expect_bad(&bad, b as u32, "outside the blocks section");
         }
+        // Inside the file but not the blocks section (spec §11): the header's bytes, with a
+        // checksum that matches them.
+        let mut bad = s.clone();
+        bad.dir[b].offset = 0;
+        bad.dir[b].stored_len = 64;
+        bad.dir[b].raw_len = 64;
+        bad.rechecksum(b);
+        expect_bad(&bad, b as u32, "outside the blocks section");
     }
     // A raw block at an offset that is not a multiple of 4096 (checksum of its bytes there).
     let b = s.first(CODEC_RAW);
@@ -611,14 +636,14 @@ fn directory_entries_outside_the_file_or_misaligned_are_errors() {
     // Longer than the largest block the header allows.
     let mut bad = s.clone();
     bad.dir[b].raw_len = bad.max_raw_len + 1;
-    expect_bad(&bad, b as u32, "exceeds the largest block");
+    expect_bad(&bad, b as u32, "exceeds the header's largest block");
     // An unknown codec.
     let mut bad = s.clone();
     bad.dir[b].codec = 7;
     expect_bad(&bad, b as u32, "unknown codec 7");
     // Blocks the directory does not have.
     let src = s.source();
-    let p = Bound::new(&src, &s.dir, s.opts(0, 1));
+    let p = Bound::new(&src, &s, s.opts(0, 1));
     for b in [12, 1000, u32::MAX] {
         let e = p.get(b, &mut PageCounters::default()).err().unwrap();
         assert_eq!(e.block, b);
@@ -678,6 +703,8 @@ fn a_zstd_frame_claiming_a_huge_size_is_an_error_without_allocating_it() {
     ] {
         let frame = lying_frame(claimed, &data);
         let mut s = Synth::build(6, Mix::Zstd, 4000, 71);
+        // The frame goes where the tail was, and a new tail after it.
+        s.file.truncate(s.file.len() - TAIL);
         s.file.resize(s.file.len().next_multiple_of(64), 0);
         s.dir[5] = BlockEntry {
             offset: s.file.len() as u64,
@@ -687,10 +714,13 @@ fn a_zstd_frame_claiming_a_huge_size_is_an_error_without_allocating_it() {
             ..s.dir[5]
         };
         s.file.extend_from_slice(&frame);
+        s.file.extend_from_slice(&[0xee; TAIL]);
         s.blocks[5] = data.clone();
         s.max_raw_len = s.max_raw_len.max(4096);
         let expect = if raw_len > s.max_raw_len {
-            "exceeds the largest block"
+            "exceeds the header's largest block"
+        } else if raw_len > 64 * frame.len() as u64 {
+            "times its size"
         } else {
             "content size"
         };
@@ -720,7 +750,7 @@ fn eight_threads_on_the_fewest_slots_finish() {
         let s = Synth::build(48, Mix::Mixed, 6000, 81);
         let src = s.source();
         // Budget 0: nine slots for eight threads, and raw blocks evicted after every use.
-        let p = Bound::new(&src, &s.dir, s.opts(0, 8));
+        let p = Bound::new(&src, &s, s.opts(0, 8));
         assert_eq!(p.slot_count(), 9);
         let c = sum(&run_threads(&p, &s, 8, 100_000 / 8, 91));
         assert_eq!(c.requested, 100_000);
@@ -741,7 +771,7 @@ fn a_mapped_file_pages_in_and_out() {
     assert_eq!(map.bytes(), &s.file[..]);
     for threads in [1, 4] {
         // A budget below one block (raised to the zstd slots'): raw blocks are released.
-        let p = Bound::new(&map, &s.dir, s.opts(1000, threads));
+        let p = Bound::new(&map, &s, s.opts(1000, threads));
         let mut c = sum(&run_threads(&p, &s, threads, 1500, 103));
         for b in 0..40 {
             checked_get(&p, &s, b, &mut c);
@@ -757,7 +787,7 @@ fn a_mapped_file_pages_in_and_out() {
     let path = dir.path().join("bad.bin");
     std::fs::write(&path, &bad).unwrap();
     let map = MappedFile::open(&path).unwrap();
-    let p = Bound::new(&map, &s.dir, s.opts(1000, 1));
+    let p = Bound::new(&map, &s, s.opts(1000, 1));
     let e = p.get(b as u32, &mut PageCounters::default()).err().unwrap();
     assert!(e.to_string().contains("checksum mismatch"), "{e}");
     checked_get(&p, &s, (b + 1) as u32, &mut PageCounters::default());

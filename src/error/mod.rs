@@ -3,6 +3,10 @@
 
 use std::path::PathBuf;
 
+mod mesh;
+
+pub use mesh::{MeshError, Place};
+
 /// A defect in the bytes of an `.oavm` file: found at open (header, section table, level table),
 /// by `verify`, or by the tracer's bounds checks while it walks the tree.
 #[derive(Debug, thiserror::Error)]
@@ -43,7 +47,7 @@ pub enum FormatError {
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     #[error(transparent)]
-    Mesh(#[from] crate::mesh::MeshError),
+    Mesh(#[from] MeshError),
     #[error("{}: {source}", path.display())]
     Format {
         path: PathBuf,
@@ -55,6 +59,30 @@ pub enum Error {
         path: PathBuf,
         #[source]
         source: std::io::Error,
+    },
+    /// An output file that cannot (or must not) be written.
+    #[error("{}: {what}", path.display())]
+    Output { path: PathBuf, what: String },
+    /// A mapped input that changed while it was read: what it gave cannot be trusted.
+    #[error("{}: {source}", path.display())]
+    Changed {
+        path: PathBuf,
+        #[source]
+        source: crate::os::Changed,
+    },
+    /// A memory budget too small for the file: it must hold three of its largest blocks (one
+    /// being read, one being admitted, one more to evict from).
+    #[error(
+        "{}: a memory budget of {budget} bytes is too small for this file: its largest block \
+         decodes to {largest} bytes and tracing needs room for three; give a budget of {needed} \
+         bytes or more (--mem-budget)",
+        path.display()
+    )]
+    Budget {
+        path: PathBuf,
+        budget: u64,
+        needed: u64,
+        largest: u64,
     },
     #[error("{0}")]
     Build(String),

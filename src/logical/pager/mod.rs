@@ -1,5 +1,6 @@
 //! The pager: the only way the tracer reaches a block's bytes (format-spec.md §8: the
-//! block directory and the blocks region; [`BlockEntry`]).
+//! block directory and the blocks region; [`BlockEntry`]). A cache policy, so it lives with the
+//! tracer; it reads blocks the one way the physical layer defines ([`BlockReader`]).
 //!
 //! A file's tree is split into *blocks*, self-contained subtrees whose bytes are stored either
 //! raw or as one zstd frame. [`Pager::get`] turns a block id into the block's decoded bytes, and
@@ -7,16 +8,18 @@
 //! back to the kernel when evicted; zstd blocks are decompressed into a fixed set of cache slots.
 //!
 //! **Admission.** The directory is cast from the file, so it is untrusted. The first `get` of a
-//! block since it was last evicted (a *miss*) checks its entry: the id is in range, the stored
-//! bytes lie inside the file, the codec is known, `raw_len <= max_raw_len`, and a raw block has
-//! `raw_len == stored_len` and starts at a multiple of [`RAW_BLOCK_ALIGN`] (so its bytes are
-//! 8-aligned and its pages are its own). It then hints the kernel to read the range
+//! block since it was last evicted (a *miss*) checks its entry as format-spec §11 ("Paging")
+//! says ([`BlockReader::check_entry`]: inside the blocks section, a known codec, `raw_len`
+//! within the header's largest block and, for zstd, within
+//! [`MAX_ZSTD_RATIO`](crate::physical::format::MAX_ZSTD_RATIO) of what it
+//! stores, a raw block page-aligned with `raw_len == stored_len`, so its bytes are 8-aligned and
+//! its pages are its own). It then hints the kernel to read the range
 //! ([`BlockSource::prefetch`]) and checks the xxh3 of the stored bytes, which reads the block
-//! from the disk. A zstd frame must record either no content size or exactly `raw_len`, and
-//! must decode to exactly `raw_len` bytes, into a buffer of exactly that size: a frame claiming
-//! more cannot make the pager allocate or write more. Any failure is a [`PageError`] naming the
-//! block, and the block is remembered as bad: later gets fail at once with the same error. No
-//! bytes of the file can make the pager panic or allocate more than `max_raw_len` per slot.
+//! from the disk. A zstd frame is decoded by [`BlockReader::decode`] into a buffer of exactly
+//! `raw_len` bytes: a frame claiming more cannot make the pager allocate or write more. Any
+//! failure is a [`PageError`] naming the block, and the block is remembered as bad: later gets
+//! fail at once with the same error. No bytes of the file can make the pager panic or allocate
+//! more than `max_raw_len` per slot.
 //!
 //! **Raw blocks** are returned as slices of the source, without a copy. Each block has an
 //! atomic state: cold, busy (being admitted or evicted), resident, resident and referenced, or
@@ -69,18 +72,21 @@
 //! **Memory bound.** The slots number `max(budget / MIN_SLOT_BYTES, threads + 1)` (no more
 //! than there are blocks): at least `threads + 1`, so that a free slot exists, and few enough
 //! that the slots themselves cost little; blocks smaller on average than [`MIN_SLOT_BYTES`]
-//! leave part of the budget unused. The *effective* budget ([`Pager::budget`]) is raised to
-//! `(threads + 1) * max_raw_len` when that is more than the budget asked for, so that every
-//! thread's block and one more fit (a file with no zstd block has no slots, and keeps its
-//! budget). Resident bytes count each resident raw block's `stored_len` and each slot's buffer
-//! capacity. A thread that raises them past the effective budget (admitting a raw block,
-//! filling a slot) evicts raw blocks and frees slot buffers until they are back under it
-//! before its `get` returns (one thread evicts raw blocks at a time; the others wait for it,
-//! then evict what is still over; slots held by readers, at most one per other thread, are
-//! skipped, and the rest always suffice), and a block is queued for eviction only once its
-//! bytes are counted, so at any time `resident <= budget + one block (max_raw_len) per thread
-//! inside get`; once the gets return, `resident <= budget`. A budget of `u64::MAX` means
-//! unlimited: nothing is ever evicted, and each zstd block gets a slot of its own.
+//! leave part of the budget unused. Resident bytes count each resident raw block's
+//! `stored_len` and each slot's buffer capacity. A thread that raises them past the budget
+//! (admitting a raw block, filling a slot) evicts raw blocks and frees slot buffers until they
+//! are back under it before its `get` returns (one thread evicts raw blocks at a time; the
+//! others wait for it, then evict what is still over; slots held by readers, at most one per
+//! other thread, are skipped), and a block is queued for eviction only once its bytes are
+//! counted. Blocks held by readers cannot be evicted, so with `B = max(budget, (threads + 1) *
+//! max_raw_len)`: at any time `resident <= B + one block (max_raw_len) per thread inside get`,
+//! and once the gets return, `resident <= B`. A budget of `u64::MAX` means unlimited: nothing
+//! is ever evicted, and each zstd block gets a slot of its own.
+//!
+//! The pager is given a budget that makes this bound the user's: `crate::logical::Scene`
+//! passes it the user's budget less one block per thread, and lowers the threads until that
+//! is at least `(threads + 1) * max_raw_len` (or refuses a budget smaller than three blocks),
+//! so the resident bytes never exceed the budget the user gave. Nothing is raised.
 //!
 //! **Counters.** [`PageCounters`] belong to the caller (one per thread, summed at the end), so a
 //! hit touches no shared counter; resident bytes and their peak are shared atomics, changed on
@@ -97,9 +103,9 @@ use std::ops::Deref;
 use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard, TryLockError};
 
-use super::file::AlignedBytes;
-use super::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD, RAW_BLOCK_ALIGN, checksum};
-use super::mmap::MappedFile;
+use crate::os::{Changed, MappedFile};
+use crate::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD};
+use crate::physical::{AlignedBytes, BlockError, BlockReader};
 
 /// Where the pager reads blocks from: the whole file's bytes, with hints for the kernel.
 ///
@@ -113,6 +119,11 @@ pub trait BlockSource: Sync {
     /// The bytes `off .. off + len` will not be needed for a while: their memory may be given
     /// back. They must stay readable (a later read may be slower, never wrong).
     fn release(&self, _off: usize, _len: usize) {}
+    /// `Err` if the bytes changed since the source was opened (a mapped file truncated or
+    /// written in place by another program): what was read from them cannot be trusted.
+    fn check_unchanged(&self) -> Result<(), Changed> {
+        Ok(())
+    }
 }
 
 /// Bytes held in memory (tests, files built in memory): the hints do nothing.
@@ -132,6 +143,9 @@ impl BlockSource for MappedFile {
     fn release(&self, off: usize, len: usize) {
         MappedFile::release(self, off, len);
     }
+    fn check_unchanged(&self) -> Result<(), Changed> {
+        MappedFile::check_unchanged(self)
+    }
 }
 
 impl BlockSource for AlignedBytes {
@@ -143,18 +157,11 @@ impl BlockSource for AlignedBytes {
 /// How much memory the pager may keep, and for how many threads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PagerOptions {
-    /// Bytes of decoded blocks kept resident; `u64::MAX` for no limit. Raised to the minimum
-    /// the zstd slots need (see [`Pager::budget`]).
+    /// Bytes of decoded blocks kept resident; `u64::MAX` for no limit. Never raised (see the
+    /// module docs).
     pub budget: u64,
     /// The number of threads that call [`Pager::get`] at the same time (at least 1).
     pub threads: usize,
-    /// The largest `raw_len` accepted (the header's `max_block_raw_len`): the size of a slot,
-    /// and the bound on what one block may make the pager allocate.
-    pub max_raw_len: u64,
-    /// Whether the file may hold zstd blocks (the header's `COMPRESSED` flag). Without it no
-    /// slot is made, and a zstd block is an error: so `new` never reads the directory, and
-    /// opening costs the same for any number of blocks.
-    pub compressed: bool,
     /// Check a raw block's checksum when it is admitted, which reads it whole (with a hint to
     /// read it in one request). Off, a raw block's entry is still checked but only the pages a
     /// walk touches are read: far fewer bytes from the disk for rays that only pass through a
@@ -199,19 +206,7 @@ impl std::ops::Add for PageCounters {
 
 /// A block that cannot be read: a bad directory entry, a checksum mismatch, a frame that does
 /// not decode to its block.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct PageError {
-    pub block: u32,
-    pub what: String,
-}
-
-impl std::fmt::Display for PageError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "block {}: {}", self.block, self.what)
-    }
-}
-
-impl std::error::Error for PageError {}
+pub type PageError = BlockError;
 
 /// A block's decoded bytes (8-aligned), borrowed from the pager. Drop it before asking for the
 /// next block (see the module docs: a caller holds at most one).
@@ -296,8 +291,8 @@ const SPINS: u32 = 64;
 pub struct Pager {
     /// [`PagerOptions::check_raw`].
     check_raw: bool,
-    max_raw_len: u64,
-    /// The effective budget.
+    /// How blocks are checked and decoded.
+    reader: BlockReader,
     budget: u64,
     /// Per block: COLD, BUSY, RESIDENT, REFERENCED or BAD.
     state: Vec<AtomicU8>,
@@ -346,11 +341,10 @@ impl Pager {
     /// A pager over `directory` (cast from the file, untrusted: each entry is checked when its
     /// block is first admitted). Reads the directory's codecs to size the slot set, never the
     /// blocks; allocates a few bytes per block, and no slot buffer until a zstd miss needs it.
-    pub fn new(directory: &[BlockEntry], opts: PagerOptions) -> Pager {
-        let max_raw_len = opts.max_raw_len.max(1);
+    pub fn new(directory: &[BlockEntry], reader: BlockReader, opts: PagerOptions) -> Pager {
         let threads = opts.threads.max(1) as u64;
         // (Slot indices are stored as u32s, NO_SLOT excluded.)
-        let slot_count = if opts.compressed {
+        let slot_count = if reader.compressed() {
             (opts.budget / MIN_SLOT_BYTES)
                 .max(threads + 1)
                 .min(directory.len() as u64)
@@ -358,14 +352,10 @@ impl Pager {
         } else {
             0
         };
-        // Room for one block per thread and one more, whatever the block sizes.
-        let budget = opts
-            .budget
-            .max(slot_count.min(threads + 1).saturating_mul(max_raw_len));
         Pager {
             check_raw: opts.check_raw,
-            max_raw_len,
-            budget,
+            reader,
+            budget: opts.budget,
             state: directory.iter().map(|_| AtomicU8::new(COLD)).collect(),
             bad: Mutex::new(HashMap::new()),
             resident: AtomicU64::new(0),
@@ -432,6 +422,7 @@ impl Pager {
     }
 
     /// Bytes of decoded blocks resident now.
+    #[cfg(test)]
     pub fn resident_bytes(&self) -> u64 {
         self.resident.load(Ordering::Relaxed)
     }
@@ -441,9 +432,8 @@ impl Pager {
         self.peak.load(Ordering::Relaxed)
     }
 
-    /// The effective budget: the one asked for, raised to `slots * max_raw_len` if the zstd
-    /// slots need more (see the module docs). Resident bytes stay within it plus one block per
-    /// thread inside `get`.
+    /// The budget (see the module docs for what it bounds).
+    #[cfg(test)]
     pub fn budget(&self) -> u64 {
         self.budget
     }
@@ -510,7 +500,7 @@ impl Pager {
             }
             let (off, len) = (entry.offset as usize, entry.stored_len as usize);
             src.source.prefetch(off, len);
-            self.check_sum(entry, self.stored(src, entry))
+            self.reader.check_sum(entry, self.stored(src, entry))
         });
         if let Err(what) = checked {
             return Err(self.fail(block, what));
@@ -788,18 +778,8 @@ impl Pager {
     ) -> Result<(), String> {
         let stored = self.stored(src, entry);
         src.source.prefetch(entry.offset as usize, stored.len());
-        self.check_sum(entry, stored)?;
+        self.reader.check_sum(entry, stored)?;
         let raw_len = entry.raw_len as usize;
-        match zstd::zstd_safe::get_frame_content_size(stored) {
-            Ok(Some(n)) if n != entry.raw_len => {
-                return Err(format!(
-                    "the zstd frame's content size is {n} bytes, the directory says raw_len {}",
-                    entry.raw_len
-                ));
-            }
-            Ok(_) => {}
-            Err(_) => return Err("not a zstd frame (bad frame header)".into()),
-        }
         // A buffer of the block's size: the one the slot has if it is large enough and not
         // more than about twice too large, else a new one (the old one is given back).
         let words = raw_len.div_ceil(8);
@@ -821,7 +801,7 @@ impl Pager {
         }
         slot.accounted = now;
         let out = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut slot.words)[..raw_len];
-        let n = DCTX.with_borrow_mut(|dctx| {
+        DCTX.with_borrow_mut(|dctx| {
             let dctx = match dctx {
                 Some(d) => d,
                 none => none.insert(
@@ -829,80 +809,26 @@ impl Pager {
                         .map_err(|e| format!("cannot create a zstd decompressor: {e}"))?,
                 ),
             };
-            dctx.decompress_to_buffer(stored, out)
-                .map_err(|e| format!("zstd: {e} (raw_len {raw_len})"))
+            self.reader.decode(entry, stored, out, dctx)
         })?;
-        if n != raw_len {
-            return Err(format!(
-                "the zstd frame decodes to {n} bytes, the directory says raw_len {raw_len}"
-            ));
-        }
         slot.len = raw_len;
         Ok(())
     }
 
-    /// Checks an entry without reading its block (see the module docs).
+    /// Checks an entry without reading its block ([`BlockReader::check_entry`]), and that a
+    /// raw block's bytes can be cast in place (the source is 8-aligned).
     fn check_entry<S: BlockSource>(&self, src: Src<'_, S>, e: &BlockEntry) -> Result<(), String> {
-        let file_len = src.source.bytes().len() as u64;
-        match e.offset.checked_add(e.stored_len) {
-            Some(end) if end <= file_len => {}
-            _ => {
-                return Err(format!(
-                    "stored bytes {}..{}+{} lie outside the file ({file_len} bytes)",
-                    e.offset, e.offset, e.stored_len
-                ));
-            }
+        self.reader.check_entry(e)?;
+        let base = src.source.bytes().as_ptr() as usize;
+        if e.codec == CODEC_RAW && !base.is_multiple_of(std::mem::align_of::<u64>()) {
+            return Err("the file's buffer is not 8-aligned".into());
         }
-        if e.raw_len > self.max_raw_len {
-            return Err(format!(
-                "raw_len {} exceeds the largest block, {} bytes",
-                e.raw_len, self.max_raw_len
-            ));
-        }
-        match e.codec {
-            CODEC_RAW => {
-                if e.raw_len != e.stored_len {
-                    return Err(format!(
-                        "raw block with raw_len {} != stored_len {}",
-                        e.raw_len, e.stored_len
-                    ));
-                }
-                if !e.offset.is_multiple_of(RAW_BLOCK_ALIGN) {
-                    return Err(format!(
-                        "raw block at offset {}, not a multiple of {RAW_BLOCK_ALIGN}",
-                        e.offset
-                    ));
-                }
-                let base = src.source.bytes().as_ptr() as usize;
-                if !base.is_multiple_of(std::mem::align_of::<u64>()) {
-                    return Err("the file's buffer is not 8-aligned".into());
-                }
-                Ok(())
-            }
-            CODEC_ZSTD => Ok(()),
-            codec => Err(format!("unknown codec {codec}")),
-        }
+        Ok(())
     }
 
     /// A block's stored bytes (its entry checked).
     fn stored<'s, S: BlockSource>(&self, src: Src<'s, S>, e: &BlockEntry) -> &'s [u8] {
-        let off = e.offset as usize;
-        src.source
-            .bytes()
-            .get(off..off.saturating_add(e.stored_len as usize))
-            .unwrap_or(&[])
-    }
-
-    fn check_sum(&self, e: &BlockEntry, stored: &[u8]) -> Result<(), String> {
-        let computed = checksum(stored);
-        if computed != e.checksum {
-            return Err(format!(
-                "checksum mismatch (stored {:#018x}, computed {computed:#018x}): the file is \
-                 corrupt",
-                e.checksum
-            ));
-        }
-        Ok(())
+        self.reader.stored(src.source.bytes(), e)
     }
 
     fn add_resident(&self, bytes: u64) {
@@ -944,61 +870,4 @@ fn wait(spins: &mut u32) {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn assert_send_sync<T: Send + Sync>() {}
-
-    #[test]
-    fn pager_is_send_and_sync() {
-        assert_send_sync::<Pager>();
-    }
-
-    #[test]
-    fn slots_and_effective_budget() {
-        let zstd = BlockEntry {
-            offset: 0,
-            stored_len: 0,
-            raw_len: 0,
-            codec: CODEC_ZSTD,
-            root_level: 0,
-            root_count: 0,
-            triangles: 0,
-            checksum: 0,
-        };
-        let dir = vec![zstd; 10];
-        let opts = |budget, threads| PagerOptions {
-            budget,
-            threads,
-            max_raw_len: 1000,
-            compressed: true,
-            check_raw: true,
-        };
-        // Tiny budget: threads + 1 slots, budget raised to them.
-        let p = Pager::new(&dir, opts(10, 3));
-        assert_eq!((p.slot_count(), p.budget()), (4, 4000));
-        // Larger budgets: budget / MIN_SLOT_BYTES slots (at least threads + 1), capped by the
-        // zstd blocks; the budget, in bytes, bounds what they hold.
-        let p = Pager::new(&dir, opts(7500, 1));
-        assert_eq!((p.slot_count(), p.budget()), (2, 7500));
-        let p = Pager::new(&dir, opts(5 * MIN_SLOT_BYTES, 1));
-        assert_eq!((p.slot_count(), p.budget()), (5, 5 * MIN_SLOT_BYTES));
-        let p = Pager::new(&dir, opts(50 * MIN_SLOT_BYTES, 1));
-        assert_eq!((p.slot_count(), p.budget()), (10, 50 * MIN_SLOT_BYTES));
-        let p = Pager::new(&dir, opts(u64::MAX, 1));
-        assert_eq!((p.slot_count(), p.budget()), (10, u64::MAX));
-        // No zstd blocks: no slots, the budget as asked.
-        let raw = [BlockEntry {
-            codec: CODEC_RAW,
-            ..zstd
-        }];
-        let p = Pager::new(
-            &raw,
-            PagerOptions {
-                compressed: false,
-                ..opts(10, 3)
-            },
-        );
-        assert_eq!((p.slot_count(), p.budget()), (0, 10));
-    }
-}
+mod tests;

@@ -1,7 +1,7 @@
 //! The one error type of mesh input.
 //!
-//! Every variant names the file (the path for [`load`](super::load), the `name` given to
-//! [`parse_ply`](super::parse_ply) / [`parse_obj`](super::parse_obj)) and, where the problem has
+//! Every variant names the file (the path for [`load`](crate::mesh::load), the `name` given to
+//! [`parse_ply`](crate::mesh::parse_ply) / [`parse_obj`](crate::mesh::parse_obj)) and, where the problem has
 //! a place, the place: a line (1-based) for text, a byte offset from the start of the file for
 //! binary PLY. Records are numbered the way the format numbers them in its own indices: from 0
 //! in PLY (`vertex 0` is the first vertex record, `face 0` the first face record), from 1 in OBJ

@@ -1,11 +1,11 @@
-//! The bucket spill of the streaming pack (`oavm::build::spill::SpillBuckets`) against a model
+//! The bucket spill of the streaming pack ([`SpillBuckets`]) against a model
 //! (one `Vec` per bucket): the same records per bucket, in push order, with the buffers within
 //! their budget and nothing ever visible in the spill directory.
 
 use std::path::Path;
 
-use oavm::build::spill::SpillBuckets;
-use oavm::physical::format::TriRecord;
+use super::SpillBuckets;
+use crate::physical::format::TriRecord;
 
 /// A small deterministic generator (PCG-style LCG, high bits).
 struct Rng(u64);
@@ -167,7 +167,11 @@ fn killed_process_leaves_nothing() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "killed_process_leaves_nothing", "--nocapture"])
+        .args([
+            "--exact",
+            "build::spill::tests::killed_process_leaves_nothing",
+            "--nocapture",
+        ])
         .env("OAVM_SPILL_CHILD", dir.path())
         .output()
         .unwrap();

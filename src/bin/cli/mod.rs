@@ -1,0 +1,284 @@
+//! What the binaries share: running `main` with errors printed once with their whole chain, the
+//! progress bar, the thread pool, argument groups and value parsers. Only the binaries use
+//! clap and indicatif; the library never draws or parses arguments.
+
+// Each binary includes this module and uses part of it.
+#![allow(dead_code)]
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use oavm::Error;
+use oavm::logical::Order;
+
+/// Runs `run`, printing an error (and its sources) prefixed by the program name; exit status 1
+/// on an error. A broken pipe on stdout is not an error.
+pub fn main_with(program: &str, run: impl FnOnce() -> Result<(), Error>) -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Error::Io { source, .. }) if source.kind() == std::io::ErrorKind::BrokenPipe => {
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            let mut msg = format!("{program}: error: {e}");
+            let mut src = std::error::Error::source(&e);
+            while let Some(s) = src {
+                let s_text = s.to_string();
+                if !msg.contains(&s_text) {
+                    msg.push_str(&format!("\n  caused by: {s_text}"));
+                }
+                src = s.source();
+            }
+            eprintln!("{msg}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Prints `text` to stdout.
+pub fn print_text(text: &str) -> Result<(), Error> {
+    std::io::stdout()
+        .lock()
+        .write_all(text.as_bytes())
+        .map_err(|e| Error::io("stdout", e))
+}
+
+/// Prints `value` as pretty JSON, one object.
+pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
+    let text = serde_json::to_string_pretty(value)
+        .map_err(|e| Error::Invalid(format!("cannot write the report as JSON: {e}")))?;
+    print_text(&(text + "\n"))
+}
+
+/// A progress bar on stderr for the library's phases ([`oavm::build::Progress`]): a spinner
+/// with the phase and the elapsed time, or a bar with a rate and the time left when the amount
+/// of work is known. It stays hidden for the first second, so quick runs print nothing, and
+/// never draws when stderr is not a terminal.
+pub struct Progress {
+    bar: ProgressBar,
+    done: Arc<AtomicBool>,
+}
+
+impl Progress {
+    pub fn new(enabled: bool) -> Progress {
+        let bar = ProgressBar::hidden();
+        bar.set_style(spinner());
+        let done = Arc::new(AtomicBool::new(false));
+        if enabled {
+            let (bar, done) = (bar.clone(), done.clone());
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_secs(1));
+                if !done.load(Ordering::Acquire) {
+                    bar.set_draw_target(ProgressDrawTarget::stderr());
+                    bar.enable_steady_tick(Duration::from_millis(120));
+                }
+            });
+        }
+        Progress { bar, done }
+    }
+
+    pub fn finish(&self) {
+        self.done.store(true, Ordering::Release);
+        self.bar.finish_and_clear();
+    }
+}
+
+fn spinner() -> ProgressStyle {
+    ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+        .unwrap_or_else(|_| ProgressStyle::default_spinner())
+}
+
+impl oavm::build::Progress for Progress {
+    fn phase(&self, name: &str, total: Option<u64>, bytes: bool) {
+        let style = match (total, bytes) {
+            (None, _) => spinner(),
+            (Some(_), true) => ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {msg:<16} [{bar:30}] {bytes}/{total_bytes} \
+                 {binary_bytes_per_sec}, {eta} left",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            (Some(_), false) => ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {msg:<16} [{bar:30}] {pos}/{len} {per_sec}, {eta} \
+                 left",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        };
+        self.bar.set_style(style.progress_chars("=> "));
+        if let Some(total) = total {
+            self.bar.set_length(total);
+        }
+        self.bar.set_position(0);
+        self.bar.reset_eta();
+        self.bar.set_message(name.to_string());
+    }
+
+    fn at(&self, done: u64) {
+        self.bar.set_position(done);
+    }
+}
+
+impl Drop for Progress {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}
+
+/// Runs `f` on a rayon pool of `threads` threads (0: one per core).
+pub fn with_threads<T: Send>(
+    threads: usize,
+    f: impl FnOnce() -> Result<T, Error> + Send,
+) -> Result<T, Error> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::Invalid(format!("cannot start {threads} threads: {e}")))?;
+    pool.install(f)
+}
+
+/// The cores of this machine.
+pub fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// How a file is traced: memory, threads, order, checks. Shared by every mode of `oavm-trace`.
+#[derive(clap::Args, Debug)]
+pub struct TraceArgs {
+    /// Bytes of decoded blocks kept in memory (e.g. 512M, 1.5G). Default: half of the memory
+    /// available at start (MemAvailable, or what the memory cgroup has left). The decoded
+    /// blocks held never exceed it, and it is never raised: a budget that cannot hold two of
+    /// the file's largest blocks per thread and one more lowers the threads, and one that
+    /// cannot hold three is an error that says what the file needs.
+    #[arg(long, value_name = "SIZE", value_parser = parse_bytes)]
+    pub mem_budget: Option<u64>,
+    /// Do not check a raw block's checksum when it is paged in: only the pages a walk touches
+    /// are read (far less from the disk when rays pass through blocks), but a damaged block is
+    /// no longer caught by its checksum (reads stay bounds-checked: wrong answers, never a
+    /// crash). `--verify` checks everything regardless.
+    #[arg(long)]
+    pub no_block_checks: bool,
+    /// Order of tracing: morton (rays that enter the model near each other, in the same
+    /// direction octant, together; image tiles in Morton order), blocks (rays binned by the
+    /// first block they need, found in the top tree, then as morton) or none (as given; image
+    /// tiles row by row). The answers are the same; the blocks read again under a small budget
+    /// are not. Default: blocks when the budget is smaller than the file's decoded blocks,
+    /// morton otherwise.
+    #[arg(long, value_parser = parse_order)]
+    pub order: Option<Order>,
+    /// Worker threads. Default: one per core, or eight per core when the budget is smaller
+    /// than the file's decoded blocks (some threads trace while others wait for the disk);
+    /// lowered to what the budget holds.
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// The camera and light of renders and of `--primary`.
+#[derive(clap::Args, Debug)]
+pub struct CameraArgs {
+    /// Take the camera from this BART AFF scene's viewpoint (`v`: from, at, up, and angle as the
+    /// vertical field of view) and the light from its first light (`l`), or the viewpoint
+    /// without one; the image size is the scene's resolution unless --width/--height are given.
+    #[arg(long, value_name = "SCENE.aff", conflicts_with_all = ["eye", "target", "fov", "up"])]
+    pub view: Option<PathBuf>,
+    /// With --view: take the camera from the scene's animated camera path (`k camera`) at its
+    /// first frame instead of its `v` block (BART's own animation frame).
+    #[arg(long, requires = "view")]
+    pub camera_path: bool,
+    /// Camera position (default: in front of the model, framing it).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
+    pub eye: Option<[f64; 3]>,
+    /// Point the camera looks at (default: the model's centre).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
+    pub target: Option<[f64; 3]>,
+    /// Camera up vector (default 0,1,0).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
+    pub up: Option<[f64; 3]>,
+    /// Vertical field of view in degrees (default 40).
+    #[arg(long)]
+    pub fov: Option<f64>,
+    /// Point light position (default: the --view scene's first light, else above, right and
+    /// in front of the model).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
+    pub light: Option<[f64; 3]>,
+}
+
+/// Parses a byte size: a number with an optional binary unit, `K`, `M`, `G` or `T` (powers of
+/// 1024; `KiB`, `MB`... are read the same, case-insensitive), e.g. `512M`, `1.5G`, `4096`.
+pub fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let value: f64 = num
+        .parse()
+        .map_err(|_| format!("`{s}` is not a size (examples: 512M, 1.5G, 4096)"))?;
+    let unit = unit.trim().to_ascii_lowercase();
+    let unit = unit.trim_end_matches("ib").trim_end_matches('b');
+    let scale: f64 = match unit {
+        "" => 1.0,
+        "k" => 1024.0,
+        "m" => 1024.0 * 1024.0,
+        "g" => 1024.0 * 1024.0 * 1024.0,
+        "t" => 1024.0 * 1024.0 * 1024.0 * 1024.0,
+        _ => return Err(format!("`{s}`: unknown unit (use K, M, G or T)")),
+    };
+    let bytes = value * scale;
+    if !bytes.is_finite() || bytes < 0.0 || bytes >= u64::MAX as f64 {
+        return Err(format!("`{s}` is out of range"));
+    }
+    Ok(bytes.round() as u64)
+}
+
+/// Parses `X,Y,Z` (three finite numbers).
+pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err(format!("expected three finite numbers X,Y,Z, got {s:?}")),
+    }
+}
+
+/// Parses `WIDTHxHEIGHT`, each 1 to 16384.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
+    let dim = |v: &str| match v.trim().parse::<u32>() {
+        Ok(n) if (1..=16384).contains(&n) => Ok(n),
+        _ => Err(format!("{s:?}: sizes are 1 to 16384 pixels")),
+    };
+    Ok((dim(w)?, dim(h)?))
+}
+
+pub fn parse_order(s: &str) -> Result<Order, String> {
+    s.parse()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes() {
+        assert_eq!(parse_bytes("4096"), Ok(4096));
+        assert_eq!(parse_bytes("512M"), Ok(512 << 20));
+        assert_eq!(parse_bytes("1.5G"), Ok(3 << 29));
+        assert_eq!(parse_bytes("4GiB"), Ok(4 << 30));
+        assert_eq!(parse_bytes("256k"), Ok(256 << 10));
+        assert!(parse_bytes("12X").is_err());
+        assert!(parse_bytes("G").is_err());
+        assert!(parse_bytes("-1").is_err());
+        assert_eq!(parse_size("640x480"), Ok((640, 480)));
+        assert!(parse_size("0x480").is_err());
+        assert!(parse_vec3("1,2").is_err());
+        assert!(parse_vec3("1,2,inf").is_err());
+    }
+}

@@ -1,0 +1,210 @@
+//! `oavm-inspect FILE.oavm`: shows what a packed file holds (header, sections, the top tree's
+//! levels, the block directory; with `--blocks` every block, with `--levels` the whole tree's
+//! nodes per level) and, with `--verify`, checks every byte of it. Glue over
+//! `oavm::physical::inspect`.
+
+mod cli;
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use oavm::physical::{InspectOptions, Inspection, inspect};
+use oavm::{Error, Scene};
+
+/// Shows the structure of an .oavm file (format-spec.md): header, sections, top tree, block
+/// directory; opening reads no block unless --levels or --verify asks.
+#[derive(Parser, Debug)]
+#[command(name = "oavm-inspect", version)]
+struct Args {
+    /// The .oavm file.
+    file: PathBuf,
+    /// List every block's directory entry.
+    #[arg(long)]
+    blocks: bool,
+    /// Count the whole tree's nodes per level (reads and decodes every block).
+    #[arg(long)]
+    levels: bool,
+    /// Also check every section, checksum and invariant; exit non-zero on any defect.
+    #[arg(long)]
+    verify: bool,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    cli::main_with("oavm-inspect", || run(&args))
+}
+
+fn run(args: &Args) -> Result<(), Error> {
+    let scene = Scene::open(&args.file)?;
+    let inspection = inspect(
+        scene.file(),
+        InspectOptions {
+            blocks: args.blocks,
+            levels: args.levels,
+        },
+    );
+    let verify = match args.verify {
+        true => Some(scene.verify()?),
+        false => None,
+    };
+    scene.check_unchanged()?;
+    if args.json {
+        #[derive(serde::Serialize)]
+        struct Out<'a> {
+            file: &'a std::path::Path,
+            #[serde(flatten)]
+            inspection: &'a Inspection,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            verify: Option<&'a oavm::logical::VerifyReport>,
+        }
+        cli::print_json(&Out {
+            file: &args.file,
+            inspection: &inspection,
+            verify: verify.as_ref(),
+        })?;
+    } else {
+        cli::print_text(&text(args, &inspection))?;
+    }
+    match verify {
+        Some(r) if !r.is_ok() => {
+            for d in &r.defects {
+                eprintln!("oavm-inspect: {}: {d}", args.file.display());
+            }
+            Err(Error::Invalid(format!(
+                "{}: verification failed ({} defects)",
+                args.file.display(),
+                r.defects.len()
+            )))
+        }
+        Some(_) if !args.json => {
+            cli::print_text("verify: ok (every checksum and invariant holds)\n")
+        }
+        _ => Ok(()),
+    }
+}
+
+/// The human-readable report.
+fn text(args: &Args, i: &Inspection) -> String {
+    let h = &i.header;
+    let mut t = String::new();
+    let mut line = |k: &str, v: String| {
+        let _ = writeln!(t, "{k:<20} {v}");
+    };
+    line(
+        "file",
+        format!("{} ({} bytes)", args.file.display(), h.file_size),
+    );
+    line(
+        "format",
+        format!(
+            "version {}, flags {:#x} [{}]",
+            h.version,
+            h.flags,
+            i.flags.join(", ")
+        ),
+    );
+    line(
+        "root cube",
+        format!("min {:?}, edge {}", h.root_min, h.root_size),
+    );
+    line(
+        "mesh bounds",
+        format!("{:?} .. {:?}", h.mesh_min, h.mesh_max),
+    );
+    line(
+        "triangles",
+        format!(
+            "{} input, {} stored, {} records in blocks",
+            h.input_triangles, h.stored_triangles, h.block_triangles
+        ),
+    );
+    line(
+        "tree",
+        format!(
+            "{} levels (max depth {}, leaf size {}), {} solid and {} empty leaves",
+            h.level_count, h.max_depth, h.leaf_size, h.solid_leaves, h.empty_leaves
+        ),
+    );
+    let _ = writeln!(t, "\nsections:");
+    for s in &i.sections {
+        let e = &s.entry;
+        let _ = writeln!(
+            t,
+            "  {:<16} offset {:>12}  {:>12} bytes  {:>10} records  xxh3 {:#018x}",
+            s.name, e.offset, e.length, e.count, e.checksum
+        );
+    }
+    let _ = writeln!(t, "\ntop tree:");
+    for l in &i.top_levels {
+        let _ = writeln!(
+            t,
+            "  level {:>2}: {:>9} nodes ({} internal, {} empty, {} links{})",
+            l.level,
+            l.nodes,
+            l.internal,
+            l.empty,
+            l.links,
+            if l.invalid > 0 {
+                format!(", {} invalid", l.invalid)
+            } else {
+                String::new()
+            }
+        );
+    }
+    let d = &i.directory;
+    let _ = writeln!(
+        t,
+        "\nblocks: {} ({} raw, {} zstd), {} bytes stored, {} decoded (largest {}, smallest {}), {} triangle records",
+        d.blocks,
+        d.raw_blocks,
+        d.zstd_blocks,
+        d.stored_bytes,
+        d.decoded_bytes,
+        d.largest_decoded,
+        d.smallest_decoded,
+        d.triangle_records
+    );
+    for (level, n) in &d.root_levels {
+        let _ = writeln!(t, "  roots at level {level:>2}: {n} blocks");
+    }
+    if let Some(blocks) = &i.blocks {
+        let _ = writeln!(
+            t,
+            "\n  {:>8} {:>14} {:>10} {:>10} {:>5} {:>5} {:>6} {:>8}",
+            "block", "offset", "stored", "decoded", "codec", "level", "roots", "tris"
+        );
+        for (b, e) in blocks.iter().enumerate() {
+            let _ = writeln!(
+                t,
+                "  {b:>8} {:>14} {:>10} {:>10} {:>5} {:>5} {:>6} {:>8}",
+                e.offset,
+                e.stored_len,
+                e.raw_len,
+                match e.codec {
+                    oavm::physical::format::CODEC_RAW => "raw",
+                    oavm::physical::format::CODEC_ZSTD => "zstd",
+                    _ => "?",
+                },
+                e.root_level,
+                e.root_count,
+                e.triangles
+            );
+        }
+    }
+    if let Some(levels) = &i.tree_levels {
+        let _ = writeln!(t, "\nwhole tree:");
+        for l in levels {
+            let _ = writeln!(
+                t,
+                "  level {:>2}: {:>10} nodes ({} internal, {} solid, {} empty)",
+                l.level, l.nodes, l.internal, l.solid, l.empty
+            );
+        }
+    }
+    t
+}

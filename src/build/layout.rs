@@ -1,0 +1,219 @@
+//! Laying the built tree out as file records (format-spec §4-§7): node records per level in
+//! Morton order, the rank directory, the volume table, references and triangles in leaf
+//! (depth-first, i.e. global Morton) order, and each solid leaf's tight bounds.
+
+use std::collections::HashMap;
+
+use rayon::prelude::*;
+
+use super::merge;
+use super::subdivide::{BuildLevel, BuildNode, LatticeTri};
+use crate::error::Error;
+use crate::mapping::morton::{MAX_LEVEL, cell_origin, cell_size};
+use crate::mapping::rank_words;
+use crate::physical::format::{
+    CELL_MARGIN, LeafBounds, LevelEntry, MAX_INLINE_REFS, NodeRecord, TriRecord, VolumeRecord,
+    VolumeShape,
+};
+use crate::physical::writer::UnitParts;
+
+/// A laid-out tree and its leaf counts.
+pub(super) struct Laid {
+    pub(super) tree: UnitParts,
+    pub(super) empty_leaves: u64,
+    pub(super) solid_leaves: u64,
+}
+
+/// Lays the tree out as file records: node records per level, the rank directory, the volume
+/// table, references and triangles in leaf (depth-first, i.e. global Morton) order.
+pub(super) fn layout(
+    levels: &[BuildLevel],
+    boxes: &merge::LeafBoxes,
+    records: &[TriRecord],
+    lattice: &[LatticeTri],
+) -> Result<Laid, Error> {
+    layout_from(levels, 0, boxes, records, lattice)
+}
+
+/// [`layout`] for a subtree whose `levels[0]` is absolute level `base`.
+pub(super) fn layout_from(
+    levels: &[BuildLevel],
+    base: u32,
+    boxes: &merge::LeafBoxes,
+    records: &[TriRecord],
+    lattice: &[LatticeTri],
+) -> Result<Laid, Error> {
+    // All leaves, ordered by the Morton code of their lowest lattice corner: depth-first order,
+    // so the leaves (and with them references and triangles) of a subtree are contiguous.
+    let mut leaves: Vec<(u64, u32, u32)> = levels
+        .iter()
+        .enumerate()
+        .flat_map(|(l, lv)| {
+            lv.nodes
+                .iter()
+                .zip(&lv.codes)
+                .enumerate()
+                .filter(|(_, (n, _))| matches!(n, BuildNode::Leaf(_)))
+                .map(move |(i, (_, &code))| {
+                    (
+                        code << (3 * (MAX_LEVEL - base - l as u32)),
+                        l as u32,
+                        i as u32,
+                    )
+                })
+        })
+        .collect();
+    leaves.par_sort_unstable();
+
+    // Tight bounds of every solid leaf (spec §4.2), in parallel.
+    let bounds: Vec<Vec<LeafBounds>> = levels
+        .par_iter()
+        .enumerate()
+        .map(|(l, lv)| {
+            lv.nodes
+                .par_iter()
+                .zip(&lv.codes)
+                .map(|(n, &code)| match n {
+                    BuildNode::Leaf(t) if !t.is_empty() => {
+                        leaf_bounds(lattice, t, code, base + l as u32)
+                    }
+                    _ => LeafBounds::FULL,
+                })
+                .collect()
+        })
+        .collect();
+
+    let too_many = |what: &str, n: usize| {
+        Error::Build(format!(
+            "{n} {what}: more than this version's 32-bit indices can address; raise --leaf-size \
+             or lower --max-depth"
+        ))
+    };
+    let mut payload: Vec<Vec<u32>> = levels.iter().map(|lv| vec![0; lv.nodes.len()]).collect();
+    let mut shapes: Vec<Vec<VolumeShape>> = levels
+        .iter()
+        .map(|lv| vec![VolumeShape { level: 0, axes: 0 }; lv.nodes.len()])
+        .collect();
+    let mut refs: Vec<u32> = Vec::new();
+    let mut new_index = vec![u32::MAX; records.len()];
+    let mut triangles: Vec<TriRecord> = Vec::with_capacity(records.len());
+    let mut volumes: Vec<VolumeRecord> = Vec::new();
+    let mut volume_index: HashMap<VolumeRecord, u32> = HashMap::new();
+    for &(_, l, i) in &leaves {
+        let (l, i) = (l as usize, i as usize);
+        let BuildNode::Leaf(tris) = &levels[l].nodes[i] else {
+            continue;
+        };
+        if tris.is_empty() {
+            let merged =
+                boxes[l][i].ok_or_else(|| Error::Build("empty leaf without a volume".into()))?;
+            let b = merged.volume;
+            let next = volumes.len();
+            let v = *volume_index.entry(b).or_insert_with(|| {
+                volumes.push(b);
+                next as u32
+            });
+            if volumes.len() > u32::MAX as usize {
+                return Err(too_many("volumes", volumes.len()));
+            }
+            payload[l][i] = v;
+            shapes[l][i] = merged.shape;
+        } else {
+            if refs.len() + tris.len() + 1 > u32::MAX as usize {
+                return Err(too_many("triangle references", refs.len() + tris.len()));
+            }
+            payload[l][i] = refs.len() as u32;
+            if tris.len() > MAX_INLINE_REFS as usize {
+                refs.push(tris.len() as u32); // escaped count (spec §4.2)
+            }
+            let start = refs.len();
+            for &t in tris {
+                let slot = &mut new_index[t as usize];
+                if *slot == u32::MAX {
+                    *slot = triangles.len() as u32;
+                    triangles.push(records[t as usize]);
+                }
+                refs.push(*slot);
+            }
+            refs[start..].sort_unstable();
+        }
+    }
+
+    // Node records level by level, and the rank directory of each level.
+    let mut level_entries = Vec::with_capacity(levels.len());
+    let mut nodes = Vec::new();
+    let mut ranks = Vec::new();
+    let (mut empty_leaves, mut solid_leaves) = (0u64, 0u64);
+    for (l, lv) in levels.iter().enumerate() {
+        let start = nodes.len();
+        nodes.extend(lv.nodes.iter().enumerate().map(|(i, n)| match n {
+            BuildNode::Internal => NodeRecord::internal(),
+            BuildNode::Leaf(t) if t.is_empty() => {
+                empty_leaves += 1;
+                NodeRecord::empty(payload[l][i], shapes[l][i])
+            }
+            BuildNode::Leaf(t) => {
+                solid_leaves += 1;
+                NodeRecord::solid(payload[l][i], t.len() as u32, bounds[l][i])
+            }
+        }));
+        let (words, internal_count) = rank_words(nodes[start..].iter().map(|r| r.is_internal()));
+        level_entries.push(LevelEntry {
+            node_count: lv.nodes.len() as u64,
+            internal_count,
+            node_start: start as u64,
+            rank_start: ranks.len() as u64,
+        });
+        ranks.extend(words);
+    }
+
+    Ok(Laid {
+        tree: UnitParts {
+            levels: level_entries,
+            nodes,
+            ranks,
+            volumes,
+            refs,
+            triangles,
+        },
+        empty_leaves,
+        solid_leaves,
+    })
+}
+
+/// The tight bounds of a solid leaf: the box of the parts of its triangles inside its cell
+/// (enlarged by the cell margin, like the cell the triangles were assigned to), in sixteenths of
+/// the cell, rounded outward.
+fn leaf_bounds(lattice: &[LatticeTri], tris: &[u32], code: u64, level: u32) -> LeafBounds {
+    let size = cell_size(level) as f64;
+    let origin = cell_origin(code, level).map(|c| c as f64);
+    let m = CELL_MARGIN;
+    let lo: [f64; 3] = std::array::from_fn(|k| origin[k] - m);
+    let hi: [f64; 3] = std::array::from_fn(|k| origin[k] + size + m);
+    let mut blo = [f64::INFINITY; 3];
+    let mut bhi = [f64::NEG_INFINITY; 3];
+    for &t in tris {
+        let tri = &lattice[t as usize];
+        // The exact clip; if rounding leaves nothing of a triangle the exact test kept, fall back
+        // to its bounding box (still conservative).
+        let (a, b) = crate::geom::tribox::clipped_bounds(&tri.v, lo, hi).unwrap_or((
+            std::array::from_fn(|k| tri.lo[k].max(lo[k])),
+            std::array::from_fn(|k| tri.hi[k].min(hi[k])),
+        ));
+        for k in 0..3 {
+            blo[k] = blo[k].min(a[k]);
+            bhi[k] = bhi[k].max(b[k]);
+        }
+    }
+    let q = 16.0 / size;
+    let mut b = LeafBounds::FULL;
+    for k in 0..3 {
+        let l = ((blo[k] - origin[k]) * q).floor().clamp(0.0, 15.0);
+        let h = ((bhi[k] - origin[k]) * q).ceil().clamp(1.0, 16.0) - 1.0;
+        if l <= h {
+            b.lo[k] = l as u8;
+            b.hi[k] = h as u8;
+        }
+    }
+    b
+}

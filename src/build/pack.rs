@@ -1,0 +1,119 @@
+//! Packing: a mesh file in, an `.oavm` file out, built in memory or, within a memory budget,
+//! streamed ([`super::streaming`]). What `oavm-pack` runs.
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::{BuildOptions, BuildStats, Progress, build, streaming, write};
+use crate::error::Error;
+use crate::output::Output;
+use crate::physical::writer::BlockOptions;
+
+/// How to pack.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PackOptions {
+    pub build: BuildOptions,
+    pub blocks: BlockOptions,
+    /// Pose an animated (BART AFF) scene at this time; an error for other formats.
+    pub time: Option<f64>,
+    /// Pack within about this many bytes of memory, streaming the mesh (binary PLY only):
+    /// for meshes larger than memory. `None`: read and build the whole mesh in memory.
+    pub mem_budget: Option<u64>,
+}
+
+/// What [`pack`] did, for `oavm-pack`'s report.
+#[derive(Clone, Debug, Serialize)]
+pub struct PackReport {
+    pub mesh: String,
+    /// The scene time an animated (AFF) scene was posed at, when one was asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time: Option<f64>,
+    pub output: String,
+    pub options: BuildOptions,
+    pub mesh_bytes: u64,
+    pub parse_seconds: f64,
+    pub parse_mb_per_s: f64,
+    #[serde(flatten)]
+    pub stats: BuildStats,
+    pub write_seconds: f64,
+    pub file_bytes: u64,
+    pub bytes_per_triangle: f64,
+    /// How blocks were made, and how many.
+    #[serde(rename = "block_options")]
+    pub blocks: BlockOptions,
+    pub block_count: u32,
+    /// How the streaming builder (`--mem-budget`) split the work; absent for the in-memory one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub streaming: Option<StreamingReport>,
+    pub total_seconds: f64,
+}
+
+/// What the streaming builder did ([`streaming::pack_streaming`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct StreamingReport {
+    pub mem_budget: u64,
+    /// Subtrees built in memory one at a time.
+    pub chunks: u64,
+    /// Triangles a chunk may hold, from the budget.
+    pub chunk_triangles_target: u64,
+    /// The largest chunk's triangle count as the histogram estimated it.
+    pub largest_chunk_estimate: u64,
+    /// Bytes spilled to the temporary file (triangles, once per chunk they overlap).
+    pub spill_bytes: u64,
+    pub histogram_level: u32,
+}
+
+/// Reads the mesh at `mesh_path`, builds its tree and writes it to `out` atomically (see
+/// [`crate::output`]): the output path is checked before any work (it may not be the mesh), and
+/// on any error nothing is left at `out`.
+pub fn pack(
+    mesh_path: &Path,
+    out: &Path,
+    opts: &PackOptions,
+    progress: &dyn Progress,
+) -> Result<PackReport, Error> {
+    opts.build.validate()?;
+    opts.blocks.validate()?;
+    if opts.mem_budget.is_some() && opts.time.is_some() {
+        return Err(Error::Invalid(
+            "--time poses an .aff scene, which --mem-budget cannot stream (binary PLY only)".into(),
+        ));
+    }
+    let output = Output::create(out, &[mesh_path])?;
+    if let Some(budget) = opts.mem_budget {
+        return streaming::pack_streaming(mesh_path, output, opts, budget, progress);
+    }
+    let t0 = Instant::now();
+    progress.phase("parsing the mesh", None, false);
+    let mesh_bytes = std::fs::metadata(mesh_path).map(|m| m.len()).unwrap_or(0);
+    let mesh = crate::mesh::load_at(mesh_path, opts.time)?;
+    let parse_seconds = t0.elapsed().as_secs_f64();
+
+    let (parts, stats) = build(&mesh, &opts.build, progress)?;
+    drop(mesh);
+
+    progress.phase("writing", None, false);
+    let t1 = Instant::now();
+    let (file_bytes, block_count) = write::write_file(output, &parts, &opts.blocks)?;
+    drop(parts);
+    let write_seconds = t1.elapsed().as_secs_f64();
+    Ok(PackReport {
+        mesh: mesh_path.display().to_string(),
+        time: opts.time,
+        output: out.display().to_string(),
+        options: opts.build,
+        mesh_bytes,
+        parse_seconds,
+        parse_mb_per_s: mesh_bytes as f64 / 1e6 / parse_seconds.max(1e-9),
+        bytes_per_triangle: file_bytes as f64 / stats.input_triangles.max(1) as f64,
+        stats,
+        write_seconds,
+        file_bytes,
+        blocks: opts.blocks,
+        block_count,
+        streaming: None,
+        total_seconds: t0.elapsed().as_secs_f64(),
+    })
+}

@@ -1,0 +1,240 @@
+//! The streaming builder (`oavm-pack --mem-budget`): packs a binary PLY whose triangles do not
+//! fit in memory, holding at most a budget's worth at a time, and writes the file in one pass.
+//!
+//! **Passes.**
+//!
+//! 1. *Vertices*: the PLY is read through a map ([`PlyStream`]); only the vertex positions are
+//!    kept (12 bytes a vertex), the map is released behind the reader.
+//! 2. *Bounds*: a pass over the triangles finds the bounds of the non-degenerate ones, hence the
+//!    root cube (the same one the in-memory builder fits, format-spec §2).
+//! 3. *Histogram*: a second pass counts, for every cell of level `H` (at most 8: 16.7 million
+//!    cells; less where that would take more than an eighth of the budget), the triangles that overlap it widened by the cell margin (the exact triangle–box
+//!    test of spec §6 where a triangle's box spans several cells). Summed upwards, these counts
+//!    decide the **top of the tree** without holding any triangle: a node holding more than a
+//!    chunk's worth of triangles is split, a node holding none is an empty leaf, any other node
+//!    is a **chunk**, a subtree that will be built in memory. (Sums over-count triangles that
+//!    straddle cells; that only makes a split more likely. Emptiness is exact: a cell counted 0
+//!    has no triangle within its margin.)
+//! 4. *Distribution* (an external distribution sort by Morton code): a third pass appends every
+//!    triangle to the spill bucket of every chunk it overlaps ([`SpillBuckets`]: one unnamed
+//!    temporary file, which the kernel removes whatever happens to the process).
+//! 5. *Chunks*, in Morton order: each chunk's triangles are read back, its subtree is built,
+//!    merged and laid out exactly as the in-memory builder does for a node
+//!    ([`subdivide::subdivide_from`] and friends), split into blocks
+//!    ([`super::blocks::partition`]) and the blocks are appended to the output; only
+//!    the chunk's few top-tree nodes are kept.
+//! 6. *Top*: the top tree above the chunks (empty leaves merged among their siblings as in the
+//!    in-memory builder), the chunks' top nodes and the links are laid out together
+//!    ([`super::blocks::assemble_top`]), then the directory and the header.
+//!
+//! **Memory.** Positions (12 bytes a vertex), the histogram (4 bytes a cell), the spill buffers
+//! (an eighth of the budget, at most 256 MiB), and one chunk's build: the chunk size is what is
+//! left of the budget divided by [`BYTES_PER_CHUNK_TRIANGLE`], a measured upper bound of the
+//! in-memory builder's peak per triangle. The trees of two chunks never coexist.
+//!
+//! **Differences from the in-memory build.** The top levels are split by the histogram rather
+//! than by the leaf size (they hold far more than `K` triangles either way), and a chunk's root
+//! does not know its ancestors' counts (the rule that stops where subdivision separates nothing
+//! starts afresh at each chunk). Empty leaves above the chunks merge with their siblings; the
+//! volumes of a chunk whose root turns out empty are its own cell. The file follows the same
+//! specification and answers every ray the same way.
+
+mod chunks;
+mod plan;
+
+use std::path::Path;
+use std::time::Instant;
+
+use super::pack::{PackOptions, PackReport, StreamingReport};
+use super::stats::{PhaseSeconds, TreeCounts};
+use super::subdivide::LatticeTri;
+use super::{BuildStats, Progress, check_scale, is_degenerate};
+use crate::error::Error;
+use crate::mesh::stream::{PlyStream, StreamTriangle};
+use crate::output::Output;
+use crate::physical::format::{LATTICE_SIZE, root_cube};
+
+pub use plan::HISTOGRAM_LEVEL;
+
+/// Peak bytes of the in-memory builder per triangle of a chunk: triangle records (40), lattice
+/// triangles (120), reference lists while subdividing and laying out, the laid-out parts, the
+/// block copies and their encoded bytes. Measured: packing the dragon (871,414 triangles) in
+/// memory peaks at 253 MB including the parsed mesh, about 290 bytes a triangle; this leaves room.
+pub const BYTES_PER_CHUNK_TRIANGLE: u64 = 600;
+/// Triangles per pass batch.
+const BATCH: usize = 1 << 16;
+
+/// The mapping from world coordinates to the lattice of the root cube.
+#[derive(Clone, Copy, Debug)]
+struct Lattice {
+    root_min: [f64; 3],
+    root_size: f64,
+    /// Lattice cells per world unit.
+    scale: f64,
+}
+
+impl Lattice {
+    fn new(lo: [f32; 3], hi: [f32; 3]) -> Result<Lattice, Error> {
+        let (root_min, root_size) = root_cube(lo, hi);
+        check_scale(root_size)?;
+        Ok(Lattice {
+            root_min,
+            root_size,
+            scale: LATTICE_SIZE as f64 / root_size,
+        })
+    }
+
+    fn map(&self, v: &[[f32; 3]; 3]) -> LatticeTri {
+        LatticeTri::new(std::array::from_fn(|i| {
+            std::array::from_fn(|k| (v[i][k] as f64 - self.root_min[k]) * self.scale)
+        }))
+    }
+}
+
+/// What the bounds pass found.
+struct Bounds {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    /// Triangles in the mesh, and those kept (not degenerate).
+    input: u64,
+    stored: u64,
+}
+
+/// A pass over the triangles of `ply` in batches, then a check that the file did not change
+/// under its map meanwhile.
+fn pass(
+    ply: &PlyStream,
+    positions: &[[f32; 3]],
+    name: &str,
+    progress: &dyn Progress,
+    f: &mut dyn FnMut(&[StreamTriangle]) -> Result<(), Error>,
+) -> Result<u64, Error> {
+    progress.phase(name, Some(ply.file_len()), true);
+    let n = ply.for_each_triangle_batch(positions, BATCH, &|b| progress.at(b), f)?;
+    ply.check_unchanged()?;
+    Ok(n)
+}
+
+/// Packs the binary PLY at `mesh_path` into `out` within about `mem_budget` bytes of memory.
+pub(super) fn pack_streaming(
+    mesh_path: &Path,
+    out: Output,
+    opts: &PackOptions,
+    mem_budget: u64,
+    progress: &dyn Progress,
+) -> Result<PackReport, Error> {
+    let t0 = Instant::now();
+    let ply = PlyStream::open(mesh_path)?;
+    let file_len = ply.file_len();
+
+    // 1. Vertices.
+    progress.phase("reading vertices", Some(file_len), true);
+    let positions = ply.read_positions(&|b| progress.at(b))?;
+    ply.check_unchanged()?;
+
+    // 2. Bounds of the non-degenerate triangles, hence the root cube.
+    let b = bounds(&ply, &positions, progress)?;
+    let parse_seconds = t0.elapsed().as_secs_f64();
+    if b.input > u32::MAX as u64 {
+        return Err(Error::Invalid(format!(
+            "{} triangles: primitive ids are 32-bit",
+            b.input
+        )));
+    }
+    if b.stored == 0 {
+        return Err(Error::Invalid(format!(
+            "{}: every triangle is degenerate; pack it without --mem-budget",
+            mesh_path.display()
+        )));
+    }
+    let lattice = Lattice::new(b.lo, b.hi)?;
+
+    // 3. Histogram, top of the tree and chunks; 4. distribution into spill buckets.
+    let plan = plan::plan(
+        &ply,
+        &positions,
+        &lattice,
+        mem_budget,
+        &opts.build,
+        progress,
+    )?;
+    let spill = plan::distribute(&ply, &positions, &lattice, &plan, out.path(), progress)?;
+    drop(positions);
+    let build_seconds_pre = t0.elapsed().as_secs_f64() - parse_seconds;
+
+    // 5. Chunks, in Morton order, each built in memory and written as blocks; 6. the top.
+    let t_chunks = Instant::now();
+    let done = chunks::build_and_write(out, &plan, &spill, &lattice, &b, opts, progress)?;
+    let chunk_seconds = t_chunks.elapsed().as_secs_f64();
+
+    let stats = BuildStats::new(
+        &done.counts,
+        b.input,
+        b.stored,
+        PhaseSeconds {
+            build: build_seconds_pre + chunk_seconds,
+            ..PhaseSeconds::default()
+        },
+    );
+    Ok(PackReport {
+        mesh: mesh_path.display().to_string(),
+        time: None,
+        output: done.output,
+        options: opts.build,
+        mesh_bytes: file_len,
+        parse_seconds,
+        parse_mb_per_s: file_len as f64 / 1e6 / parse_seconds.max(1e-9),
+        bytes_per_triangle: done.file_bytes as f64 / b.input.max(1) as f64,
+        stats,
+        write_seconds: 0.0,
+        file_bytes: done.file_bytes,
+        blocks: opts.blocks,
+        block_count: done.block_count,
+        streaming: Some(StreamingReport {
+            mem_budget,
+            chunks: plan.chunks.len() as u64,
+            chunk_triangles_target: plan.chunk_triangles,
+            largest_chunk_estimate: plan.chunks.iter().map(|c| c.estimate).max().unwrap_or(0),
+            spill_bytes: spill.disk_bytes(),
+            histogram_level: plan.h,
+        }),
+        total_seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Pass 2: the bounds of the non-degenerate triangles, and the triangle counts.
+fn bounds(
+    ply: &PlyStream,
+    positions: &[[f32; 3]],
+    progress: &dyn Progress,
+) -> Result<Bounds, Error> {
+    let mut b = Bounds {
+        lo: [f32::INFINITY; 3],
+        hi: [f32::NEG_INFINITY; 3],
+        input: 0,
+        stored: 0,
+    };
+    b.input = pass(ply, positions, "bounds", progress, &mut |batch| {
+        for (_, v) in batch {
+            if is_degenerate(v) {
+                continue;
+            }
+            b.stored += 1;
+            for p in v {
+                b.lo = std::array::from_fn(|k| b.lo[k].min(p[k]));
+                b.hi = std::array::from_fn(|k| b.hi[k].max(p[k]));
+            }
+        }
+        Ok(())
+    })?;
+    Ok(b)
+}
+
+/// What the chunks and the top made.
+struct Written {
+    output: String,
+    file_bytes: u64,
+    block_count: u32,
+    /// Over the chunks' trees and the top tree above them.
+    counts: TreeCounts,
+}

@@ -1,0 +1,89 @@
+//! What a traced set of rays reports: its work counters, per ray, and the pager's figures, in
+//! the shape `oavm-trace --json` prints them.
+
+use serde::Serialize;
+
+use super::pager::PageCounters;
+use super::trace::Counters;
+
+/// The pager's counters with the hit rate and the bytes read per ray.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct PageReport {
+    #[serde(flatten)]
+    pub counters: PageCounters,
+    pub hit_rate: f64,
+    pub bytes_read_per_ray: f64,
+}
+
+impl PageReport {
+    pub fn new(c: &Counters) -> PageReport {
+        PageReport {
+            counters: c.page,
+            hit_rate: c.page.hits as f64 / c.page.requested.max(1) as f64,
+            bytes_read_per_ray: c.page.bytes_read as f64 / c.rays.max(1) as f64,
+        }
+    }
+}
+
+/// The figures of one set of rays traced in `seconds`.
+#[derive(Clone, Debug, Serialize)]
+pub struct SetReport {
+    pub rays: u64,
+    /// Rays that hit something (closest-hit sets).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hits: Option<u64>,
+    /// Rays occluded (any-hit sets).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub occluded: Option<u64>,
+    pub seconds: f64,
+    pub mrays_per_s: f64,
+    pub nodes_visited: u64,
+    pub leaves_visited: u64,
+    pub volumes_crossed: u64,
+    pub leaves_culled: u64,
+    pub links_culled: u64,
+    pub triangles_tested: u64,
+    pub nodes_visited_per_ray: f64,
+    pub leaves_visited_per_ray: f64,
+    pub volumes_crossed_per_ray: f64,
+    pub triangles_tested_per_ray: f64,
+    pub page: PageReport,
+}
+
+/// What a set's rays answered: how many hit (closest hit) or were occluded (any hit).
+#[derive(Clone, Copy, Debug)]
+pub enum Answered {
+    Hits(u64),
+    Occluded(u64),
+    /// A total over sets of both kinds.
+    Mixed,
+}
+
+impl SetReport {
+    pub fn new(c: &Counters, seconds: f64, answered: Answered) -> SetReport {
+        let per_ray = |x: u64| x as f64 / c.rays.max(1) as f64;
+        let (hits, occluded) = match answered {
+            Answered::Hits(n) => (Some(n), None),
+            Answered::Occluded(n) => (None, Some(n)),
+            Answered::Mixed => (None, None),
+        };
+        SetReport {
+            rays: c.rays,
+            hits,
+            occluded,
+            seconds,
+            mrays_per_s: c.rays as f64 / seconds.max(1e-12) / 1e6,
+            nodes_visited: c.nodes_visited,
+            leaves_visited: c.leaves_visited,
+            volumes_crossed: c.volumes_crossed,
+            leaves_culled: c.leaves_culled,
+            links_culled: c.links_culled,
+            triangles_tested: c.triangles_tested,
+            nodes_visited_per_ray: per_ray(c.nodes_visited),
+            leaves_visited_per_ray: per_ray(c.leaves_visited),
+            volumes_crossed_per_ray: per_ray(c.volumes_crossed),
+            triangles_tested_per_ray: per_ray(c.triangles_tested),
+            page: PageReport::new(c),
+        }
+    }
+}

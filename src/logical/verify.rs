@@ -1,0 +1,634 @@
+//! Full verification of an opened file (`oavm-trace FILE --verify`, `oavm-inspect --verify`;
+//! format-spec §11, "Verify"): every byte is covered by a checksum or a check. Opening already
+//! validated the header, the section table (both under the header checksum) and the top tree's
+//! level table. This drives the rest: the byte-level checks of the physical layer (section
+//! checksums, padding, block placement; every block read as the pager reads it, checksum and
+//! decoding included) and, here, the invariants of spec §10 on the contents of the top tree and
+//! of every block (rank words, leaf order, volumes, tight bounds, link bounds) and the links
+//! between them, which need the mapping layer's view of the tree.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
+use crate::mapping::TreeMap;
+use crate::mapping::morton::{self, cell_origin, cell_size};
+use crate::physical::format::*;
+use crate::physical::verify::{
+    Defects, check_block_padding, check_block_placement, check_sections,
+};
+use crate::physical::{BlockReader, BlockView, OavmFile};
+
+/// What verification found. `defects` is empty for a sound file.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct VerifyReport {
+    pub bytes_checked: u64,
+    pub sections_checked: u32,
+    pub defects: Vec<String>,
+}
+
+impl VerifyReport {
+    pub fn is_ok(&self) -> bool {
+        self.defects.is_empty()
+    }
+}
+
+/// Verifies everything open did not.
+pub fn verify<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>) -> VerifyReport {
+    let mut d = Defects::default();
+    let sections_checked = check_sections(file, &mut d);
+    check_structure(file, &mut d);
+    VerifyReport {
+        bytes_checked: file.bytes().len() as u64,
+        sections_checked,
+        defects: d.into_list(),
+    }
+}
+
+/// A unit to check: the top tree, or one block's subtrees.
+struct Unit<'a> {
+    /// "top tree" or "block N", to start its defects with.
+    label: String,
+    map: TreeMap<'a>,
+    /// Morton codes of its level-0 nodes.
+    root_codes: Vec<u64>,
+    volumes: &'a [VolumeRecord],
+    refs: &'a [u32],
+    tris: &'a [TriRecord],
+    top: bool,
+}
+
+/// What a unit contributes to the file's totals.
+#[derive(Default)]
+struct UnitTotals {
+    empty: u64,
+    solid: u64,
+    /// Links (top tree only): block, root, level, code, index in the node records.
+    links: Vec<(u32, u32, u32, u64, u64)>,
+    lo: [f32; 3],
+    hi: [f32; 3],
+    triangles: u64,
+}
+
+fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
+    let header = file.header();
+    // The root cube follows from the mesh bounds (spec §2).
+    let (root_min, root_size) = root_cube(header.mesh_min, header.mesh_max);
+    if root_min != header.root_min || root_size != header.root_size {
+        d.push(format!(
+            "header: root cube (min {:?}, size {}) is not the one the mesh bounds give (min {root_min:?}, size {root_size})",
+            header.root_min, header.root_size
+        ));
+    }
+
+    // The top tree.
+    let top = Unit {
+        label: "top tree".into(),
+        map: TreeMap::new(
+            file.levels(),
+            file.records(SectionKind::Nodes),
+            file.records(SectionKind::Ranks),
+        ),
+        root_codes: vec![0],
+        volumes: file.records(SectionKind::Volumes),
+        refs: &[],
+        tris: &[],
+        top: true,
+    };
+    let top_totals = check_unit(&top, header, d);
+
+    // Links: every block root linked exactly once, from its level.
+    let directory = file.directory();
+    // (The map holds one entry per link: its size follows the top tree's, never the
+    // directory's claims.)
+    let mut roots: std::collections::HashMap<(u32, u32), (u64, LinkBounds)> =
+        std::collections::HashMap::new();
+    // Link bounds: well-formed on links, zero elsewhere (open checked there is one per node);
+    // each link's are compared with its block's leaves when the block is checked.
+    let link_bounds: &[LinkBounds] = file.records(SectionKind::LinkBounds);
+    let top_nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
+    for (i, (rec, lb)) in top_nodes.iter().zip(link_bounds).enumerate() {
+        let is_link = matches!(rec.kind(), Some(NodeKind::Link { .. }));
+        if is_link && !lb.is_valid() {
+            d.push(format!(
+                "top tree node {i}: link bounds {lb:?} have lo > hi or reserved bytes set"
+            ));
+        } else if !is_link && *lb != LinkBounds::default() {
+            d.push(format!(
+                "top tree node {i}: link bounds {lb:?} on a node that is not a link"
+            ));
+        }
+    }
+    for &(b, root, level, code, at) in &top_totals.links {
+        let bounds = link_bounds.get(at as usize).copied().unwrap_or_default();
+        let Some(entry) = directory.get(b as usize) else {
+            d.push(format!(
+                "top tree: a link at level {level} to block {b}, past the {} blocks",
+                directory.len()
+            ));
+            continue;
+        };
+        if entry.root_level != level {
+            d.push(format!(
+                "top tree: a link at level {level} to block {b}, whose roots are at level {}",
+                entry.root_level
+            ));
+        }
+        if root >= entry.root_count {
+            d.push(format!(
+                "top tree: a link to root {root} of block {b}, which has {}",
+                entry.root_count
+            ));
+        } else if roots.insert((b, root), (code, bounds)).is_some() {
+            d.push(format!("block {b}: root {root} is linked twice"));
+        }
+    }
+
+    // The blocks: stored one after another inside the blocks section, each read as the pager
+    // reads it (entry, checksum, decoding) and checked like the top tree (in parallel; each
+    // decoded block is dropped when checked).
+    let bytes = file.bytes();
+    let placed = check_block_placement(file, d);
+    let reader = BlockReader::new(file);
+    // Distinct triangles, by primitive id: a bitset of `input_triangles` bits, at most as many
+    // bytes as the file has (a header claiming more is reported, and the count skipped), so
+    // that no header makes verify allocate more than the file's size.
+    let plausible = header.input_triangles <= 8 * bytes.len() as u64;
+    if !plausible {
+        d.push(format!(
+            "header: input_triangles {} is implausible for a file of {} bytes",
+            header.input_triangles,
+            bytes.len()
+        ));
+    }
+    let prims_seen: Vec<std::sync::atomic::AtomicU64> = (0..if plausible {
+        header.input_triangles.div_ceil(64)
+    } else {
+        0
+    })
+        .map(|_| std::sync::atomic::AtomicU64::new(0))
+        .collect();
+    let results: Vec<(Defects, UnitTotals)> = (0..directory.len())
+        .into_par_iter()
+        .filter(|&b| placed[b])
+        .map(|b| {
+            let mut bd = Defects::default();
+            let block = Block {
+                reader: &reader,
+                bytes,
+                id: b as u32,
+                entry: directory[b],
+            };
+            let totals = check_block(&block, header, &roots, &prims_seen, &mut bd);
+            (bd, totals)
+        })
+        .collect();
+
+    let mut totals = top_totals;
+    let mut first_bounds = true;
+    for (bd, t) in results {
+        d.append(bd);
+        totals.empty += t.empty;
+        totals.solid += t.solid;
+        totals.triangles += t.triangles;
+        if t.triangles > 0 {
+            for k in 0..3 {
+                if first_bounds {
+                    totals.lo[k] = t.lo[k];
+                    totals.hi[k] = t.hi[k];
+                } else {
+                    totals.lo[k] = totals.lo[k].min(t.lo[k]);
+                    totals.hi[k] = totals.hi[k].max(t.hi[k]);
+                }
+            }
+            first_bounds = false;
+        }
+    }
+    if totals.empty != header.empty_leaves || totals.solid != header.solid_leaves {
+        d.push(format!(
+            "{} empty and {} solid leaves, the header says {} and {}",
+            totals.empty, totals.solid, header.empty_leaves, header.solid_leaves
+        ));
+    }
+    if totals.triangles != header.block_triangles {
+        d.push(format!(
+            "blocks hold {} triangle records, the header says {}",
+            totals.triangles, header.block_triangles
+        ));
+    }
+    let distinct: u64 = prims_seen
+        .iter()
+        .map(|w| w.load(std::sync::atomic::Ordering::Relaxed).count_ones() as u64)
+        .sum();
+    if plausible && distinct != header.stored_triangles {
+        d.push(format!(
+            "blocks hold {distinct} distinct triangles, the header says {}",
+            header.stored_triangles
+        ));
+    }
+    if !first_bounds && (totals.lo != header.mesh_min || totals.hi != header.mesh_max) {
+        d.push(format!(
+            "header: mesh bounds {:?}..{:?} are not the triangles' bounds {:?}..{:?}",
+            header.mesh_min, header.mesh_max, totals.lo, totals.hi
+        ));
+    }
+}
+
+/// A block of the file to check.
+struct Block<'a> {
+    reader: &'a BlockReader,
+    bytes: &'a [u8],
+    id: u32,
+    entry: BlockEntry,
+}
+
+/// Checks block `b`: read as the pager reads it (entry, checksum, decoding), its header and
+/// level table, the padding between its parts, then its contents as a unit whose roots have
+/// the codes its links give.
+fn check_block(
+    block: &Block,
+    header: &Header,
+    roots: &std::collections::HashMap<(u32, u32), (u64, LinkBounds)>,
+    prims_seen: &[std::sync::atomic::AtomicU64],
+    d: &mut Defects,
+) -> UnitTotals {
+    let (b, e) = (block.id, block.entry);
+    let raw = match block.reader.read(block.bytes, b, &e) {
+        Ok(raw) => raw,
+        Err(err) => {
+            d.push(err.to_string());
+            return UnitTotals::default();
+        }
+    };
+    let view = match BlockView::parse(&raw, b, &e) {
+        Ok(v) => v,
+        Err(what) => {
+            d.push(format!("block {b}: {what}"));
+            return UnitTotals::default();
+        }
+    };
+    check_block_padding(&raw, &view.header, b, d);
+    let Some(linked) = (0..view.header.root_count)
+        .map(|j| roots.get(&(b, j)).copied())
+        .collect::<Option<Vec<(u64, LinkBounds)>>>()
+    else {
+        d.push(format!("block {b}: a root has no link in the top tree"));
+        return UnitTotals::default();
+    };
+    // Each link's bounds are exactly what the root's solid leaves give (spec §8.1); records
+    // that give none are reported by the unit check below.
+    if let Ok(computed) = crate::physical::bounds::root_bounds(view.levels, view.nodes) {
+        for (j, (c, (_, stored))) in computed.iter().zip(&linked).enumerate() {
+            if c != stored {
+                d.push(format!(
+                    "block {b}: the link to root {j} has bounds {:?}..{:?}, its leaves give {:?}..{:?}",
+                    stored.lo, stored.hi, c.lo, c.hi
+                ));
+            }
+        }
+    }
+    let root_codes = linked.iter().map(|&(code, _)| code).collect();
+    let unit = Unit {
+        label: format!("block {b}"),
+        map: TreeMap::with_base(view.levels, view.nodes, view.ranks, view.header.root_level),
+        root_codes,
+        volumes: view.volumes,
+        refs: view.refs,
+        tris: view.triangles,
+        top: false,
+    };
+    let mut totals = check_unit(&unit, header, d);
+    totals.triangles = view.triangles.len() as u64;
+    for t in view.triangles {
+        if let Some(w) = prims_seen.get(t.prim as usize / 64) {
+            w.fetch_or(1 << (t.prim % 64), std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+    totals
+}
+
+/// Checks one unit: node kinds, rank words, leaf order of references, volumes, triangles.
+fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
+    let mut totals = UnitTotals {
+        lo: [f32::INFINITY; 3],
+        hi: [f32::NEG_INFINITY; 3],
+        ..UnitTotals::default()
+    };
+    let label = &u.label;
+    let base = u.map.base();
+    let levels = u.map.levels();
+    let (volumes, refs, tris) = (u.volumes, u.refs, u.tris);
+    let merged = header.flags & FLAG_MERGED != 0;
+
+    // Node kinds, rank directory, and the leaves (for the order checks below).
+    let mut leaves: Vec<(u64, u32, u64, NodeKind)> = Vec::new();
+    for (ll, lv) in levels.iter().enumerate() {
+        let l = base + ll as u32;
+        let mut internal = 0u64;
+        let mut rank = 0u64;
+        for w in 0..lv.node_count.div_ceil(64) {
+            let Some(word) = u.map.rank_word(l, w) else {
+                d.push(format!("{label} level {l}: rank word {w} missing"));
+                break;
+            };
+            let mut bits = 0u64;
+            for i in 64 * w..(64 * w + 64).min(lv.node_count) {
+                let Ok(rec) = u.map.node(l, i) else {
+                    break;
+                };
+                match rec.kind() {
+                    None => d.push(format!(
+                        "{label} level {l} node {i}: invalid record {rec:?}"
+                    )),
+                    Some(NodeKind::Internal) => {
+                        bits |= 1 << (i % 64);
+                        internal += 1;
+                    }
+                    Some(NodeKind::Solid { .. }) if u.top => d.push(format!(
+                        "{label} level {l} node {i}: a solid leaf in the top tree"
+                    )),
+                    Some(NodeKind::Link { .. }) if !u.top => {
+                        d.push(format!("{label} level {l} node {i}: a link inside a block"))
+                    }
+                    Some(k) => {
+                        match k {
+                            NodeKind::Empty { .. } => totals.empty += 1,
+                            NodeKind::Solid { .. } => totals.solid += 1,
+                            _ => {}
+                        }
+                        leaves.push((0, l, i, k));
+                    }
+                }
+            }
+            if word.internal != bits || word.rank != rank {
+                d.push(format!(
+                    "{label} level {l} rank word {w}: stores bits {:#x} rank {}, the nodes give {bits:#x} and {rank}",
+                    word.internal, word.rank
+                ));
+            }
+            rank += bits.count_ones() as u64;
+        }
+        if internal != lv.internal_count {
+            d.push(format!(
+                "{label} level {l}: {internal} internal nodes, the level table says {}",
+                lv.internal_count
+            ));
+        }
+    }
+
+    // Leaf codes, for depth-first order: found from the roots by rank, never trusted from data.
+    let codes = level_codes(u, d);
+    for leaf in leaves.iter_mut() {
+        let (l, i) = (leaf.1, leaf.2);
+        let code = codes
+            .get((l - base) as usize)
+            .and_then(|c| c.get(i as usize))
+            .copied()
+            .unwrap_or(0);
+        leaf.0 = morton::encode(cell_origin(code, l));
+        if let NodeKind::Link { block, root } = leaf.3 {
+            totals
+                .links
+                .push((block, root, l, code, u.map.node_start(l) + i));
+        }
+    }
+    leaves.sort_unstable_by_key(|&(key, ..)| key);
+
+    // Solid leaves tile the references in depth-first order; empty leaves' volumes contain them.
+    // (Triangles are marked used from the leaves' ranges: a count word is not a reference.)
+    let mut tri_used = vec![false; tris.len()];
+    let mut next_ref = 0u64;
+    let mut volume_used = vec![false; volumes.len()];
+    for &(key, l, i, kind) in &leaves {
+        let lo = morton::decode(key);
+        let size = cell_size(l);
+        match kind {
+            NodeKind::Solid {
+                first,
+                inline_count,
+                bounds,
+            } => {
+                if first as u64 != next_ref {
+                    d.push(format!(
+                        "{label} level {l} node {i}: references start at {first}, expected {next_ref} (leaf order)"
+                    ));
+                }
+                match leaf_refs(refs, first, inline_count) {
+                    None => {
+                        d.push(format!("{label} level {l} node {i}: references run past the refs or have a bad count word"));
+                        next_ref = first as u64 + inline_count.max(1) as u64;
+                    }
+                    Some((leaf, range)) => {
+                        next_ref = range.end as u64;
+                        for &t in leaf {
+                            match tri_used.get_mut(t as usize) {
+                                Some(used) => *used = true,
+                                None => d.push(format!(
+                                    "{label} level {l} node {i}: triangle {t} out of range"
+                                )),
+                            }
+                        }
+                        if !leaf.windows(2).all(|w| w[0] < w[1]) {
+                            d.push(format!(
+                                "{label} level {l} node {i}: references are not strictly increasing"
+                            ));
+                        }
+                        if let Some(what) = bounds_defect(header, tris, leaf, lo, size, bounds) {
+                            d.push(format!("{label} level {l} node {i}: {what}"));
+                        }
+                    }
+                }
+            }
+            NodeKind::Empty { volume, shape } => match volumes.get(volume as usize) {
+                None => d.push(format!(
+                    "{label} level {l} node {i}: volume {volume} out of range"
+                )),
+                Some(v) => {
+                    volume_used[volume as usize] = true;
+                    let contains = (0..3).all(|k| v.lo[k] <= lo[k] && lo[k] + size <= v.hi[k]);
+                    if !contains {
+                        d.push(format!(
+                            "{label} level {l} node {i}: volume {volume} does not contain the leaf"
+                        ));
+                    }
+                    let (slo, shi) = shape.box_around(lo);
+                    if !merged && (shape.level as u32 != l || shape.axes != 0) {
+                        d.push(format!("{label} level {l} node {i}: merged volume {shape:?} in a file built without merging"));
+                    }
+                    if shape.level as u32 > l || slo != v.lo || shi != v.hi {
+                        d.push(format!(
+                            "{label} level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
+                        ));
+                    }
+                }
+            },
+            NodeKind::Internal | NodeKind::Link { .. } => {}
+        }
+    }
+    if next_ref != refs.len() as u64 {
+        d.push(format!(
+            "{label}: leaves reference {next_ref} of {} stored references",
+            refs.len()
+        ));
+    }
+
+    // Volumes: valid boxes in the lattice, used, and overlapping no solid leaf (nor, in the top
+    // tree, any block's subtree).
+    for (i, v) in volumes.iter().enumerate() {
+        if !(0..3).all(|k| v.lo[k] < v.hi[k] && v.hi[k] <= LATTICE_SIZE) {
+            d.push(format!(
+                "{label} volume {i}: {v:?} is not a box inside the lattice"
+            ));
+            continue;
+        }
+        if !volume_used[i] {
+            d.push(format!("{label} volume {i}: referenced by no empty leaf"));
+        }
+        if let Some(what) = solid_leaf_inside(u, v) {
+            d.push(format!("{label} volume {i}: {what}"));
+        }
+    }
+
+    // Triangles (each referenced by some leaf's references, marked above).
+    for (i, t) in tris.iter().enumerate() {
+        if !t.v.iter().flatten().all(|c| c.is_finite()) {
+            d.push(format!("{label} triangle {i}: non-finite coordinates"));
+        }
+        if t.prim as u64 >= header.input_triangles {
+            d.push(format!(
+                "{label} triangle {i}: primitive id {} beyond the input's {} triangles",
+                t.prim, header.input_triangles
+            ));
+        }
+        if !tri_used[i] {
+            d.push(format!("{label} triangle {i}: referenced by no leaf"));
+        }
+        for p in &t.v {
+            for (k, &c) in p.iter().enumerate() {
+                totals.lo[k] = totals.lo[k].min(c);
+                totals.hi[k] = totals.hi[k].max(c);
+            }
+        }
+    }
+    totals
+}
+
+/// The Morton codes of a unit's nodes, by local level, generated from its roots by rank: level
+/// `l + 1`'s codes are the children of level `l`'s internal nodes, in order.
+fn level_codes(u: &Unit, d: &mut Defects) -> Vec<Vec<u64>> {
+    let base = u.map.base();
+    let mut codes: Vec<Vec<u64>> = vec![u.root_codes.clone()];
+    for (ll, lv) in u.map.levels().iter().enumerate().skip(1) {
+        let l = base + ll as u32;
+        let prev = &codes[ll - 1];
+        let mut next = Vec::with_capacity(lv.node_count.min(1 << 24) as usize);
+        for (i, &code) in prev.iter().enumerate() {
+            if let Ok(rec) = u.map.node(l - 1, i as u64)
+                && rec.kind() == Some(NodeKind::Internal)
+            {
+                next.extend((0..8).map(|o| code << 3 | o));
+            }
+        }
+        if next.len() as u64 != lv.node_count {
+            d.push(format!(
+                "{} level {l}: {} nodes, but the level above has children for {}",
+                u.label,
+                lv.node_count,
+                next.len()
+            ));
+        }
+        codes.push(next);
+    }
+    codes
+}
+
+/// Checks that a solid leaf's tight bounds contain every part of its triangles inside its cell
+/// (recomputed by clipping, as the builder does).
+fn bounds_defect(
+    header: &Header,
+    tris: &[TriRecord],
+    leaf: &[u32],
+    cell_lo: [u32; 3],
+    size: u32,
+    bounds: LeafBounds,
+) -> Option<String> {
+    let scale = LATTICE_SIZE as f64 / header.root_size;
+    let m = CELL_MARGIN;
+    let lo: [f64; 3] = std::array::from_fn(|k| cell_lo[k] as f64 - m);
+    let hi: [f64; 3] = std::array::from_fn(|k| (cell_lo[k] + size) as f64 + m);
+    let s16 = size as f64 / 16.0;
+    for &t in leaf {
+        let tri = tris.get(t as usize)?;
+        let v: [[f64; 3]; 3] = std::array::from_fn(|i| {
+            std::array::from_fn(|k| (tri.v[i][k] as f64 - header.root_min[k]) * scale)
+        });
+        // The triangle must overlap the widened cell by the builder's own exact test (spec §6).
+        let c: [f64; 3] = std::array::from_fn(|k| (lo[k] + hi[k]) * 0.5);
+        let h: [f64; 3] = std::array::from_fn(|k| (hi[k] - lo[k]) * 0.5);
+        if !triangle_overlaps_box(&v, c, h) {
+            return Some(format!(
+                "references triangle {t}, which does not overlap its cell"
+            ));
+        }
+        let Some((a, b)) = clipped_bounds(&v, lo, hi) else {
+            continue;
+        };
+        for k in 0..3 {
+            // The stored box, widened by the margin as the tracer widens it.
+            let slo = cell_lo[k] as f64 + bounds.lo[k] as f64 * s16 - m;
+            let shi = cell_lo[k] as f64 + (bounds.hi[k] as f64 + 1.0) * s16 + m;
+            // Allow the rounding of recomputing the clip (far below the margin).
+            if a[k] < slo - 1e-6 || b[k] > shi + 1e-6 {
+                return Some(format!(
+                    "tight bounds {bounds:?} do not contain triangle {t}"
+                ));
+            }
+        }
+    }
+    None
+}
+
+/// Describes a solid leaf (or, in the top tree, a block's subtree) whose interior overlaps box
+/// `v`, if there is one.
+fn solid_leaf_inside(u: &Unit, v: &VolumeRecord) -> Option<String> {
+    let map = &u.map;
+    let base = map.base();
+    let mut stack: Vec<(u32, u64, [u32; 3])> = u
+        .root_codes
+        .iter()
+        .enumerate()
+        .map(|(j, &code)| (base, j as u64, cell_origin(code, base)))
+        .collect();
+    let mut budget = map.levels().iter().map(|l| l.node_count).sum::<u64>();
+    while let Some((l, idx, lo)) = stack.pop() {
+        budget = budget.checked_sub(1)?;
+        let size = cell_size(l);
+        let overlaps = (0..3).all(|k| lo[k] < v.hi[k] && v.lo[k] < lo[k] + size);
+        if !overlaps {
+            continue;
+        }
+        match map.node(l, idx).ok()?.kind()? {
+            NodeKind::Solid { .. } => {
+                return Some(format!(
+                    "covers part of solid leaf at level {l}, lattice {lo:?}"
+                ));
+            }
+            NodeKind::Link { block, .. } => {
+                return Some(format!(
+                    "covers part of block {block}'s subtree at level {l}, lattice {lo:?}"
+                ));
+            }
+            NodeKind::Empty { .. } => {}
+            NodeKind::Internal if l < MAX_LEVEL => {
+                let half = cell_size(l + 1);
+                for o in 0..8u32 {
+                    let child = map.child(l, idx, o).ok()?;
+                    let clo = std::array::from_fn(|k| lo[k] + ((o >> k) & 1) * half);
+                    stack.push((l + 1, child, clo));
+                }
+            }
+            NodeKind::Internal => return None,
+        }
+    }
+    None
+}

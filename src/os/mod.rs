@@ -1,0 +1,14 @@
+//! The operating system: the crate's only `unsafe` code (mapping files, dropping their pages,
+//! the SIGBUS guard, naming an unnamed file), and what `/proc` says about the process.
+//!
+//! Every `unsafe` block here carries a `// SAFETY:` comment; the rest of the crate is compiled
+//! with `#![deny(unsafe_code)]` and reads the maps through safe slices.
+
+mod guard;
+mod link;
+mod map;
+mod proc;
+
+pub use link::link_unnamed;
+pub use map::{Changed, MappedFile, page_size};
+pub use proc::{available_memory, peak_rss_bytes, read_bytes};

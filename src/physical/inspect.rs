@@ -1,0 +1,213 @@
+//! What a file holds, as `oavm-inspect` shows it: the header, the section table, the top
+//! tree's levels, the block directory (a summary and, on request, every block) and, on request,
+//! the whole tree's nodes per level (which reads every block).
+
+use serde::Serialize;
+
+use super::block::{BlockReader, BlockView};
+use super::file::OavmFile;
+use super::format::*;
+
+/// A file's structure. See the module documentation.
+#[derive(Clone, Debug, Serialize)]
+pub struct Inspection {
+    pub header: Header,
+    /// The flags by name.
+    pub flags: Vec<&'static str>,
+    pub sections: Vec<Section>,
+    /// The top tree, level by level (spec §8.1).
+    pub top_levels: Vec<TopLevel>,
+    pub directory: DirectorySummary,
+    /// Every block's directory entry, when asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blocks: Option<Vec<BlockEntry>>,
+    /// Nodes per level of the whole tree (top tree and blocks), when asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tree_levels: Option<Vec<TreeLevel>>,
+}
+
+/// One section of the table (spec §3).
+#[derive(Clone, Debug, Serialize)]
+pub struct Section {
+    pub name: &'static str,
+    #[serde(flatten)]
+    pub entry: SectionEntry,
+}
+
+/// One level of the top tree: its nodes by kind.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TopLevel {
+    pub level: u32,
+    pub nodes: u64,
+    pub internal: u64,
+    pub empty: u64,
+    pub links: u64,
+    /// Records no writer produces (reported by `--verify`).
+    pub invalid: u64,
+}
+
+/// The block directory in brief (spec §8.2).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct DirectorySummary {
+    pub blocks: u64,
+    pub raw_blocks: u64,
+    pub zstd_blocks: u64,
+    pub stored_bytes: u64,
+    pub decoded_bytes: u64,
+    pub smallest_decoded: u64,
+    pub largest_decoded: u64,
+    pub triangle_records: u64,
+    /// Blocks per level of their roots: `(level, blocks)`.
+    pub root_levels: Vec<(u32, u64)>,
+}
+
+/// One level of the whole tree.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TreeLevel {
+    pub level: u32,
+    pub nodes: u64,
+    pub internal: u64,
+    pub empty: u64,
+    pub solid: u64,
+}
+
+/// What to include beyond the summary.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct InspectOptions {
+    /// Every block's directory entry.
+    pub blocks: bool,
+    /// The whole tree's nodes per level: reads (and decodes) every block.
+    pub levels: bool,
+}
+
+/// Inspects an opened file. Entries and blocks are untrusted: a block that cannot be read is
+/// counted in no level (`--verify` says why).
+pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Inspection {
+    let header = *file.header();
+    let names = [(FLAG_MERGED, "merged"), (FLAG_COMPRESSED, "compressed")];
+    let flags = names
+        .iter()
+        .filter(|(bit, _)| header.flags & bit != 0)
+        .map(|&(_, name)| name)
+        .collect();
+    let sections = SectionKind::ALL
+        .iter()
+        .map(|&k| Section {
+            name: k.name(),
+            entry: *file.section(k),
+        })
+        .collect();
+
+    let nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
+    let top_levels = file
+        .levels()
+        .iter()
+        .enumerate()
+        .map(|(l, e)| {
+            let mut t = TopLevel {
+                level: l as u32,
+                nodes: e.node_count,
+                ..TopLevel::default()
+            };
+            let recs = nodes
+                .get(e.node_start as usize..(e.node_start + e.node_count) as usize)
+                .unwrap_or(&[]);
+            for r in recs {
+                match r.kind() {
+                    Some(NodeKind::Internal) => t.internal += 1,
+                    Some(NodeKind::Empty { .. }) => t.empty += 1,
+                    Some(NodeKind::Link { .. }) => t.links += 1,
+                    _ => t.invalid += 1,
+                }
+            }
+            t
+        })
+        .collect();
+
+    let directory = file.directory();
+    let mut d = DirectorySummary {
+        blocks: directory.len() as u64,
+        smallest_decoded: directory.iter().map(|e| e.raw_len).min().unwrap_or(0),
+        ..DirectorySummary::default()
+    };
+    let mut root_levels = [0u64; MAX_LEVEL as usize + 1];
+    for e in directory {
+        match e.codec {
+            CODEC_RAW => d.raw_blocks += 1,
+            _ => d.zstd_blocks += 1,
+        }
+        d.stored_bytes = d.stored_bytes.saturating_add(e.stored_len);
+        d.decoded_bytes = d.decoded_bytes.saturating_add(e.raw_len);
+        d.largest_decoded = d.largest_decoded.max(e.raw_len);
+        d.triangle_records += e.triangles as u64;
+        if let Some(n) = root_levels.get_mut(e.root_level as usize) {
+            *n += 1;
+        }
+    }
+    d.root_levels = (0..).zip(root_levels).filter(|&(_, n)| n > 0).collect();
+
+    let tree_levels = opts.levels.then(|| tree_levels(file));
+    Inspection {
+        header,
+        flags,
+        sections,
+        top_levels,
+        directory: d,
+        blocks: opts.blocks.then(|| directory.to_vec()),
+        tree_levels,
+    }
+}
+
+/// Nodes per level over the top tree and every readable block.
+fn tree_levels<D: AsRef<[u8]>>(file: &OavmFile<D>) -> Vec<TreeLevel> {
+    let mut levels: Vec<TreeLevel> = (0..=MAX_LEVEL)
+        .map(|level| TreeLevel {
+            level,
+            ..TreeLevel::default()
+        })
+        .collect();
+    let mut count = |level: usize, rec: &NodeRecord| {
+        if let Some(t) = levels.get_mut(level) {
+            t.nodes += 1;
+            match rec.kind() {
+                Some(NodeKind::Internal) => t.internal += 1,
+                Some(NodeKind::Empty { .. }) => t.empty += 1,
+                Some(NodeKind::Solid { .. }) => t.solid += 1,
+                // A link is its block's root, counted with the block.
+                _ => t.nodes -= 1,
+            }
+        }
+    };
+    let nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
+    for (l, e) in file.levels().iter().enumerate() {
+        for r in nodes
+            .get(e.node_start as usize..(e.node_start + e.node_count) as usize)
+            .unwrap_or(&[])
+        {
+            count(l, r);
+        }
+    }
+    let reader = BlockReader::new(file);
+    for (b, e) in file.directory().iter().enumerate() {
+        let Ok(raw) = reader.read(file.bytes(), b as u32, e) else {
+            continue;
+        };
+        let Ok(view) = BlockView::parse(&raw, b as u32, e) else {
+            continue;
+        };
+        for (ll, le) in view.levels.iter().enumerate() {
+            let l = view.header.root_level as usize + ll;
+            for r in view
+                .nodes
+                .get(le.node_start as usize..(le.node_start + le.node_count) as usize)
+                .unwrap_or(&[])
+            {
+                count(l, r);
+            }
+        }
+    }
+    while levels.last().is_some_and(|t| t.nodes == 0) {
+        levels.pop();
+    }
+    levels
+}
