@@ -11,12 +11,13 @@
 //! the sign tests instead of the paper's sign-xor trick; both give the same answers. Two rules
 //! of `RAYS.md` the paper does not have: a hit whose `t` is not finite (a subnormal direction
 //! makes `1 / d` infinite) is a miss, since `+inf` means a miss; and a ray whose origin lies on
-//! the triangle hits it at `t = tmin` whatever its direction. The paper's `t` of such a ray is
-//! 0 only up to rounding (its terms cancel), so when the point is inside but `t` falls short of
-//! `tmin` by no more than the rounding error of `t` (bounded as pbrt-v4 bounds it: Pharr, Jakob
-//! and Humphreys, *Physically Based Rendering*, 4th ed., "Robust Triangle Intersections"), the
-//! hit counts at `tmin`.
-//! That bound is only computed on that rare path.
+//! the triangle hits it at `t = 0` whatever its direction (when `tmin <= 0`). The paper's `t`
+//! of such a ray is 0 only up to rounding (its terms cancel, and may leave it just below 0), so
+//! when the point is inside and `t` is negative by no more than the rounding error of `t`
+//! (bounded as pbrt-v4 bounds it: Pharr, Jakob and Humphreys, *Physically Based Rendering*,
+//! 4th ed., "Robust Triangle Intersections"), the hit counts at `t = 0`. That bound is only
+//! computed on that rare path, and only about 0: a `t` short of a positive `tmin` (a shadow ray
+//! leaving a surface) is a miss, as before.
 
 use glam::Vec4;
 
@@ -110,6 +111,9 @@ impl RayShear {
         if hit && t >= tmin {
             return Some(t);
         }
+        if !(hit && t < 0.0 && tmin <= 0.0) {
+            return None;
+        }
         let sheared = Sheared {
             x: [ax, bx, cx],
             y: [ay, by, cy],
@@ -117,7 +121,7 @@ impl RayShear {
             e: [u, v_, w],
             det,
         };
-        (hit && t >= tmin - sheared.t_error()).then_some(tmin)
+        (t >= -sheared.t_error()).then_some(0.0)
     }
 }
 
@@ -228,12 +232,17 @@ impl RayShear {
             & det.cmpne(zero)
             & t.cmple(Vec4::splat(tmax))
             & t.cmplt(Vec4::splat(f32::INFINITY));
-        let near = hit.bitmask() & !t.cmpge(Vec4::splat(tmin)).bitmask();
-        let mut mask = hit.bitmask() & !near;
+        let short = hit.bitmask() & !t.cmpge(Vec4::splat(tmin)).bitmask();
+        let mut mask = hit.bitmask() & !short;
         let mut ts = t.to_array();
+        // Inside, but t just below 0 with 0 in range: within the rounding of t, a hit at 0
+        // (the scalar test's rule, lane by lane with the same values).
+        let near = if tmin <= 0.0 {
+            short & t.cmplt(zero).bitmask()
+        } else {
+            0
+        };
         if near != 0 {
-            // Inside, but short of tmin: within the rounding of t, a hit at tmin (the scalar
-            // test's rule, lane by lane with the same values).
             let lane = |v: Vec4, l: usize| v.to_array()[l];
             for l in (0..4).filter(|l| near >> l & 1 == 1) {
                 let sheared = Sheared {
@@ -243,9 +252,9 @@ impl RayShear {
                     e: [lane(u, l), lane(v, l), lane(w, l)],
                     det: lane(det, l),
                 };
-                if ts[l] >= tmin - sheared.t_error() {
+                if ts[l] >= -sheared.t_error() {
                     mask |= 1 << l;
-                    ts[l] = tmin;
+                    ts[l] = 0.0;
                 }
             }
         }
