@@ -6,8 +6,10 @@
 //! - The current version (3), raw and zstd-compressed, opens, verifies, and traces the committed
 //!   ray set to answers byte-identical to the recorded `v3.hits` / `v3.occl`, in the library and
 //!   through `oavm-trace`. The recorded answers are themselves checked: they hit often, agree
-//!   with each other (a ray is occluded exactly when it has a closest hit) and with brute force
-//!   over the mesh's triangles, and each recorded hit is on the triangle it names.
+//!   with each other (a ray is occluded exactly when it has a closest hit) and with the f64
+//!   reference over the mesh's triangles (rays aimed at shared edges and vertices aside, where
+//!   either triangle is right), and each recorded hit is at the `t` the triangle test gives for
+//!   the triangle it names.
 //! - Older versions (1, 2) fail to open with `FormatError::Version { expected: 3, found }` and a
 //!   message that names the file and says to repack, in the library and through `oavm-trace`
 //!   (non-zero exit, nothing written).
@@ -18,13 +20,14 @@
 //! rejected versions: their recorded answers stay in the README (sha256), so the file keeps
 //! proving what version 3 answered.
 
+mod common;
+
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-use oavm::geom::brute;
-use oavm::mesh::Mesh;
-use oavm::rays::{self, Bounds};
+use oavm::geom::triangle::intersect_triangle;
+use oavm::rays;
 use oavm::{Error, FormatError, Hit, Ray, Scene};
 use tempfile::TempDir;
 
@@ -96,15 +99,15 @@ fn header_version(name: &str) -> u32 {
 }
 
 fn golden_rays() -> Vec<Ray> {
-    rays::read_rays(&golden(RAYS)).unwrap_or_else(|e| panic!("{e}"))
+    rays::read_rays(&golden(RAYS), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
 }
 
 fn recorded_hits() -> Vec<Hit> {
-    rays::read_hits(&golden(HITS)).unwrap_or_else(|e| panic!("{e}"))
+    rays::read_hits(&golden(HITS), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
 }
 
 fn recorded_occlusion() -> Vec<u8> {
-    rays::read_occlusion(&golden(OCCL)).unwrap_or_else(|e| panic!("{e}"))
+    rays::read_occlusion(&golden(OCCL), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// The rays whose answers differ (as `key` sees them), at most ten, for a failure message.
@@ -151,7 +154,7 @@ fn current_version_files_are_current() {
 fn current_version_opens_and_verifies() {
     for name in CURRENT_FILES {
         let scene = Scene::open(golden(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
-        let report = scene.verify();
+        let report = scene.verify().unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(
             report.is_ok(),
             "{name}: verify found defects:\n{}",
@@ -225,7 +228,6 @@ fn recorded_answers_are_sound() {
     );
 
     let mesh = oavm::mesh::load(&golden(MESH)).unwrap_or_else(|e| panic!("{e}"));
-    let diagonal = Bounds::of_points(mesh.positions.iter().copied()).diagonal();
     let mut wrong = Vec::new();
     for (i, ray) in rays.iter().enumerate() {
         let (hit, occl) = (hits[i], occluded[i]);
@@ -235,36 +237,27 @@ fn recorded_answers_are_sound() {
                 "ray {i}: closest hit {hit:?} but occluded = {occl}"
             ));
         }
-        let brute_hit = brute::intersect(&mesh, ray);
-        if !hit.agrees(&brute_hit, diagonal) {
-            wrong.push(format!(
-                "ray {i} {ray:?}: recorded {hit:?}, brute force {brute_hit:?}"
-            ));
-        }
-        if brute::occluded(&mesh, ray) != (occl == 1) {
-            wrong.push(format!(
-                "ray {i} {ray:?}: recorded occluded = {occl}, brute force not"
-            ));
-        }
         if hit.is_hit() {
             let named = hit.prim as usize;
             assert!(
                 named < mesh.triangles.len(),
                 "ray {i}: primitive id {named} out of range"
             );
-            let alone = Mesh {
-                positions: mesh.triangle(named).to_vec(),
-                triangles: vec![[0, 1, 2]],
-            };
-            let on_named = brute::intersect(&alone, ray);
-            if on_named.t.to_bits() != hit.t.to_bits() {
+            // The tracer reports the triangle test's own t (a consistency check, not a
+            // reference: the reference is the f64 comparison below).
+            let on_named = intersect_triangle(ray, &mesh.triangle(named));
+            if on_named.map(f32::to_bits) != Some(hit.t.to_bits()) {
                 wrong.push(format!(
-                    "ray {i}: recorded t {} on triangle {named}, which it hits at {}",
-                    hit.t, on_named.t
+                    "ray {i}: recorded t {} on triangle {named}, which it hits at {on_named:?}",
+                    hit.t
                 ));
             }
         }
     }
+    // The f64 reference, through today's tracer (whose answers equal the recorded ones, above):
+    // rays aimed at shared edges and vertices may be excused, at most one in ten.
+    let scene = Scene::open(golden("v3.oavm")).expect("open");
+    common::compare_with_reference(&mesh, &scene, &rays, 1).require(250, rays.len() / 10, "golden");
     assert!(
         wrong.is_empty(),
         "{} problems:\n{}",
