@@ -14,10 +14,12 @@
 //! `traverse.rs` (which finds the leaves a ray crosses and knows nothing of triangles) and
 //! `tests.rs`. Below their traversals they share [`leaf`]: the triangles, the test of a leaf's
 //! triangles with the watertight kernel of [`crate::geom`], and the [`Accelerator`] plumbing.
-//! They live in memory; only OAVM has a file format. Each reports its size with the counting
-//! conventions written in its module docs.
+//! [`bench`] is the comparison itself, which `oavm-bench` runs. They live in memory; only OAVM
+//! has a file format. Each reports its size with the counting conventions written in its module
+//! docs.
 
 mod aabb;
+pub mod bench;
 pub mod bvh;
 pub mod grid;
 pub mod kdtree;
