@@ -14,7 +14,7 @@
 //! question: both search `[tmin, tmax]`), except on the shadow rays, where
 //! `brute::occluded` itself is called.
 
-use std::path::PathBuf;
+mod common;
 
 use oavm::compare::grid::UniformGrid;
 use oavm::compare::kdtree::KdTree;
@@ -31,16 +31,6 @@ const HEIGHT: u32 = 125;
 
 fn allowed(n: usize) -> usize {
     n / 10_000
-}
-
-fn shared_scene(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/scenes")
-        .join(rel)
-}
-
-fn agree(a: Hit, b: Hit, diag: f64) -> bool {
-    a.agrees(&b, diag)
 }
 
 struct Set {
@@ -107,7 +97,7 @@ fn compare(scene: &str, acc: &dyn Accelerator, sets: &[Set], diag: f64) {
         let mut exact = 0;
         for (i, &(h, o)) in hits.iter().enumerate() {
             let b = set.closest[i];
-            if !agree(b, h, diag) {
+            if !b.agrees(&h, diag) {
                 bad_c += 1;
                 if bad_c <= 3 {
                     eprintln!(
@@ -153,7 +143,9 @@ fn compare(scene: &str, acc: &dyn Accelerator, sets: &[Set], diag: f64) {
 }
 
 fn check_scene(rel: &str) {
-    let mesh = oavm::mesh::load(&shared_scene(rel)).expect("load");
+    // A missing scene is a failure: these tests need ../shared/scenes.
+    let path = common::shared_scene(rel);
+    let mesh = oavm::mesh::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let tris = Triangles::from_mesh(&mesh).expect("triangles");
     assert!(tris.len() > 40_000);
     let (sets, diag) = sets(&mesh);
