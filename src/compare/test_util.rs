@@ -82,6 +82,36 @@ pub(crate) fn unit_rays(n: usize, seed: u64) -> Vec<Ray> {
         .collect()
 }
 
+/// A flat mesh and rays at it, drawn from `r`: `n` right triangles with legs `size` lying in the
+/// plane `z = 0.5` over the unit square, and from each of `origins` random points one ray along
+/// `z` toward the plane, one slanted toward it and, if `in_plane`, one lying in it.
+pub(crate) fn flat_mesh_and_rays(
+    r: &mut impl FnMut() -> f32,
+    n: usize,
+    size: f32,
+    origins: usize,
+    in_plane: bool,
+) -> (Vec<Tri>, Vec<Ray>) {
+    let tris = (0..n)
+        .map(|_| {
+            let (x, y) = (r(), r());
+            [[x, y, 0.5], [x + size, y, 0.5], [x, y + size, 0.5]]
+        })
+        .collect();
+    let mut rays = Vec::new();
+    for _ in 0..origins {
+        let o = [r(), r(), r() * 2.0 - 0.5];
+        let d = if o[2] > 0.5 { -1.0 } else { 1.0 };
+        rays.push(Ray::new(o, [0.0, 0.0, d], 0.0, f32::INFINITY));
+        rays.push(Ray::new(o, [r() - 0.5, r() - 0.5, d], 0.0, f32::INFINITY));
+        if in_plane {
+            let d = [r() - 0.5, r() - 0.5, 0.0];
+            rays.push(Ray::new([o[0], o[1], 0.5], d, 0.0, 9.0));
+        }
+    }
+    (tris, rays)
+}
+
 /// Random rays from inside the unit cube with random ranges: `tmin` uniform in `tmin`, `tmax`
 /// in `[0, 1.5)`, swapped if need be.
 pub(crate) fn ranged_rays(n: usize, seed: u64, tmin: [f32; 2]) -> Vec<Ray> {

@@ -2,7 +2,9 @@ use super::build::resolution;
 use super::*;
 use crate::compare::Accelerator;
 use crate::compare::Triangles;
-use crate::compare::test_util::{check, ranged_rays, rng, tris_of, unit_rays, unit_soup};
+use crate::compare::test_util::{
+    check, flat_mesh_and_rays, ranged_rays, rng, tris_of, unit_rays, unit_soup,
+};
 use crate::geom::{Hit, Ray};
 use crate::logical::Counters;
 
@@ -70,22 +72,10 @@ fn empty_and_single_triangle() {
 #[test]
 fn flat_meshes_and_triangles_on_cell_faces() {
     let mut r = rng(5);
-    let flat: Vec<_> = (0..400)
-        .map(|_| {
-            let (x, y) = (r(), r());
-            [[x, y, 0.5], [x + 0.05, y, 0.5], [x, y + 0.05, 0.5]]
-        })
-        .collect();
+    let (flat, rays) = flat_mesh_and_rays(&mut r, 400, 0.05, 3000, false);
     let (tris, mesh) = tris_of(flat);
     let g = UniformGrid::build(&tris);
     assert_eq!(g.resolution()[2], 1);
-    let mut rays = Vec::new();
-    for _ in 0..3000 {
-        let o = [r(), r(), r() * 2.0 - 0.5];
-        let d = if o[2] > 0.5 { -1.0 } else { 1.0 };
-        rays.push(Ray::new(o, [0.0, 0.0, d], 0.0, f32::INFINITY));
-        rays.push(Ray::new(o, [r() - 0.5, r() - 0.5, d], 0.0, f32::INFINITY));
-    }
     check(&g, &mesh, &rays, 300);
 
     // A block of soup plus a plane of triangles at x = 0.5 exactly, which (for an even

@@ -1,6 +1,8 @@
 use super::build::{event_order, f32_down, f32_up, push_events, sweep};
 use super::*;
-use crate::compare::test_util::{check, ranged_rays, rng, tris_of, unit_rays, unit_soup};
+use crate::compare::test_util::{
+    check, flat_mesh_and_rays, ranged_rays, rng, tris_of, unit_rays, unit_soup,
+};
 use crate::compare::{Accelerator, Triangles};
 use crate::geom::{Hit, Ray};
 use crate::logical::Counters;
@@ -82,29 +84,11 @@ fn empty_single_and_invalid() {
 #[test]
 fn flat_mesh_and_planes_of_triangles_on_split_planes() {
     let mut r = rng(14);
-    let flat: Vec<_> = (0..600)
-        .map(|_| {
-            let (x, y) = (r(), r());
-            [[x, y, 0.5], [x + 0.04, y, 0.5], [x, y + 0.04, 0.5]]
-        })
-        .collect();
+    let (flat, rays) = flat_mesh_and_rays(&mut r, 600, 0.04, 3000, true);
     let (tris, mesh) = tris_of(flat);
     let kd = KdTree::build(&tris);
     check_structure(&kd, 600);
     assert!(kd.stats().nodes > 50);
-    let mut rays = Vec::new();
-    for _ in 0..3000 {
-        let o = [r(), r(), r() * 2.0 - 0.5];
-        let d = if o[2] > 0.5 { -1.0 } else { 1.0 };
-        rays.push(Ray::new(o, [0.0, 0.0, d], 0.0, f32::INFINITY));
-        rays.push(Ray::new(o, [r() - 0.5, r() - 0.5, d], 0.0, f32::INFINITY));
-        rays.push(Ray::new(
-            [o[0], o[1], 0.5],
-            [r() - 0.5, r() - 0.5, 0.0],
-            0.0,
-            9.0,
-        ));
-    }
     check(&kd, &mesh, &rays, 500);
 
     // Soup plus stacks of triangles flat in x at x = 0.25, 0.5, 0.75 (planar events, likely
