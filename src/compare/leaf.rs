@@ -145,17 +145,6 @@ pub(crate) fn closer(best: &mut Hit, t: f32, prim: u32) -> bool {
     }
 }
 
-/// Keeps the hit (`t`, `prim`) in `best` if it is closer; among equal `t`, the lowest id
-/// ([`closer`]) if `lowest_id`, else the first found.
-#[inline(always)]
-fn keep(lowest_id: bool, best: &mut Hit, t: f32, prim: u32) {
-    if lowest_id {
-        closer(best, t, prim);
-    } else if !best.is_hit() || t < best.t {
-        *best = Hit { t, prim };
-    }
-}
-
 /// One ray's query over a soup: the ray's constants for the kernel and the closest hit so far.
 pub(crate) struct Query<'a> {
     soup: &'a Soup,
@@ -163,20 +152,17 @@ pub(crate) struct Query<'a> {
     tmin: f32,
     tmax: f32,
     best: Hit,
-    /// [`Walk::LOWEST_ID_TIES`].
-    lowest_id: bool,
 }
 
 impl<'a> Query<'a> {
     /// `None` when nothing can be hit: an invalid ray ([`Ray::is_valid`]) or no triangles.
-    pub(crate) fn new(soup: &'a Soup, ray: &Ray, lowest_id: bool) -> Option<Query<'a>> {
+    pub(crate) fn new(soup: &'a Soup, ray: &Ray) -> Option<Query<'a>> {
         (ray.is_valid() && !soup.is_empty()).then(|| Query {
             soup,
             shear: RayShear::new(ray),
             tmin: ray.tmin,
             tmax: ray.tmax,
             best: Hit::MISS,
-            lowest_id,
         })
     }
 
@@ -210,18 +196,13 @@ impl<'a> Query<'a> {
                     .shear
                     .intersect(self.soup.tri(i), self.tmin, self.limit())
                 {
-                    keep(self.lowest_id, &mut self.best, t, self.soup.prim(i));
+                    closer(&mut self.best, t, self.soup.prim(i));
                 }
             } else {
                 let (mask, t) = self.test4(ids, k, m, self.limit());
                 for (l, &tl) in t.iter().enumerate().take(m) {
                     if mask >> l & 1 == 1 {
-                        keep(
-                            self.lowest_id,
-                            &mut self.best,
-                            tl,
-                            self.soup.prim(ids.id(k + l)),
-                        );
+                        closer(&mut self.best, tl, self.soup.prim(ids.id(k + l)));
                     }
                 }
             }
@@ -273,10 +254,6 @@ pub(crate) trait Walk: Send + Sync {
     /// How a leaf names its triangles.
     type Leaf: Ids + ?Sized;
 
-    /// Whether a tie between closest hits goes to the lowest primitive id, else to the first
-    /// found.
-    const LOWEST_ID_TIES: bool = true;
-
     /// The triangles the leaves index.
     fn soup(&self) -> &Soup;
 
@@ -300,7 +277,7 @@ impl<T: Walk> Accelerator for T {
     }
 
     fn intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
-        let Some(mut q) = Query::new(self.soup(), ray, T::LOWEST_ID_TIES) else {
+        let Some(mut q) = Query::new(self.soup(), ray) else {
             return Hit::MISS;
         };
         if self.walk(ray, c, |ids, c| q.closest(ids, c)) {
@@ -312,7 +289,7 @@ impl<T: Walk> Accelerator for T {
     }
 
     fn occluded(&self, ray: &Ray, c: &mut Counters) -> bool {
-        let Some(q) = Query::new(self.soup(), ray, T::LOWEST_ID_TIES) else {
+        let Some(q) = Query::new(self.soup(), ray) else {
             return false;
         };
         let mut found = false;

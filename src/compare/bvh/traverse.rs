@@ -4,10 +4,14 @@
 //! reciprocal direction, made conservative by growing the far `t` by `2 γ(3)` as pbrt does;
 //! children visited front to back (the near child first by the sign of the direction along the
 //! node's split axis, the far one pushed); the closest-hit query shrinks `tmax` to each hit, so
-//! farther boxes are culled; the any-hit query stops at the first
-//! hit. A zero direction component gives an infinite reciprocal; a slab then yields `±inf`, or
-//! NaN where the origin lies exactly on the slab plane, and the NaN is ignored by the `max`/`min`
-//! (the ray grazes that plane: treated as inside, conservatively).
+//! farther boxes are culled; the any-hit query stops at the first hit. A zero direction
+//! component gives an infinite reciprocal; a slab then yields `±inf`, or NaN where the origin
+//! lies exactly on the slab plane, and the NaN is ignored by the `max`/`min` (the ray grazes
+//! that plane: treated as inside, conservatively).
+//!
+//! Deviation: two triangles hit at the same closest `t` resolve to the lower primitive id, as in
+//! every structure here (the shared leaf test), where pbrt-v4 keeps the first found (which, with
+//! triangles in leaf order, depends on the build).
 
 use std::ops::Range;
 
@@ -24,9 +28,6 @@ pub const STACK_SIZE: usize = 64;
 impl Walk for Bvh {
     /// A leaf's triangles are a run of the soup, which is in leaf order.
     type Leaf = Range<usize>;
-
-    /// pbrt-v4's rule: the first hit found at the closest `t`.
-    const LOWEST_ID_TIES: bool = false;
 
     fn soup(&self) -> &Soup {
         &self.soup
