@@ -2,15 +2,20 @@
 //! scenes (the Cornell box, BART's museum, the bundled bunny), small ray sets, in a temporary
 //! directory. It must build all five structures, find no disagreement with OAVM, report the
 //! figures the paper's tables need, trace ray files in RAYS.md's formats, and refuse bad usage.
+//! OAVM, the reference of the binary's own check, is itself checked against brute force
+//! (`oavm::geom::reference`, the f64 brute force) on the same rays, and so are the hit counts the binary reports.
 
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-use oavm::compare::{self, Triangles};
+use oavm::compare::bench::{self, BenchScene};
+use oavm::compare::{self, OavmAccel, Triangles};
+use oavm::geom::reference;
 use oavm::rays::{self, Bounds};
-use oavm::{BuildOptions, Hit};
+use oavm::{BuildOptions, Hit, Mesh, Ray};
+use rayon::prelude::*;
 use serde_json::Value;
 use tempfile::TempDir;
 
@@ -46,10 +51,53 @@ const SMALL: [&str; 10] = [
     "1",
 ];
 
+/// `SMALL` as the library's options.
+fn small_options() -> bench::Options {
+    bench::Options {
+        build: BuildOptions::default(),
+        random: 3000,
+        width: 48,
+        height: 36,
+        reps: 1,
+        threads: vec![1],
+    }
+}
+
+/// A scene of `../shared/scenes`; its absence is a failure, not a reason to skip.
+fn shared(rel: &str) -> PathBuf {
+    let p = common::shared_scene(rel);
+    assert!(
+        p.is_file(),
+        "{} is missing: these tests need ../shared/scenes",
+        p.display()
+    );
+    p
+}
+
+/// Brute-force answers to `rays` (closest hits, or any-hit answers for `any`) and how many hit.
+fn brute_answers(mesh: &Mesh, rays: &[Ray], any: bool) -> (bench::Answers, usize) {
+    let tris = mesh.corners();
+    let a = if any {
+        bench::Answers::Any(
+            rays.par_iter()
+                .map(|r| reference::occluded(&tris, r) as u8)
+                .collect(),
+        )
+    } else {
+        bench::Answers::Closest(
+            rays.par_iter()
+                .map(|r| reference::closest(&tris, r))
+                .collect(),
+        )
+    };
+    let hits = a.hits();
+    (a, hits)
+}
+
 #[test]
 fn all_structures_agree_with_oavm_and_report_the_tables_figures() {
-    let cornell = common::shared_scene("cornell_box/CornellBox-Original.obj");
-    let museum = common::shared_scene("bart/museum/museum5.aff");
+    let cornell = shared("cornell_box/CornellBox-Original.obj");
+    let museum = shared("bart/museum/museum5.aff");
     let o = run(bench().args(SMALL).arg("--json").arg(&cornell).arg(&museum));
     assert!(o.status.success(), "{}", describe(&o));
     let v: Value = serde_json::from_slice(&o.stdout).expect("JSON on stdout");
@@ -88,6 +136,43 @@ fn all_structures_agree_with_oavm_and_report_the_tables_figures() {
     // BART scenes are traced from their own camera; the Cornell box is framed.
     assert_eq!(scenes[0]["camera"], "framing");
     assert_eq!(scenes[1]["camera"], "scene");
+
+    // "No disagreement with OAVM" means something only if OAVM is right: the same ray sets,
+    // made by the library as the binary makes them, through OAVM and brute force. Every
+    // structure's reported hit count must be brute force's (within the 0.01 % a set may
+    // disagree by), and brute force must find plenty of hits.
+    let opts = small_options();
+    for (path, sc) in [cornell, museum].iter().zip(scenes) {
+        let scene = BenchScene::load(path).unwrap();
+        let oavm = OavmAccel::build(&scene.mesh, &opts.build).unwrap();
+        let sets = bench::ray_sets(&scene, &oavm, &opts);
+        let diag = scene.diagonal();
+        for (i, set) in sets.iter().enumerate() {
+            let label = format!("{} {}", sc["scene"], set.name);
+            let (want, hits) = brute_answers(&scene.mesh, &set.rays, set.any);
+            assert!(
+                hits * 10 > set.rays.len(),
+                "{label}: brute force hit only {hits}"
+            );
+            let (_, got) = bench::Answers::trace(&oavm, &set.rays, set.any);
+            let bad = got.disagreements(&want, diag);
+            assert!(
+                !bench::too_many(bad, set.rays.len()),
+                "{label}: OAVM disagrees with brute force on {bad} rays"
+            );
+            for s in sc["structures"].as_array().unwrap() {
+                let x = &s["sets"][i];
+                assert_eq!(x["set"], set.name);
+                assert_eq!(x["rays"].as_u64(), Some(set.rays.len() as u64), "{label}");
+                let reported = x["hits"].as_u64().unwrap() as usize;
+                assert!(
+                    reported.abs_diff(hits) <= bad + set.rays.len() / 10_000,
+                    "{label} {}: {reported} hits reported, brute force {hits}",
+                    s["name"]
+                );
+            }
+        }
+    }
 }
 
 #[test]
@@ -100,7 +185,10 @@ fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
     let rays_in = rays::random_rays(&b, 5000, 7);
     let rays_path = dir.path().join("r.rays");
     rays::write_rays(&rays_path, &rays_in).unwrap();
-    for name in ["grid", "kdtree", "octree", "bvh"] {
+    let diag = b.diagonal();
+    let (brute_hits, n) = brute_answers(&mesh, &rays_in, false);
+    assert!(n > 1000, "brute force hit only {n} of the rays");
+    for name in compare::STRUCTURES {
         let hits_path = dir.path().join(format!("{name}.hits"));
         let occ_path = dir.path().join(format!("{name}.occl"));
         for (flag, out) in [("--hits", &hits_path), ("--occluded", &occ_path)] {
@@ -126,7 +214,11 @@ fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
                 .all(|(a, b)| a.t.to_bits() == b.t.to_bits() && a.prim == b.prim),
             "{name}: the HITS file differs from the library's answers"
         );
-        assert!(want.iter().filter(|h| h.is_hit()).count() > 100);
+        let bad = bench::Answers::Closest(got).disagreements(&brute_hits, diag);
+        assert!(
+            bad <= 1,
+            "{name}: {bad} closest hits disagree with brute force"
+        );
         let occ = rays::read_occlusion(&occ_path, u64::MAX).unwrap();
         assert!(
             occ.iter().zip(&want).all(|(&o, h)| (o == 1) == h.is_hit()),

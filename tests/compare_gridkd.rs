@@ -4,7 +4,7 @@
 //! Ray sets per scene: [`RANDOM`] random rays and a [`WIDTH`] x [`HEIGHT`] camera (closest hit
 //! and any hit on both), and shadow rays toward `default_light` from every brute-force primary
 //! hit (any hit, and closest hit too). Every ray is compared with brute force
-//! (`oavm::geom::brute`), which shares only the watertight triangle test with the structures.
+//! (`oavm::geom::reference`, the f64 brute force), which shares only the watertight triangle test with the structures.
 //!
 //! Agreement is the rule of `../shared/RAYS.md` (both miss, or both hit with
 //! `|t1 - t2| <= 1e-4 L`); a set passes when at most 0.01 % of its rays disagree
@@ -14,12 +14,12 @@
 //! question: both search `[tmin, tmax]`), except on the shadow rays, where
 //! `brute::occluded` itself is called.
 
-use std::path::PathBuf;
+mod common;
 
 use oavm::compare::grid::UniformGrid;
 use oavm::compare::kdtree::KdTree;
 use oavm::compare::{Accelerator, Triangles};
-use oavm::geom::brute;
+use oavm::geom::reference;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
 use oavm::{Counters, Hit, Mesh, Ray};
 use rayon::prelude::*;
@@ -33,16 +33,6 @@ fn allowed(n: usize) -> usize {
     n / 10_000
 }
 
-fn shared_scene(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/scenes")
-        .join(rel)
-}
-
-fn agree(a: Hit, b: Hit, diag: f64) -> bool {
-    a.agrees(&b, diag)
-}
-
 struct Set {
     name: &'static str,
     rays: Vec<Ray>,
@@ -51,9 +41,13 @@ struct Set {
 }
 
 fn sets(mesh: &Mesh) -> (Vec<Set>, f64) {
+    let tris = mesh.corners();
     let b = Bounds::of_points(mesh.positions.iter().copied());
-    let brute_all =
-        |rays: &[Ray]| -> Vec<Hit> { rays.par_iter().map(|r| brute::intersect(mesh, r)).collect() };
+    let brute_all = |rays: &[Ray]| -> Vec<Hit> {
+        rays.par_iter()
+            .map(|r| reference::closest(&tris, r))
+            .collect()
+    };
     let random = random_rays(&b, RANDOM, 0x5eed);
     let camera = Camera::framing(&b).primary_rays(WIDTH, HEIGHT);
     let (rc, cc) = (brute_all(&random), brute_all(&camera));
@@ -61,7 +55,7 @@ fn sets(mesh: &Mesh) -> (Vec<Set>, f64) {
     let sc = brute_all(&shadow);
     let so: Vec<bool> = shadow
         .par_iter()
-        .map(|r| brute::occluded(mesh, r))
+        .map(|r| reference::occluded(&tris, r))
         .collect();
     let occ = |h: &[Hit]| h.iter().map(Hit::is_hit).collect::<Vec<_>>();
     let out = vec![
@@ -107,7 +101,7 @@ fn compare(scene: &str, acc: &dyn Accelerator, sets: &[Set], diag: f64) {
         let mut exact = 0;
         for (i, &(h, o)) in hits.iter().enumerate() {
             let b = set.closest[i];
-            if !agree(b, h, diag) {
+            if !b.agrees(&h, diag) {
                 bad_c += 1;
                 if bad_c <= 3 {
                     eprintln!(
@@ -153,7 +147,9 @@ fn compare(scene: &str, acc: &dyn Accelerator, sets: &[Set], diag: f64) {
 }
 
 fn check_scene(rel: &str) {
-    let mesh = oavm::mesh::load(&shared_scene(rel)).expect("load");
+    // A missing scene is a failure: these tests need ../shared/scenes.
+    let path = common::shared_scene(rel);
+    let mesh = oavm::mesh::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let tris = Triangles::from_mesh(&mesh).expect("triangles");
     assert!(tris.len() > 40_000);
     let (sets, diag) = sets(&mesh);

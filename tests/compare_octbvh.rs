@@ -4,11 +4,11 @@
 
 mod common;
 
-use common::{agree, shared_scene};
+use common::shared_scene;
 use oavm::compare::bvh::Bvh;
 use oavm::compare::octree::ClassicOctree;
 use oavm::compare::{Accelerator, Triangles};
-use oavm::geom::brute;
+use oavm::geom::reference;
 use oavm::rays::{self, Bounds, Camera};
 use oavm::{BuildOptions, Counters, Hit, Mesh, Ray};
 use rayon::prelude::*;
@@ -25,12 +25,13 @@ fn bounds_of(t: &Triangles) -> Bounds {
 /// The ray sets of a scene: ~20,000 random rays, ~20,000 camera rays, and the shadow rays of the
 /// camera rays that hit (by brute force).
 fn ray_sets(mesh: &Mesh, t: &Triangles) -> Vec<(&'static str, Vec<Ray>)> {
+    let tris = mesh.corners();
     let b = bounds_of(t);
     let random = rays::random_rays(&b, 20_000, 42);
     let primary = Camera::framing(&b).primary_rays(160, 125);
     let hits: Vec<Hit> = primary
         .par_iter()
-        .map(|r| brute::intersect(mesh, r))
+        .map(|r| reference::closest(&tris, r))
         .collect();
     let shadow = rays::shadow_rays(&primary, &hits, rays::default_light(&b));
     vec![("random", random), ("primary", primary), ("shadow", shadow)]
@@ -41,15 +42,20 @@ fn ray_sets(mesh: &Mesh, t: &Triangles) -> Vec<(&'static str, Vec<Ray>)> {
 fn disagreements(
     acc: &dyn Accelerator,
     rays: &[Ray],
-    reference: &[(Hit, bool)],
+    reference: &[(Hit, bool, bool)],
     diag: f64,
     label: &str,
 ) -> (usize, usize) {
     let (mut bad_c, mut bad_a) = (0, 0);
     let mut c = Counters::default();
-    for (i, (r, &(want, want_any))) in rays.iter().zip(reference).enumerate() {
+    for (i, (r, &(want, want_any, grazing))) in rays.iter().zip(reference).enumerate() {
         let got = acc.intersect(r, &mut c);
-        if !agree(want, got, diag) {
+        if grazing {
+            // A ray through an edge or a corner: either answer may be right.
+            acc.occluded(r, &mut c);
+            continue;
+        }
+        if !want.agrees(&got, diag) {
             bad_c += 1;
             if bad_c <= 3 {
                 eprintln!("{label}: closest ray {i} {r:?}: brute {want:?}, got {got:?}");
@@ -68,14 +74,31 @@ fn disagreements(
     (bad_c, bad_a)
 }
 
-fn brute_answers(mesh: &Mesh, rays: &[Ray]) -> Vec<(Hit, bool)> {
+/// The f64 reference's closest and any hit of each ray, and whether the ray grazes an edge
+/// (`reference::grazes`).
+fn brute_answers(mesh: &Mesh, rays: &[Ray]) -> Vec<(Hit, bool, bool)> {
+    let tris = mesh.corners();
     rays.par_iter()
-        .map(|r| (brute::intersect(mesh, r), brute::occluded(mesh, r)))
+        .map(|r| {
+            (
+                reference::closest(&tris, r),
+                reference::occluded(&tris, r),
+                reference::grazes(&tris, r),
+            )
+        })
         .collect()
 }
 
-/// Builds both structures over `mesh` and compares them with brute force on `sets`.
-fn compare_all(mesh: &Mesh, sets: &[(&'static str, Vec<Ray>)], opts: &BuildOptions, name: &str) {
+/// Builds both structures over `mesh` and compares them with brute force on `sets`, each of
+/// which brute force must find at least `min_hit_fraction` of its rays to hit (a comparison on
+/// rays that miss everything proves nothing).
+fn compare_all(
+    mesh: &Mesh,
+    sets: &[(&'static str, Vec<Ray>)],
+    opts: &BuildOptions,
+    name: &str,
+    min_hit_fraction: f64,
+) {
     let t = Triangles::from_mesh(mesh).expect("triangles");
     let diag = bounds_of(&t).diagonal().max(f64::MIN_POSITIVE);
     let octree = ClassicOctree::build(&t, opts);
@@ -83,8 +106,13 @@ fn compare_all(mesh: &Mesh, sets: &[(&'static str, Vec<Ray>)], opts: &BuildOptio
     let mut failures = Vec::new();
     for (set, rays) in sets {
         let reference = brute_answers(mesh, rays);
-        let hits = reference.iter().filter(|(h, _)| h.is_hit()).count();
+        let hits = reference.iter().filter(|(h, ..)| h.is_hit()).count();
         eprintln!("{name} {set}: {} rays, {hits} hit", rays.len());
+        assert!(
+            hits as f64 >= min_hit_fraction * rays.len() as f64,
+            "{name} {set}: brute force hit only {hits} of {} rays",
+            rays.len()
+        );
         for acc in [&octree as &dyn Accelerator, &bvh] {
             let label = format!("{name} {set} {}", acc.stats().name);
             let (c, a) = disagreements(acc, rays, &reference, diag, &label);
@@ -103,7 +131,7 @@ fn check_scene(rel: &str) {
     for (set, rays) in &sets {
         assert!(rays.len() > 1000, "{rel} {set}: too few rays");
     }
-    compare_all(&mesh, &sets, &BuildOptions::default(), rel);
+    compare_all(&mesh, &sets, &BuildOptions::default(), rel, 0.05);
 }
 
 #[test]
@@ -265,12 +293,13 @@ fn awkward_meshes_agree_with_brute_force() {
         ("mixed", &mixed),
     ] {
         let rays = awkward_rays(m, 2000);
-        compare_all(m, &[("awkward", rays)], &opts, name);
+        compare_all(m, &[("awkward", rays)], &opts, name, 0.05);
         compare_all(
             m,
             &[("awkward default K", awkward_rays(m, 500))],
             &BuildOptions::default(),
             name,
+            0.05,
         );
     }
 }

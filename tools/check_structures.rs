@@ -10,8 +10,8 @@
 //! `oavm::compare::STRUCTURES` is built from the same triangles and traces three sets: `random`
 //! (`--random` rays, default 10^6, closest hit), `primary` (`--width` x `--height`, default
 //! 1024x768, from the default camera, closest hit) and `shadow` (from OAVM's primary hits toward
-//! the default light, any hit). Brute force (`oavm::geom::brute`: every triangle, the shared
-//! watertight test) answers
+//! the default light, any hit). Brute force (`oavm::geom::reference`: every triangle in f64,
+//! sharing no code with the structures' watertight test) answers
 //!
 //! - a strided subset of every set (every `k`-th ray, at least `--brute` rays; default 10^4 for
 //!   meshes up to 200,000 triangles, 2,000 above: brute force costs rays x triangles), against
@@ -28,9 +28,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use oavm::compare::{self, Accelerator, STRUCTURES, Triangles};
-use oavm::geom::brute;
+use oavm::geom::reference;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
-use oavm::{BuildOptions, Hit, Mesh, Ray};
+use oavm::{BuildOptions, Hit, Ray};
 use rayon::prelude::*;
 
 const REQUIRED: f64 = 0.9999;
@@ -104,11 +104,11 @@ fn answers(acc: &dyn Accelerator, rays: &[Ray], any: bool) -> Vec<Answer> {
     }
 }
 
-fn brute_answer(mesh: &Mesh, ray: &Ray, any: bool) -> Answer {
+fn brute_answer(tris: &[[[f32; 3]; 3]], ray: &Ray, any: bool) -> Answer {
     if any {
-        Answer::Any(brute::occluded(mesh, ray))
+        Answer::Any(reference::occluded(tris, ray))
     } else {
-        Answer::Closest(brute::intersect(mesh, ray))
+        Answer::Closest(reference::closest(tris, ray))
     }
 }
 
@@ -124,6 +124,7 @@ fn run(c: &Config) -> Result<bool, String> {
             .file_stem()
             .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
         let mesh = oavm::mesh::load(path).map_err(|e| e.to_string())?;
+        let corners = mesh.corners();
         let tris = Triangles::from_mesh(&mesh).map_err(|e| e.to_string())?;
         let b = Bounds::of_points(tris.v.iter().flatten().copied());
         let diag = b.diagonal();
@@ -171,7 +172,7 @@ fn run(c: &Config) -> Result<bool, String> {
             };
             let truth: Vec<Answer> = judged
                 .par_iter()
-                .map(|&i| brute_answer(&mesh, &rays[i], *any))
+                .map(|&i| brute_answer(&corners, &rays[i], *any))
                 .collect();
             let truth_of = |i: usize| truth[judged.binary_search(&i).unwrap_or(0)];
             for (a, acc) in all.iter().zip(&accs) {

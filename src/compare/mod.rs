@@ -10,14 +10,26 @@
 //! - [`bvh`]: a binned-SAH BVH, the modern reference (pbrt-v4's BVH is the bar for quality);
 //! - [`OavmAccel`]: OAVM itself, packed in memory.
 //!
-//! They share the geometry kernels of [`crate::geom`] (the watertight triangle test, the exact
-//! triangle-box test) and the counters of [`Counters`]. They live in memory; only OAVM has a file
-//! format. Each reports its size with the counting conventions written in its module docs.
+//! Each of the four is a folder: `node.rs` (the records traversal reads), `build.rs`,
+//! `traverse.rs` (which finds the leaves a ray crosses and knows nothing of triangles) and
+//! `tests.rs`. Below their traversals they share [`leaf`]: the triangles, the test of a leaf's
+//! triangles with the watertight kernel of [`crate::geom`], and the [`Accelerator`] plumbing.
+//! [`bench`] is the comparison itself, which `oavm-bench` runs. They live in memory; only OAVM
+//! has a file format. Each reports its size with the counting conventions written in its module
+//! docs.
 
+mod aabb;
+pub mod bench;
 pub mod bvh;
 pub mod grid;
 pub mod kdtree;
+mod leaf;
+mod oavm;
 pub mod octree;
+#[cfg(test)]
+mod test_util;
+
+pub use oavm::OavmAccel;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -25,9 +37,8 @@ use serde::Serialize;
 use crate::build::{BuildOptions, is_degenerate};
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
-use crate::logical::{Counters, Scene};
+use crate::logical::Counters;
 use crate::mesh::Mesh;
-use crate::physical::AlignedBytes;
 
 /// Size of a built structure. What a "node" and a "pointer" are for each structure is written in
 /// its module documentation, matched to the paper's Table 2 where possible.
@@ -102,94 +113,6 @@ impl Triangles {
     pub fn is_empty(&self) -> bool {
         self.v.is_empty()
     }
-}
-
-/// OAVM packed in memory (the same bytes a file holds), behind the common interface.
-pub struct OavmAccel {
-    scene: Scene<AlignedBytes>,
-    stats: StructureStats,
-}
-
-impl OavmAccel {
-    pub fn build(mesh: &Mesh, opts: &BuildOptions) -> Result<OavmAccel, Error> {
-        let t = std::time::Instant::now();
-        let (parts, s) = crate::build::build(mesh, opts, &crate::build::Quiet)?;
-        let bytes = crate::build::encode(&parts)?;
-        let build_seconds = t.elapsed().as_secs_f64();
-        let scene = Scene::from_bytes(bytes, "memory")?;
-        let stats = StructureStats {
-            name: "oavm",
-            build_seconds,
-            nodes: s.nodes,
-            pointers: s.pointers.total,
-            bytes: scene.file().bytes().len() as u64,
-        };
-        Ok(OavmAccel { scene, stats })
-    }
-
-    pub fn scene(&self) -> &Scene<AlignedBytes> {
-        &self.scene
-    }
-}
-
-impl Accelerator for OavmAccel {
-    fn stats(&self) -> &StructureStats {
-        &self.stats
-    }
-
-    fn intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
-        let rays = c.rays; // the tracer counts its rays; here the batch does
-        let hit = self.scene.tree().intersect(ray, c);
-        c.rays = rays;
-        match hit {
-            Ok(Some(h)) => Hit {
-                t: h.t,
-                prim: h.prim,
-            },
-            // The bytes were made in this process; a corruption here is a bug, reported as a miss
-            // by the answer and loudly by the cross-checks of `oavm-bench`.
-            _ => Hit::MISS,
-        }
-    }
-
-    fn occluded(&self, ray: &Ray, c: &mut Counters) -> bool {
-        let rays = c.rays;
-        let hit = self.scene.tree().occluded(ray, c);
-        c.rays = rays;
-        matches!(hit, Ok(true))
-    }
-}
-
-/// Replaces `best` by the hit (`t`, `prim`) if it is closer, or as close with a lower primitive
-/// id (the convention of `geom::brute`, which keeps the lowest id among equal `t`). Returns
-/// whether it did.
-#[inline]
-pub(crate) fn closer(best: &mut Hit, t: f32, prim: u32) -> bool {
-    if !best.is_hit() || t < best.t || (t == best.t && prim < best.prim) {
-        *best = Hit { t, prim };
-        true
-    } else {
-        false
-    }
-}
-
-/// The closest hit of `ray` among all of `tris` (with primitive ids `prim`), by the shared
-/// watertight test: the fallback of a structure whose indices would not fit its records.
-pub(crate) fn brute_force(
-    tris: &[[[f32; 3]; 3]],
-    prim: &[u32],
-    ray: &Ray,
-    c: &mut Counters,
-) -> Hit {
-    let sh = crate::geom::triangle::RayShear::new(ray);
-    let mut best = Hit::MISS;
-    for (t, &p) in tris.iter().zip(prim) {
-        c.triangles_tested += 1;
-        if let Some(th) = sh.intersect(t, ray.tmin, ray.tmax) {
-            closer(&mut best, th, p);
-        }
-    }
-    best
 }
 
 /// Closest hits of `rays` through `acc` into `out`, on the current rayon pool.

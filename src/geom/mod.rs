@@ -1,7 +1,8 @@
 //! Geometry kernels shared by the builder, the tracer and every structure we compare against:
-//! rays, the watertight ray–triangle test and the exact triangle–box overlap test.
+//! rays and hits ([`ray`], the records of `RAYS.md`), the watertight ray–triangle test
+//! ([`triangle`]) and the exact triangle–box overlap test ([`tribox`]); and the f64 reference
+//! every test measures them against ([`reference`]), which shares no code with them.
 
-pub mod brute;
 pub mod ray;
 pub mod reference;
 pub mod triangle;

@@ -106,6 +106,56 @@ pub fn occluded(tris: &[[[f32; 3]; 3]], ray: &Ray) -> bool {
     tris.iter().any(|tri| hit_t(tri, ray).is_some())
 }
 
+/// How close (relative to the size of the edge and of the coordinates) a ray must pass to an
+/// edge or a corner to graze it: well above f32 rounding (about 6e-8 of a coordinate).
+pub const GRAZING: f64 = 1e-5;
+
+/// Whether `ray` passes within [`GRAZING`] of an edge (or a corner) of one of `tris`, at a `t`
+/// within its range (or within rounding of it): where a watertight f32 tracer and this
+/// reference may both be right, one hitting the triangle on one side of the edge, the other the
+/// triangle on the other side or neither.
+pub fn grazes(tris: &[[[f32; 3]; 3]], ray: &Ray) -> bool {
+    if !ray.is_valid() {
+        return false;
+    }
+    let o = ray.origin.map(f64::from);
+    let d = ray.dir.map(f64::from);
+    let dd = dot(d, d);
+    let slack = 1e-6 * (1.0 + (ray.tmin as f64).abs());
+    let in_range = |t: f64| t >= ray.tmin as f64 - slack && t <= ray.tmax as f64 + slack;
+    tris.iter().any(|tri| {
+        let v = tri.map(|p| p.map(f64::from));
+        (0..3).any(|k| {
+            let (a, b) = (v[k], v[(k + 1) % 3]);
+            let e = sub(b, a);
+            let size = dot(e, e).sqrt();
+            let scale = a
+                .iter()
+                .chain(&b)
+                .chain(&o)
+                .fold(0.0f64, |m, c| m.max(c.abs()));
+            let tol = GRAZING * size + 1e-6 * scale;
+            // The closest points of the ray's line o + t d and the segment a + s e, s in [0, 1].
+            let w = sub(o, a);
+            let (de, ee) = (dot(d, e), dot(e, e));
+            let (dw, ew) = (dot(d, w), dot(e, w));
+            let den = dd * ee - de * de;
+            let mut s = if den > 0.0 {
+                (dd * ew - de * dw) / den
+            } else {
+                0.0
+            };
+            s = s.clamp(0.0, 1.0);
+            // The ray's t closest to the segment's point at s.
+            let t = (s * de - dw) / dd;
+            let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+            let q = [a[0] + s * e[0], a[1] + s * e[1], a[2] + s * e[2]];
+            let gap = sub(p, q);
+            dot(gap, gap).sqrt() <= tol && in_range(t)
+        })
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -136,6 +186,19 @@ mod tests {
             let r = Ray::new([0.2, 0.3, 0.0], d, 0.0, f32::INFINITY);
             assert_eq!(hit_t(&TRI, &r), Some(0.0), "{d:?}");
         }
+    }
+
+    #[test]
+    fn rays_through_edges_and_corners_graze_others_do_not() {
+        let through = |p: [f32; 3]| Ray::new([p[0], p[1], 2.0], [0.0, 0.0, -1.0], 0.0, 9.0);
+        assert!(grazes(&[TRI], &through([0.0, 0.0, 0.0])), "a corner");
+        assert!(grazes(&[TRI], &through([0.5, 0.5, 0.0])), "the hypotenuse");
+        assert!(grazes(&[TRI], &through([0.3, 0.0, 0.0])), "an edge");
+        assert!(!grazes(&[TRI], &through([0.25, 0.25, 0.0])), "inside");
+        assert!(!grazes(&[TRI], &through([0.9, 0.9, 0.0])), "outside");
+        // Through a corner, but behind the ray's range.
+        let behind = Ray::new([0.0, 0.0, 2.0], [0.0, 0.0, 1.0], 0.0, 9.0);
+        assert!(!grazes(&[TRI], &behind));
     }
 
     #[test]

@@ -31,6 +31,13 @@ pub struct Mesh {
 }
 
 impl Mesh {
+    /// The corners of every triangle, by primitive id (what `geom::reference` takes).
+    pub fn corners(&self) -> Vec<[[f32; 3]; 3]> {
+        (0..self.triangles.len())
+            .map(|i| self.triangle(i))
+            .collect()
+    }
+
     /// The three corners of triangle `i`.
     pub fn triangle(&self, i: usize) -> [[f32; 3]; 3] {
         let [a, b, c] = self.triangles[i];

@@ -101,9 +101,6 @@ impl Comparison {
     }
 }
 
-/// Margin (barycentric) within which a ray grazes an edge.
-const GRAZING: f64 = 1e-5;
-
 /// Traces `rays` (closest hit and any hit) and compares every `stride`-th ray with the f64
 /// reference over `mesh`'s triangles.
 pub fn compare_with_reference<D: AsRef<[u8]> + oavm::logical::BlockSource>(
@@ -133,7 +130,7 @@ pub fn compare_with_reference<D: AsRef<[u8]> + oavm::logical::BlockSource>(
         c.reference_hits += want.is_hit() as usize;
         c.reference_occluded += occluded as usize;
         if !agree(want, hits[i], diag) {
-            if grazes(&tris, ray) {
+            if reference::grazes(&tris, ray) {
                 c.grazing += 1;
             } else {
                 c.closest += 1;
@@ -145,7 +142,7 @@ pub fn compare_with_reference<D: AsRef<[u8]> + oavm::logical::BlockSource>(
                 }
             }
         }
-        if occluded != (occ[i] == 1) && !grazes(&tris, ray) {
+        if occluded != (occ[i] == 1) && !reference::grazes(&tris, ray) {
             c.any += 1;
             if c.any <= 3 {
                 eprintln!("any-hit mismatch ray {i} {ray:?}: reference {occluded}");
@@ -153,19 +150,6 @@ pub fn compare_with_reference<D: AsRef<[u8]> + oavm::logical::BlockSource>(
         }
     }
     c
-}
-
-/// Whether `ray` passes within [`GRAZING`] of an edge of a triangle it meets within its
-/// range (or a little before it: `t` within rounding of `tmin`).
-fn grazes(tris: &[[[f32; 3]; 3]], ray: &Ray) -> bool {
-    let slack = 1e-6 * (1.0 + (ray.tmin as f64).abs());
-    tris.iter().any(|t| {
-        reference::meet(t, ray).is_some_and(|m| {
-            m.margin().abs() < GRAZING
-                && m.t >= ray.tmin as f64 - slack
-                && m.t <= ray.tmax as f64 + slack
-        })
-    })
 }
 
 /// A binary little-endian PLY of `mesh` (float vertices, uchar-count int-index faces).

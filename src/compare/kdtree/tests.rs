@@ -1,0 +1,164 @@
+use super::build::{event_order, f32_down, f32_up, push_events, sweep};
+use super::*;
+use crate::compare::test_util::{
+    check, flat_mesh_and_rays, ranged_rays, rng, tris_of, unit_rays, unit_soup,
+};
+use crate::compare::{Accelerator, Triangles};
+use crate::geom::{Hit, Ray};
+use crate::logical::Counters;
+
+/// Every triangle is referenced by some leaf, and the tree respects its depth limit.
+fn check_structure(kd: &KdTree, n: usize) {
+    assert!(!kd.brute);
+    let (depth, leaves) = kd.depth_and_leaves();
+    assert!(depth <= kd.max_depth(), "{depth} > {}", kd.max_depth());
+    assert_eq!(leaves, kd.nodes.iter().filter(|x| x.is_leaf()).count());
+    let mut seen = vec![false; n];
+    for nd in kd.nodes.iter().filter(|x| x.is_leaf()) {
+        assert_eq!(kd.leaf_list(nd).len(), nd.upper() as usize, "{nd:?}");
+        for &i in kd.leaf_list(nd) {
+            seen[i as usize] = true;
+        }
+    }
+    assert!(seen.iter().all(|&s| s), "a triangle is in no leaf");
+}
+
+#[test]
+fn random_soup_matches_brute_force() {
+    let (tris, mesh) = tris_of(unit_soup(800, 11));
+    let kd = KdTree::build(&tris);
+    check_structure(&kd, 800);
+    let s = kd.stats();
+    assert!(s.nodes > 100 && s.pointers > 50, "{s:?}");
+    check(&kd, &mesh, &unit_rays(5000, 12), 800);
+}
+
+/// `bytes` counts the tree's own record: its size is part of the figures `oavm-bench` reports.
+#[test]
+#[cfg(target_pointer_width = "64")]
+fn bytes_count_the_record_the_nodes_the_lists_and_the_triangles() {
+    assert_eq!(std::mem::size_of::<KdTree>(), 232);
+    let (tris, _) = tris_of(unit_soup(300, 3));
+    let kd = KdTree::build(&tris);
+    let want = 232 + 8 * kd.nodes.len() + 4 * kd.leaf_prims.len() + 40 * tris.len();
+    assert_eq!(kd.stats().bytes, want as u64);
+}
+
+#[test]
+fn event_sweep_counts_planar_triangles() {
+    // Two triangles flat in x at x = 0.5 and one spanning [0, 1]: at the plane x = 0.5 the
+    // sweep sees 1 triangle on the left, 2 planar and 1 on the right.
+    let mut ev = Vec::new();
+    push_events(&mut ev, 0, [0.5, 0.0, 0.0], [0.5, 1.0, 1.0]);
+    push_events(&mut ev, 1, [0.5, 0.0, 0.0], [0.5, 1.0, 1.0]);
+    push_events(&mut ev, 2, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]);
+    ev.sort_by(event_order);
+    let s = sweep(&ev, 3, [0.0; 3], [1.0; 3]).unwrap();
+    assert_eq!((s.axis, s.pos), (0, 0.5));
+    // Both sides cost the same; ties go left.
+    assert!(s.planar_left);
+    assert!(s.cost < ISECT_COST * 3.0);
+}
+
+#[test]
+fn empty_single_and_invalid() {
+    let kd = KdTree::build(&Triangles::default());
+    let r = Ray::new([0.0; 3], [1.0, 0.0, 0.0], 0.0, f32::INFINITY);
+    let mut c = Counters::default();
+    assert_eq!(kd.intersect(&r, &mut c), Hit::MISS);
+    assert!(!kd.occluded(&r, &mut c));
+    assert_eq!(kd.stats().nodes, 0);
+
+    let (tris, mesh) = tris_of(vec![[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]]);
+    let kd = KdTree::build(&tris);
+    assert_eq!(kd.stats().nodes, 1);
+    assert_eq!(kd.stats().pointers, 0);
+    let down = Ray::new([0.25, 0.25, 1.0], [0.0, 0.0, -1.0], 0.0, f32::INFINITY);
+    assert_eq!(kd.intersect(&down, &mut c), Hit { t: 1.0, prim: 0 });
+    check(&kd, &mesh, &unit_rays(2000, 13), 20);
+    let bad = Ray::new([0.25, 0.25, 1.0], [f32::NAN, 0.0, -1.0], 0.0, 9.0);
+    assert_eq!(kd.intersect(&bad, &mut c), Hit::MISS);
+    assert!(!kd.occluded(&bad, &mut c));
+}
+
+#[test]
+fn flat_mesh_and_planes_of_triangles_on_split_planes() {
+    let mut r = rng(14);
+    let (flat, rays) = flat_mesh_and_rays(&mut r, 600, 0.04, 3000, true);
+    let (tris, mesh) = tris_of(flat);
+    let kd = KdTree::build(&tris);
+    check_structure(&kd, 600);
+    assert!(kd.stats().nodes > 50);
+    check(&kd, &mesh, &rays, 500);
+
+    // Soup plus stacks of triangles flat in x at x = 0.25, 0.5, 0.75 (planar events, likely
+    // split planes) and triangles meeting them edge-on; rays along every axis and slanted,
+    // starting inside the tree.
+    let mut v = unit_soup(300, 15);
+    for &x in &[0.25f32, 0.5, 0.75] {
+        for i in 0..100 {
+            let (y, z) = ((i % 10) as f32 / 10.0, (i / 10) as f32 / 10.0);
+            v.push([[x, y, z], [x, y + 0.1, z], [x, y, z + 0.1]]);
+            v.push([[x, y, z], [x + 0.05, y + 0.1, z], [x, y, z + 0.1]]);
+        }
+    }
+    let n = v.len();
+    let (tris, mesh) = tris_of(v);
+    let kd = KdTree::build(&tris);
+    check_structure(&kd, n);
+    let mut rays = Vec::new();
+    for i in 0..6000 {
+        let o = [r(), r(), r()];
+        let mut d = [r() - 0.5, r() - 0.5, r() - 0.5];
+        if i % 2 == 0 {
+            d = [0.0; 3];
+            d[i / 2 % 3] = if i % 4 == 0 { 1.0 } else { -1.0 };
+        }
+        rays.push(Ray::new(o, d, 0.0, f32::INFINITY));
+        // Rays lying in the planes.
+        let o = [[0.25f32, 0.5, 0.75][i % 3], r(), r()];
+        let d = [0.0, r() - 0.5, r() - 0.5];
+        rays.push(Ray::new(o, d, 0.0, f32::INFINITY));
+    }
+    check(&kd, &mesh, &rays, 2000);
+}
+
+#[test]
+fn range_limits_and_negative_tmin() {
+    let (tris, mesh) = tris_of(unit_soup(400, 16));
+    let kd = KdTree::build(&tris);
+    let rays = ranged_rays(3000, 17, [-1.0, 1.0]);
+    check(&kd, &mesh, &rays, 300);
+}
+
+#[test]
+fn depth_is_limited_on_a_pathological_stack() {
+    // 2000 identical-footprint triangles stacked along z: splits cannot separate many of
+    // them cheaply, so bad refines and the depth limit must end the recursion.
+    let v: Vec<_> = (0..2000)
+        .map(|i| {
+            let z = i as f32 * 1e-3;
+            [[0.0, 0.0, z], [1.0, 0.0, z + 0.5], [0.0, 1.0, z + 0.25]]
+        })
+        .collect();
+    let (tris, mesh) = tris_of(v);
+    let kd = KdTree::build(&tris);
+    check_structure(&kd, 2000);
+    assert_eq!(kd.max_depth(), (8.0 + 1.3 * 10.0f64).round() as u32);
+    let mut c = Counters::default();
+    check(&kd, &mesh, &unit_rays(500, 18), 50);
+    let r = Ray::new([0.1, 0.1, -1.0], [0.0, 0.0, 1.0], 0.0, f32::INFINITY);
+    let h = kd.intersect(&r, &mut c);
+    assert!(h.is_hit());
+    assert!(c.nodes_visited >= c.leaves_visited && c.leaves_visited >= 1);
+    assert_eq!(c.rays, 0);
+}
+
+#[test]
+fn outward_rounding() {
+    let x = 0.1f64;
+    assert!((f32_down(x) as f64) <= x && (f32_up(x) as f64) >= x);
+    assert!(f32_down(x) < f32_up(x));
+    assert_eq!(f32_down(0.5), 0.5);
+    assert_eq!(f32_up(0.5), 0.5);
+}
