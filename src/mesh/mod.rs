@@ -12,7 +12,6 @@
 
 pub mod aff;
 mod error;
-pub mod kb;
 mod obj;
 mod ply;
 pub mod stream;
