@@ -2,6 +2,7 @@
 //! triangles (`tt`, `ttp`), meshes (`m`) and animated triangles (`tpa`); see the [module
 //! documentation](super) for their operands.
 
+use super::kb::Reach;
 use super::parser::{AnimTri, Parser};
 use super::tokens::{Src, show};
 use crate::mesh::{Fan, MeshError};
@@ -81,7 +82,12 @@ impl Parser<'_> {
         let b = self.vertex(src, line, [0.0; 3])?;
         let c = self.vertex(src, line, [0.0; 3])?;
         self.triangles.push([a, b, c]);
-        self.anim_tris.push(AnimTri { slot: a, keys });
+        let reach = Reach::new(keys[1..].iter().map(|k| k.0));
+        self.anim_tris.push(AnimTri {
+            slot: a,
+            keys,
+            reach,
+        });
         self.counts.animated_triangles += 1;
         Ok(())
     }

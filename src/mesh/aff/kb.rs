@@ -33,6 +33,13 @@
 //! even-spacing value instead: `adj = 1`, and `u = 0` on a segment of zero length. A rotation
 //! key with a zero axis is the identity. Axes are normalised (the reference code assumes unit
 //! axes; the files give them to five digits).
+//!
+//! Evaluation differs from the reference code in its cost only, never in its results (a test
+//! compares the two bit for bit): a spline is prepared once ([`VecSpline::new`],
+//! [`RotSpline::new`]: the key times, each rotation key as a quaternion, the reference code's
+//! alignment walk done once over all segments), and the segment of a time is found by binary
+//! search ([`Reach`]) instead of the reference code's walk from the first segment. Evaluating
+//! at one time then costs `O(log n)` for `n` keys, not `O(n)`.
 
 /// One translation or scaling key: time, value, tension, continuity, bias.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,15 +61,53 @@ pub(crate) struct RotKey {
 /// The fewest keys a spline takes (the reference code asserts it).
 pub(crate) const MIN_KEYS: usize = 4;
 
+/// The running maximum of a list of times: `reach[i]` is the latest of `times[..=i]`.
+///
+/// It answers "the first `i` with `t < times[i]`" (or `t <= times[i]`) by bisection whether or
+/// not the times are in order: an `i` with `t < times[i]` has `t < reach[i]`, and the first `i`
+/// with `t < reach[i]` has `t < times[i]` (it is where the maximum last grew), so both firsts
+/// are the same `i`, and `reach` is sorted. Key lists are in time order but for a few (a `rot`
+/// list of the BART robots goes from time 48 back to 42), which the reference code reads as
+/// any other: so must we, with the same result.
+#[derive(Clone, Debug)]
+pub(crate) struct Reach(Vec<f64>);
+
+impl Reach {
+    pub(crate) fn new(times: impl IntoIterator<Item = f64>) -> Reach {
+        let mut latest = f64::NEG_INFINITY;
+        Reach(
+            times
+                .into_iter()
+                .map(|t| {
+                    latest = latest.max(t);
+                    latest
+                })
+                .collect(),
+        )
+    }
+
+    /// The first `i` with `t < times[i]` (`strict`) or `t <= times[i]`, or the number of times
+    /// when there is none.
+    pub(crate) fn first_after(&self, t: f64, strict: bool) -> usize {
+        self.0.partition_point(|&latest| {
+            super::work::keys(1);
+            if strict { latest <= t } else { latest < t }
+        })
+    }
+}
+
 /// Segment index and local parameter for time `t` over keys with times `times` (the reference
-/// code's `ComputeIAndU`). `times.len() >= 4`.
-fn segment(times: &[f64], t: f64) -> (usize, f64) {
+/// code's `ComputeIAndU`). `times.len() >= 4`; `ends` is the [`Reach`] of the segments' end
+/// times `times[2..n - 1]`.
+fn segment(times: &[f64], ends: &Reach, t: f64) -> (usize, f64) {
     let polys = times.len() - 3;
     let tmin = |i: usize| times[i + 1];
     let tmax = |i: usize| times[i + 2];
     if tmin(0) < t {
         if t < tmax(polys - 1) {
-            let i = (0..polys).find(|&i| t < tmax(i)).unwrap_or(polys - 1);
+            // The reference code walks to the first segment `i` with `t < tmax(i)`; there is
+            // one, the last segment at worst.
+            let i = ends.first_after(t, true);
             let range = tmax(i) - tmin(i);
             let u = if range > 0.0 {
                 ((t - tmin(i)) / range).clamp(0.0, 1.0)
@@ -76,6 +121,12 @@ fn segment(times: &[f64], t: f64) -> (usize, f64) {
     } else {
         (0, 0.0)
     }
+}
+
+/// The key times of a spline and the [`Reach`] of its segments' end times.
+fn times_and_ends(times: Vec<f64>) -> (Vec<f64>, Reach) {
+    let ends = Reach::new(times[2..times.len() - 1].iter().copied());
+    (times, ends)
 }
 
 /// `2 (a - b) / (c - d)`, or 1 (even spacing) where that is not a finite number.
@@ -98,21 +149,39 @@ fn multipliers(times: &[f64], tcb1: [f64; 3], tcb2: [f64; 3], i: usize) -> [f64;
     [out0, out1, in0, in1]
 }
 
-/// The Kochanek–Bartels curve through `keys` (at least [`MIN_KEYS`]) at time `t`.
-pub(crate) fn interpolate_vec(keys: &[VecKey], t: f64) -> [f64; 3] {
-    debug_assert!(keys.len() >= MIN_KEYS);
-    let times: Vec<f64> = keys.iter().map(|k| k.t).collect();
-    let (i, u) = segment(&times, t);
-    let (p0, p1, p2, p3) = (keys[i].v, keys[i + 1].v, keys[i + 2].v, keys[i + 3].v);
-    let [out0, out1, in0, in1] = multipliers(&times, keys[i + 1].tcb, keys[i + 2].tcb, i);
-    std::array::from_fn(|k| {
-        let dp = p2[k] - p1[k];
-        let tout = out1 * dp + out0 * (p1[k] - p0[k]);
-        let tin = in1 * (p3[k] - p2[k]) + in0 * dp;
-        let c2 = 3.0 * dp - 2.0 * tout - tin;
-        let c3 = -2.0 * dp + tout + tin;
-        p1[k] + u * (tout + u * (c2 + u * c3))
-    })
+/// The Kochanek–Bartels curve through some translation or scaling keys, ready to evaluate.
+#[derive(Clone, Debug)]
+pub(crate) struct VecSpline {
+    keys: Vec<VecKey>,
+    times: Vec<f64>,
+    ends: Reach,
+}
+
+impl VecSpline {
+    /// The spline through `keys` (at least [`MIN_KEYS`]).
+    pub(crate) fn new(keys: Vec<VecKey>) -> VecSpline {
+        debug_assert!(keys.len() >= MIN_KEYS);
+        super::work::keys(keys.len());
+        let (times, ends) = times_and_ends(keys.iter().map(|k| k.t).collect());
+        VecSpline { keys, times, ends }
+    }
+
+    /// The curve at time `t`.
+    pub(crate) fn at(&self, t: f64) -> [f64; 3] {
+        let (keys, times) = (&self.keys, &self.times[..]);
+        let (i, u) = segment(times, &self.ends, t);
+        super::work::keys(4);
+        let (p0, p1, p2, p3) = (keys[i].v, keys[i + 1].v, keys[i + 2].v, keys[i + 3].v);
+        let [out0, out1, in0, in1] = multipliers(times, keys[i + 1].tcb, keys[i + 2].tcb, i);
+        std::array::from_fn(|k| {
+            let dp = p2[k] - p1[k];
+            let tout = out1 * dp + out0 * (p1[k] - p0[k]);
+            let tin = in1 * (p3[k] - p2[k]) + in0 * dp;
+            let c2 = 3.0 * dp - 2.0 * tout - tin;
+            let c3 = -2.0 * dp + tout + tin;
+            p1[k] + u * (tout + u * (c2 + u * c3))
+        })
+    }
 }
 
 /// A quaternion `w + xi + yj + zk`.
@@ -280,39 +349,213 @@ impl Quat {
     }
 }
 
-/// The Kochanek–Bartels quaternion spline through `keys` (at least [`MIN_KEYS`]) at time `t`.
-pub(crate) fn interpolate_rot(keys: &[RotKey], t: f64) -> Quat {
-    debug_assert!(keys.len() >= MIN_KEYS);
-    let times: Vec<f64> = keys.iter().map(|k| k.t).collect();
-    let (seg, u) = segment(&times, t);
-    let mut q: Vec<Quat> = keys
-        .iter()
-        .map(|k| Quat::from_angle_axis(k.angle_deg.to_radians(), k.axis))
-        .collect();
-    // The reference code aligns key i + 2 with key i + 1 while it builds segment i, walking the
-    // segments in order; segment `seg` sees the keys as they are at that point of the walk.
-    for i in 0..=seg {
-        if q[i + 1].dot(q[i + 2]) < 0.0 {
-            q[i + 2] = q[i + 2].neg();
+/// The Kochanek–Bartels quaternion spline through some rotation keys, ready to evaluate.
+#[derive(Clone, Debug)]
+pub(crate) struct RotSpline {
+    times: Vec<f64>,
+    ends: Reach,
+    tcb: Vec<[f64; 3]>,
+    /// Each key as a unit quaternion, as read.
+    keys: Vec<Quat>,
+    /// The keys after the reference code's alignment walk over every segment (see
+    /// [`RotSpline::new`]).
+    aligned: Vec<Quat>,
+}
+
+impl RotSpline {
+    /// The spline through `keys` (at least [`MIN_KEYS`]).
+    ///
+    /// The reference code aligns key `i + 2` with key `i + 1` (negating it when their dot
+    /// product is negative) while it builds segment `i`, walking the segments in order, so
+    /// segment `s` sees keys `0 ..= s + 2` as aligned by the walk so far and key `s + 3` as it
+    /// was read. Each step depends only on the steps before it, so the walk done once over all
+    /// segments gives every segment the same keys.
+    pub(crate) fn new(keys: &[RotKey]) -> RotSpline {
+        debug_assert!(keys.len() >= MIN_KEYS);
+        super::work::keys(keys.len());
+        let quats: Vec<Quat> = keys
+            .iter()
+            .map(|k| Quat::from_angle_axis(k.angle_deg.to_radians(), k.axis))
+            .collect();
+        let mut aligned = quats.clone();
+        for i in 0..keys.len() - 3 {
+            if aligned[i + 1].dot(aligned[i + 2]) < 0.0 {
+                aligned[i + 2] = aligned[i + 2].neg();
+            }
+        }
+        let (times, ends) = times_and_ends(keys.iter().map(|k| k.t).collect());
+        RotSpline {
+            times,
+            ends,
+            tcb: keys.iter().map(|k| k.tcb).collect(),
+            keys: quats,
+            aligned,
         }
     }
-    let (q0, q1, q2, q3) = (q[seg], q[seg + 1], q[seg + 2], q[seg + 3]);
-    let [out0, out1, in0, in1] = multipliers(&times, keys[seg + 1].tcb, keys[seg + 2].tcb, seg);
-    let logdq = q1.unit_inverse().mul(q2).log();
-    let tout = logdq
-        .scale(out1)
-        .add(q0.unit_inverse().mul(q1).log().scale(out0));
-    let tin = logdq
-        .scale(in0)
-        .add(q2.unit_inverse().mul(q3).log().scale(in1));
-    let a = q1.mul(tout.sub(logdq).scale(0.5).exp());
-    let b = q2.mul(logdq.sub(tin).scale(0.5).exp());
-    Quat::squad(u, q1, a, b, q2)
+
+    /// The rotation at time `t`.
+    pub(crate) fn at(&self, t: f64) -> Quat {
+        let times = &self.times[..];
+        let (seg, u) = segment(times, &self.ends, t);
+        super::work::keys(4);
+        let q = &self.aligned;
+        let (q0, q1, q2, q3) = (q[seg], q[seg + 1], q[seg + 2], self.keys[seg + 3]);
+        let [out0, out1, in0, in1] = multipliers(times, self.tcb[seg + 1], self.tcb[seg + 2], seg);
+        let logdq = q1.unit_inverse().mul(q2).log();
+        let tout = logdq
+            .scale(out1)
+            .add(q0.unit_inverse().mul(q1).log().scale(out0));
+        let tin = logdq
+            .scale(in0)
+            .add(q2.unit_inverse().mul(q3).log().scale(in1));
+        let a = q1.mul(tout.sub(logdq).scale(0.5).exp());
+        let b = q2.mul(logdq.sub(tin).scale(0.5).exp());
+        Quat::squad(u, q1, a, b, q2)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The evaluation as it was written first, transliterating the reference code step by
+    /// step (a linear walk to the segment, the alignment walk at every evaluation): what the
+    /// prepared splines must reproduce bit for bit.
+    mod reference {
+        use super::super::{Quat, RotKey, VecKey, multipliers};
+
+        /// Segment index and local parameter for time `t` over keys with times `times` (the reference
+        /// code's `ComputeIAndU`). `times.len() >= 4`.
+        fn segment(times: &[f64], t: f64) -> (usize, f64) {
+            let polys = times.len() - 3;
+            let tmin = |i: usize| times[i + 1];
+            let tmax = |i: usize| times[i + 2];
+            if tmin(0) < t {
+                if t < tmax(polys - 1) {
+                    let i = (0..polys).find(|&i| t < tmax(i)).unwrap_or(polys - 1);
+                    let range = tmax(i) - tmin(i);
+                    let u = if range > 0.0 {
+                        ((t - tmin(i)) / range).clamp(0.0, 1.0)
+                    } else {
+                        0.0
+                    };
+                    (i, u)
+                } else {
+                    (polys - 1, 1.0)
+                }
+            } else {
+                (0, 0.0)
+            }
+        }
+
+        /// The Kochanek–Bartels curve through `keys` (at least [`MIN_KEYS`]) at time `t`.
+        pub(super) fn interpolate_vec(keys: &[VecKey], t: f64) -> [f64; 3] {
+            debug_assert!(keys.len() >= 4);
+            let times: Vec<f64> = keys.iter().map(|k| k.t).collect();
+            let (i, u) = segment(&times, t);
+            let (p0, p1, p2, p3) = (keys[i].v, keys[i + 1].v, keys[i + 2].v, keys[i + 3].v);
+            let [out0, out1, in0, in1] = multipliers(&times, keys[i + 1].tcb, keys[i + 2].tcb, i);
+            std::array::from_fn(|k| {
+                let dp = p2[k] - p1[k];
+                let tout = out1 * dp + out0 * (p1[k] - p0[k]);
+                let tin = in1 * (p3[k] - p2[k]) + in0 * dp;
+                let c2 = 3.0 * dp - 2.0 * tout - tin;
+                let c3 = -2.0 * dp + tout + tin;
+                p1[k] + u * (tout + u * (c2 + u * c3))
+            })
+        }
+
+        /// The Kochanek–Bartels quaternion spline through `keys` (at least [`MIN_KEYS`]) at time `t`.
+        pub(super) fn interpolate_rot(keys: &[RotKey], t: f64) -> Quat {
+            debug_assert!(keys.len() >= 4);
+            let times: Vec<f64> = keys.iter().map(|k| k.t).collect();
+            let (seg, u) = segment(&times, t);
+            let mut q: Vec<Quat> = keys
+                .iter()
+                .map(|k| Quat::from_angle_axis(k.angle_deg.to_radians(), k.axis))
+                .collect();
+            // The reference code aligns key i + 2 with key i + 1 while it builds segment i, walking the
+            // segments in order; segment `seg` sees the keys as they are at that point of the walk.
+            for i in 0..=seg {
+                if q[i + 1].dot(q[i + 2]) < 0.0 {
+                    q[i + 2] = q[i + 2].neg();
+                }
+            }
+            let (q0, q1, q2, q3) = (q[seg], q[seg + 1], q[seg + 2], q[seg + 3]);
+            let [out0, out1, in0, in1] =
+                multipliers(&times, keys[seg + 1].tcb, keys[seg + 2].tcb, seg);
+            let logdq = q1.unit_inverse().mul(q2).log();
+            let tout = logdq
+                .scale(out1)
+                .add(q0.unit_inverse().mul(q1).log().scale(out0));
+            let tin = logdq
+                .scale(in0)
+                .add(q2.unit_inverse().mul(q3).log().scale(in1));
+            let a = q1.mul(tout.sub(logdq).scale(0.5).exp());
+            let b = q2.mul(logdq.sub(tin).scale(0.5).exp());
+            Quat::squad(u, q1, a, b, q2)
+        }
+    }
+
+    fn interpolate_vec(keys: &[VecKey], t: f64) -> [f64; 3] {
+        VecSpline::new(keys.to_vec()).at(t)
+    }
+
+    fn interpolate_rot(keys: &[RotKey], t: f64) -> Quat {
+        RotSpline::new(keys).at(t)
+    }
+
+    /// A small deterministic generator (SplitMix64).
+    fn random(state: &mut u64) -> f64 {
+        *state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    #[test]
+    fn prepared_splines_give_the_reference_codes_bits() {
+        let mut state = 7;
+        for n in [4usize, 5, 9, 40, 300] {
+            let mut time = -3.0;
+            let mut vec_keys = Vec::new();
+            let mut rot_keys = Vec::new();
+            for i in 0..n {
+                // Uneven steps, some keys at the same time (a zero-length segment), and in
+                // the longer lists some going back in time, as in a BART robot.
+                if i % 7 != 3 {
+                    time += 0.1 + 2.0 * random(&mut state);
+                }
+                if n >= 40 && i % 13 == 5 {
+                    time -= 10.0 * random(&mut state);
+                }
+                let mut r = || 4.0 * random(&mut state) - 2.0;
+                let tcb = [r() / 2.0, r() / 2.0, r() / 2.0];
+                vec_keys.push(VecKey {
+                    t: time,
+                    v: [r(), r(), r()],
+                    tcb,
+                });
+                rot_keys.push(RotKey {
+                    t: time,
+                    axis: [r(), r(), r()],
+                    angle_deg: 200.0 * r(),
+                    tcb,
+                });
+            }
+            let (vs, rs) = (VecSpline::new(vec_keys.clone()), RotSpline::new(&rot_keys));
+            let mut times: Vec<f64> = vec_keys.iter().map(|k| k.t).collect();
+            times.extend((0..200).map(|_| -5.0 + (time + 10.0) * random(&mut state)));
+            for t in times {
+                let (a, b) = (vs.at(t), reference::interpolate_vec(&vec_keys, t));
+                assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "n = {n}, t = {t}");
+                let (a, b) = (rs.at(t), reference::interpolate_rot(&rot_keys, t));
+                let bits = |q: Quat| [q.w, q.x, q.y, q.z].map(f64::to_bits);
+                assert_eq!(bits(a), bits(b), "n = {n}, t = {t}");
+            }
+        }
+    }
 
     fn vk(t: f64, v: [f64; 3]) -> VecKey {
         VecKey {

@@ -207,11 +207,10 @@ pub fn parse_aff_with(
     check_budget(p.parsed, &name)?;
     p.parse_file(bytes, &name, path)?;
     let time = time.unwrap_or(p.animation.map_or(0.0, |a| a.0));
-    let (mesh, lights) = p.pose(time)?;
-    super::check_sizes(&mesh, &name)?;
-    let camera_path = match (&p.view, p.animations.get(&b"camera"[..])) {
-        (Some(v), Some(a)) => {
-            let m = a.matrix(time);
+    let pose = p.pose(time)?;
+    super::check_sizes(&pose.mesh, &name)?;
+    let camera_path = match (&p.view, pose.camera) {
+        (Some(v), Some(m)) => {
             let from = apply(&m, [0.0; 3]);
             let at = apply(&m, [0.0, 0.0, -1.0]);
             let up_point = apply(&m, [0.0, 1.0, 0.0]);
@@ -225,12 +224,12 @@ pub fn parse_aff_with(
         _ => None,
     };
     Ok(AffScene {
-        mesh,
+        mesh: pose.mesh,
         camera_path,
         view: p.view,
         animation: p.animation,
         time,
-        lights,
+        lights: pose.lights,
         counts: p.counts,
     })
 }
@@ -263,6 +262,43 @@ fn normalize(path: &Path) -> PathBuf {
     out.iter().collect()
 }
 
+/// What posing reads, counted for the tests that keep it linear in the input (counts, not
+/// timings): the key records the spline and key searches touch, and the animations evaluated.
+/// Per thread, and only in test builds; elsewhere the calls compile to nothing.
+#[cfg(test)]
+pub(crate) mod work {
+    use std::cell::Cell;
+
+    thread_local! {
+        static KEYS: Cell<u64> = const { Cell::new(0) };
+        static EVALUATIONS: Cell<u64> = const { Cell::new(0) };
+    }
+
+    pub(crate) fn keys(n: usize) {
+        KEYS.with(|c| c.set(c.get() + n as u64));
+    }
+
+    pub(crate) fn evaluation() {
+        EVALUATIONS.with(|c| c.set(c.get() + 1));
+    }
+
+    /// The counts since the last call: `(keys, evaluations)`.
+    pub(crate) fn take() -> (u64, u64) {
+        (
+            KEYS.with(|c| c.replace(0)),
+            EVALUATIONS.with(|c| c.replace(0)),
+        )
+    }
+}
+
+#[cfg(not(test))]
+pub(crate) mod work {
+    #[inline(always)]
+    pub(crate) fn keys(_: usize) {}
+    #[inline(always)]
+    pub(crate) fn evaluation() {}
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -272,5 +308,70 @@ mod tests {
         assert_eq!(normalize(Path::new("a/./b/../c.aff")), Path::new("a/c.aff"));
         assert_eq!(normalize(Path::new("../x/../y")), Path::new("../y"));
         assert_eq!(normalize(Path::new("/r/./s")), Path::new("/r/s"));
+    }
+
+    /// A scene with one `k` block of `n` keys of each motion, `n` transforms `x` using it, and
+    /// one animated triangle of `n` keys.
+    fn keyed_scene(n: usize) -> String {
+        let mut s = String::from("k a {\n");
+        for motion in ["transl", "scale"] {
+            s += &format!("{motion} {n}\n");
+            for i in 0..n {
+                s += &format!("{i} {} 1 {} 0 0 0\n", 1 + i % 3, i % 5);
+            }
+        }
+        s += &format!("rot {n}\n");
+        for i in 0..n {
+            s += &format!("{i} 0 1 0 {} 0 0 0\n", (i * 37) % 360);
+        }
+        s += &format!("visibility {n}\n");
+        for i in 0..n {
+            s += &format!("{i} 1\n");
+        }
+        s += "}\n";
+        for _ in 0..n {
+            s += "x a { p 3 0 0 0 1 0 0 0 1 0 }\n";
+        }
+        s += &format!("tpa {n}\n");
+        for i in 0..n {
+            s += &format!("{i} 0 0 {i} 0 0 1 1 0 {i} 0 0 1 0 1 {i} 0 0 1\n");
+        }
+        s
+    }
+
+    /// The review's quadratic case: every `x` re-evaluated its animation's splines, each
+    /// evaluation read all the keys, and key searches were linear. Posing must evaluate each
+    /// animation once, and read each key a bounded number of times (once to prepare its
+    /// spline) plus a logarithmic number of keys per evaluation.
+    #[test]
+    fn posing_reads_each_key_a_bounded_number_of_times() {
+        let no_includes = &mut |_: &Path| -> std::io::Result<Vec<u8>> {
+            Err(std::io::ErrorKind::NotFound.into())
+        };
+        for n in [16usize, 256, 2048] {
+            let text = keyed_scene(n);
+            for time in [-1.0, 0.3 * n as f64, n as f64 - 2.5, 2.0 * n as f64] {
+                work::take();
+                let s = parse_aff_with(
+                    text.as_bytes(),
+                    Path::new("work.aff"),
+                    Some(time),
+                    no_includes,
+                )
+                .unwrap_or_else(|e| panic!("{e}"));
+                let (keys, evaluations) = work::take();
+                assert_eq!(s.mesh.triangles.len(), n + 1);
+                assert_eq!(
+                    evaluations, 1,
+                    "n = {n}, t = {time}: the one animation is evaluated once, not once per `x`"
+                );
+                // 5 key lists of n keys; a few reads per key, 64 per key search at most.
+                let bound = 8 * 5 * n as u64 + 5 * 64;
+                assert!(
+                    keys <= bound,
+                    "n = {n}, t = {time}: {keys} key reads, more than {bound}"
+                );
+            }
+        }
     }
 }

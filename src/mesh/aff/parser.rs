@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
-use super::kb::Quat;
+use super::kb::{Quat, Reach};
 use super::keyframes::Animation;
 use super::tokens::{Src, Tokens, looks_like_number, show};
 use super::transform::{Affine, trs};
@@ -17,7 +17,8 @@ use crate::mesh::MeshError;
 pub(super) enum NodeKind {
     Root,
     Static(Affine),
-    Animated(Vec<u8>),
+    /// An `x name`: the id of `name` (see [`Parser::animation_id`]).
+    Animated(usize),
 }
 
 pub(super) struct Node {
@@ -33,10 +34,13 @@ pub(super) struct Run {
     pub(super) line: u64,
 }
 
+/// A `tpa`: its keys `(time, corners)` as in the file.
 pub(super) struct AnimTri {
     /// First of the three vertex slots reserved for it.
     pub(super) slot: u32,
     pub(super) keys: Vec<(f64, [[f64; 3]; 3])>,
+    /// The [`Reach`] of the key times from the second key on.
+    pub(super) reach: Reach,
 }
 
 pub(super) struct Parser<'r> {
@@ -57,7 +61,10 @@ pub(super) struct Parser<'r> {
     pub(super) anim_tris: Vec<AnimTri>,
     /// Point lights: node and local position.
     pub(super) lights: Vec<(usize, [f64; 3])>,
-    pub(super) animations: HashMap<Vec<u8>, Animation>,
+    /// The id of each name an `x` or a `k` gave, in the order first seen.
+    pub(super) animation_ids: HashMap<Vec<u8>, usize>,
+    /// By id: the last `k` block of that name, if any.
+    pub(super) animations: Vec<Option<Animation>>,
     pub(super) view: Option<AffView>,
     pub(super) animation: Option<(f64, f64, u64)>,
     pub(super) counts: AffCounts,
@@ -83,7 +90,8 @@ impl<'r> Parser<'r> {
             runs: Vec::new(),
             anim_tris: Vec::new(),
             lights: Vec::new(),
-            animations: HashMap::new(),
+            animation_ids: HashMap::new(),
+            animations: Vec::new(),
             view: None,
             animation: None,
             counts: AffCounts::default(),
@@ -232,8 +240,21 @@ impl<'r> Parser<'r> {
         let (name, _) = src.token(&|| "the name of the transform `x`".into())?;
         let name = name.to_vec();
         src.expect(b"{", &|| format!("after `x {}`", show(&name)))?;
-        self.push_node(NodeKind::Animated(name));
+        let id = self.animation_id(&name);
+        self.push_node(NodeKind::Animated(id));
         Ok(())
+    }
+
+    /// The id of the animation `name`: `k` blocks and `x` transforms may come in either order,
+    /// so each name is numbered when first seen, and posing evaluates each number once.
+    pub(super) fn animation_id(&mut self, name: &[u8]) -> usize {
+        if let Some(&id) = self.animation_ids.get(name) {
+            return id;
+        }
+        let id = self.animations.len();
+        self.animations.push(None);
+        self.animation_ids.insert(name.to_vec(), id);
+        id
     }
 
     fn push_node(&mut self, kind: NodeKind) {
