@@ -137,3 +137,39 @@ fn check_sizes(mesh: &Mesh, file: &str) -> Result<(), MeshError> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    fn sources(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+        for entry in std::fs::read_dir(dir).expect("src/mesh") {
+            let path = entry.expect("src/mesh").path();
+            if path.is_dir() {
+                sources(&path, out);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                out.push(path);
+            }
+        }
+    }
+
+    /// Mesh input sits below the tracer: it uses glam for its vector maths and imports nothing
+    /// from the tracer's `rays` module.
+    #[test]
+    fn mesh_input_does_not_import_the_rays_layer() {
+        let mut files = Vec::new();
+        sources(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("src/mesh"),
+            &mut files,
+        );
+        assert!(files.len() > 10, "{files:?}");
+        for file in files {
+            let text = std::fs::read_to_string(&file).expect("a source file");
+            assert!(
+                !text.contains(concat!("crate::", "rays")),
+                "{} imports the rays module",
+                file.display()
+            );
+        }
+    }
+}

@@ -2,6 +2,8 @@
 //! triangles (`tt`, `ttp`), meshes (`m`) and animated triangles (`tpa`); see the [module
 //! documentation](super) for their operands.
 
+use glam::DVec3;
+
 use super::kb::Reach;
 use super::parser::{AnimTri, Parser};
 use super::tokens::{Src, show};
@@ -70,7 +72,7 @@ impl Parser<'_> {
         let mut keys = Vec::new();
         for k in 0..n {
             let t = src.number(&|| format!("the time of key {k} of the `tpa` at line {line}"))?;
-            let mut corners = [[0.0; 3]; 3];
+            let mut corners = [DVec3::ZERO; 3];
             for (i, c) in corners.iter_mut().enumerate() {
                 *c = src.vec3(&|| format!("vertex {i} of key {k} of the `tpa` at line {line}"))?;
                 src.vec3(&|| format!("normal {i} of key {k} of the `tpa` at line {line}"))?;
@@ -78,9 +80,9 @@ impl Parser<'_> {
             keys.push((t, corners));
         }
         self.begin(fid, line);
-        let a = self.vertex(src, line, [0.0; 3])?;
-        let b = self.vertex(src, line, [0.0; 3])?;
-        let c = self.vertex(src, line, [0.0; 3])?;
+        let a = self.vertex(src, line, DVec3::ZERO)?;
+        let b = self.vertex(src, line, DVec3::ZERO)?;
+        let c = self.vertex(src, line, DVec3::ZERO)?;
         self.triangles.push([a, b, c]);
         let reach = Reach::new(keys[1..].iter().map(|k| k.0));
         self.anim_tris.push(AnimTri {

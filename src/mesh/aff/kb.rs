@@ -184,7 +184,14 @@ impl VecSpline {
     }
 }
 
-/// A quaternion `w + xi + yj + zk`.
+/// A quaternion `w + xi + yj + zk`, with the reference code's operations.
+///
+/// Not glam's `DQuat`, which cannot give the reference code's bits: its product sums the terms
+/// of each component in another order (`w0 y1 - x0 z1 + y0 w1 + z0 x1` against
+/// `w0 y1 + y0 w1 + z0 x1 - x0 z1`), its `slerp` turns to the shorter arc and lerps near
+/// `dot = 1` where Eberly's does neither, and `from_axis_angle` wants a unit axis. The
+/// positions and scales stay `[f64; 3]` for the same reason: the code below is the reference
+/// code's, term for term.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Quat {
     pub w: f64,

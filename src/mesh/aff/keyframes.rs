@@ -69,8 +69,8 @@ fn vec_keys(src: &mut Src, n: u64, at: &str) -> Result<Vec<VecKey>, MeshError> {
     for i in 0..n {
         let what = |w: &'static str| move || format!("{w} of key {i} {at}");
         let t = src.number(&what("the time"))?;
-        let v = src.vec3(&what("the value"))?;
-        let tcb = src.vec3(&what("tension/continuity/bias"))?;
+        let v = src.vec3(&what("the value"))?.to_array();
+        let tcb = src.vec3(&what("tension/continuity/bias"))?.to_array();
         keys.push(VecKey { t, v, tcb });
     }
     Ok(keys)
@@ -82,9 +82,9 @@ fn rot_keys(src: &mut Src, n: u64, at: &str) -> Result<Vec<RotKey>, MeshError> {
     for i in 0..n {
         let what = |w: &'static str| move || format!("{w} of key {i} {at}");
         let t = src.number(&what("the time"))?;
-        let axis = src.vec3(&what("the axis"))?;
+        let axis = src.vec3(&what("the axis"))?.to_array();
         let angle_deg = src.number(&what("the angle"))?;
-        let tcb = src.vec3(&what("tension/continuity/bias"))?;
+        let tcb = src.vec3(&what("tension/continuity/bias"))?.to_array();
         keys.push(RotKey {
             t,
             axis,

@@ -94,6 +94,8 @@ mod view;
 
 use std::path::{Component, Path, PathBuf};
 
+use glam::DVec3;
+
 use super::{Mesh, MeshError};
 use parser::Parser;
 use transform::apply;
@@ -211,13 +213,13 @@ pub fn parse_aff_with(
     super::check_sizes(&pose.mesh, &name)?;
     let camera_path = match (&p.view, pose.camera) {
         (Some(v), Some(m)) => {
-            let from = apply(&m, [0.0; 3]);
-            let at = apply(&m, [0.0, 0.0, -1.0]);
-            let up_point = apply(&m, [0.0, 1.0, 0.0]);
+            let from = apply(&m, DVec3::ZERO);
+            let at = apply(&m, DVec3::NEG_Z);
+            let up_point = apply(&m, DVec3::Y);
             Some(AffView {
-                from,
-                at,
-                up: std::array::from_fn(|k| up_point[k] - from[k]),
+                from: from.to_array(),
+                at: at.to_array(),
+                up: (up_point - from).to_array(),
                 ..*v
             })
         }

@@ -6,6 +6,8 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
+use glam::DVec3;
+
 use super::kb::{Quat, Reach};
 use super::keyframes::Animation;
 use super::tokens::{Src, Tokens, looks_like_number, show};
@@ -38,7 +40,7 @@ pub(super) struct Run {
 pub(super) struct AnimTri {
     /// First of the three vertex slots reserved for it.
     pub(super) slot: u32,
-    pub(super) keys: Vec<(f64, [[f64; 3]; 3])>,
+    pub(super) keys: Vec<(f64, [DVec3; 3])>,
     /// The [`Reach`] of the key times from the second key on.
     pub(super) reach: Reach,
 }
@@ -55,12 +57,12 @@ pub(super) struct Parser<'r> {
 
     pub(super) nodes: Vec<Node>,
     pub(super) current: usize,
-    pub(super) positions: Vec<[f64; 3]>,
+    pub(super) positions: Vec<DVec3>,
     pub(super) triangles: Vec<[u32; 3]>,
     pub(super) runs: Vec<Run>,
     pub(super) anim_tris: Vec<AnimTri>,
     /// Point lights: node and local position.
-    pub(super) lights: Vec<(usize, [f64; 3])>,
+    pub(super) lights: Vec<(usize, DVec3)>,
     /// The id of each name an `x` or a `k` gave, in the order first seen.
     pub(super) animation_ids: HashMap<Vec<u8>, usize>,
     /// By id: the last `k` block of that name, if any.
@@ -119,7 +121,7 @@ impl<'r> Parser<'r> {
     }
 
     /// Adds a vertex, returning its index.
-    pub(super) fn vertex(&mut self, src: &Src, line: u64, p: [f64; 3]) -> Result<u32, MeshError> {
+    pub(super) fn vertex(&mut self, src: &Src, line: u64, p: DVec3) -> Result<u32, MeshError> {
         let i = self.positions.len();
         if i >= u32::MAX as usize {
             return Err(MeshError::TooLarge {
@@ -230,7 +232,7 @@ impl<'r> Parser<'r> {
         let deg = src.number(&what("rotation angle"))?;
         let t = src.vec3(&what("translation"))?;
         src.expect(b"{", &|| "after the static transform `xs`".into())?;
-        let r = Quat::from_angle_axis(deg.to_radians(), axis).matrix();
+        let r = Quat::from_angle_axis(deg.to_radians(), axis.to_array()).matrix();
         self.push_node(NodeKind::Static(trs(t, r, s)));
         Ok(())
     }

@@ -6,6 +6,8 @@
 //! evaluated once, however many transforms use it, its splines in `O(log n)` for `n` keys (see
 //! [`super::kb`]); an animated triangle's keys are searched by bisection too.
 
+use glam::DVec3;
+
 use super::kb::Quat;
 use super::keyframes::Animation;
 use super::parser::{AnimTri, NodeKind, Parser};
@@ -19,7 +21,7 @@ impl Animation {
         let tr = self.transl.as_ref().map_or([0.0; 3], |s| s.at(t));
         let rot = self.rot.as_ref().map_or(Quat::IDENTITY, |s| s.at(t));
         let sc = self.scale.as_ref().map_or([1.0; 3], |s| s.at(t));
-        trs(tr, rot.matrix(), sc)
+        trs(DVec3::from_array(tr), rot.matrix(), DVec3::from_array(sc))
     }
 
     /// Visible until the first visibility key, then as the latest key at or before `t` says
@@ -88,7 +90,7 @@ impl Parser<'_> {
         let lights = self
             .lights
             .iter()
-            .map(|&(node, p)| apply(&world[node], p))
+            .map(|&(node, p)| apply(&world[node], p).to_array())
             .collect();
         let camera = self
             .animation_ids
@@ -124,15 +126,15 @@ impl Parser<'_> {
                 .map_or(local.len(), |n| n.first as usize);
             let m = &world[run.node];
             for (i, p) in local[run.first as usize..end].iter().enumerate() {
-                let q = apply(m, *p).map(|c| c as f32);
-                if !q.iter().all(|c| c.is_finite()) {
+                let q = apply(m, *p).as_vec3();
+                if !q.is_finite() {
                     return Err(MeshError::NonFinite {
                         file: self.files[run.file].clone(),
                         at: Place::Line(run.line),
                         vertex: (run.first as usize + i) as u64,
                     });
                 }
-                positions.push(q);
+                positions.push(q.to_array());
             }
         }
         debug_assert_eq!(positions.len(), local.len());
@@ -142,7 +144,7 @@ impl Parser<'_> {
 
 /// The corners of an animated triangle at `t`: linear between the keys around `t`, clamped to
 /// the first and last key.
-fn animated_corners(tri: &AnimTri, t: f64) -> [[f64; 3]; 3] {
+fn animated_corners(tri: &AnimTri, t: f64) -> [DVec3; 3] {
     let keys = &tri.keys;
     let (first, last) = (keys[0], keys[keys.len() - 1]);
     if t <= first.0 {
@@ -157,7 +159,7 @@ fn animated_corners(tri: &AnimTri, t: f64) -> [[f64; 3]; 3] {
     let i = tri.reach.first_after(t, false);
     let ((ta, a), (tb, b)) = (keys[i], keys[i + 1]);
     let s = if tb > ta { (t - ta) / (tb - ta) } else { 0.0 };
-    std::array::from_fn(|i| std::array::from_fn(|k| a[i][k] + s * (b[i][k] - a[i][k])))
+    std::array::from_fn(|i| a[i] + (b[i] - a[i]) * s)
 }
 
 #[cfg(test)]
@@ -166,7 +168,7 @@ mod tests {
     use super::*;
 
     fn tri(keys: &[(f64, f64)]) -> AnimTri {
-        let keys: Vec<_> = keys.iter().map(|&(t, z)| (t, [[0.0, 0.0, z]; 3])).collect();
+        let keys: Vec<_> = keys.iter().map(|&(t, z)| (t, [DVec3::Z * z; 3])).collect();
         AnimTri {
             slot: 0,
             reach: Reach::new(keys[1..].iter().map(|k| k.0)),
@@ -177,7 +179,7 @@ mod tests {
     #[test]
     fn animated_corners_interpolate_and_clamp() {
         let keys = tri(&[(0.0, 0.0), (1.0, 2.0), (1.0, 5.0), (3.0, 9.0)]);
-        let z = |t: f64| animated_corners(&keys, t)[0][2];
+        let z = |t: f64| animated_corners(&keys, t)[0].z;
         assert_eq!(z(-1.0), 0.0);
         assert_eq!(z(0.5), 1.0);
         // At a repeated key time, the first pair of keys around it.
@@ -197,7 +199,7 @@ mod tests {
             (2.0, 20.0),
             (6.0, 60.0),
         ]);
-        let z = |t: f64| animated_corners(&keys, t)[0][2];
+        let z = |t: f64| animated_corners(&keys, t)[0].z;
         // 0 <= 3 <= 4: the first pair.
         assert_eq!(z(3.0), 3.0);
         // 4 <= 5 <= ... no pair until (2, 6).

@@ -1,6 +1,8 @@
 //! The AFF tokeniser ([`Tokens`]: whitespace-separated tokens, `{` and `}` on their own, `#`
 //! and `%` comments) and [`Src`], the typed reading of one file's tokens with its errors.
 
+use glam::DVec3;
+
 use crate::mesh::{MeshError, Place};
 
 pub(super) struct Tokens<'a> {
@@ -125,12 +127,12 @@ impl<'a> Src<'a> {
         }
     }
 
-    pub(super) fn vec3(&mut self, what: &dyn Fn() -> String) -> Result<[f64; 3], MeshError> {
-        Ok([
+    pub(super) fn vec3(&mut self, what: &dyn Fn() -> String) -> Result<DVec3, MeshError> {
+        Ok(DVec3::new(
             self.number(&|| format!("the x of {}", what()))?,
             self.number(&|| format!("the y of {}", what()))?,
             self.number(&|| format!("the z of {}", what()))?,
-        ])
+        ))
     }
 
     pub(super) fn skip_numbers(&mut self, n: usize, what: &str) -> Result<(), MeshError> {

@@ -16,15 +16,15 @@ pub(super) fn parse_view(src: &mut Src, line: u64) -> Result<AffView, MeshError>
         match word {
             b"from" => {
                 src.tok.next();
-                from = Some(src.vec3(&what("from"))?);
+                from = Some(src.vec3(&what("from"))?.to_array());
             }
             b"at" => {
                 src.tok.next();
-                at = Some(src.vec3(&what("at"))?);
+                at = Some(src.vec3(&what("at"))?.to_array());
             }
             b"up" => {
                 src.tok.next();
-                up = Some(src.vec3(&what("up"))?);
+                up = Some(src.vec3(&what("up"))?.to_array());
             }
             b"angle" => {
                 src.tok.next();
