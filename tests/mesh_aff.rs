@@ -8,7 +8,10 @@ use std::collections::HashMap;
 use std::io;
 use std::path::{Path, PathBuf};
 
-use oavm::mesh::{AffScene, Mesh, MeshError, Place, load, load_aff, load_at, parse_aff_with};
+use oavm::mesh::{
+    AffScene, LoadLimits, Mesh, MeshError, Place, load, load_aff, load_at, load_with, parse_aff,
+    parse_aff_with,
+};
 use oavm::rays::SplitMix64;
 
 // ---------------------------------------------------------------------------------------------
@@ -695,6 +698,63 @@ fn exponential_includes_hit_the_byte_budget() {
         .collect();
     let e = parse_files(&refs, None).unwrap_err();
     assert!(matches!(e.innermost(), MeshError::TooLarge { .. }), "{e}");
+}
+
+#[test]
+fn includes_larger_than_the_budget_left_are_refused_naming_the_file_and_line() {
+    use oavm::mesh::aff::{INCLUDE_COST, MAX_PARSED_BYTES};
+    let dir = tempfile::tempdir().unwrap();
+    let top = dir.path().join("top.aff");
+    let text = "p 3 0 0 0 1 0 0 0 1 0\n\ni 0 big.aff\n";
+    std::fs::write(&top, text).unwrap();
+    // Sparse: it would fit the budget alone, not after the top file and the inclusion cost.
+    let big = dir.path().join("big.aff");
+    let size = MAX_PARSED_BYTES - INCLUDE_COST - text.len() as u64 + 1;
+    std::fs::File::create(&big).unwrap().set_len(size).unwrap();
+    for e in [
+        load_aff(&top, None).unwrap_err(),
+        parse_aff(text.as_bytes(), &top.display().to_string(), None).unwrap_err(),
+    ] {
+        assert!(matches!(e, MeshError::Included { line: 3, .. }), "{e}");
+        let inner = e.innermost();
+        assert!(
+            matches!(inner, MeshError::TooLarge { file, .. } if file.ends_with("big.aff")),
+            "{e}"
+        );
+        let msg = e.to_string();
+        assert!(msg.contains(&format!("holds {size} bytes")), "{msg}");
+        assert!(msg.contains(&format!("{} bytes left", size - 1)), "{msg}");
+    }
+    // A small include is read (and is not AFF: a NUL is an unknown keyword).
+    std::fs::File::create(&big).unwrap().set_len(2).unwrap();
+    let e = load_aff(&top, None).unwrap_err();
+    assert!(matches!(e.innermost(), MeshError::Aff { .. }), "{e}");
+
+    // The top file alone over the budget.
+    let huge = dir.path().join("huge.aff");
+    std::fs::File::create(&huge)
+        .unwrap()
+        .set_len(MAX_PARSED_BYTES + 1)
+        .unwrap();
+    let e = load_aff(&huge, None).unwrap_err();
+    assert!(matches!(e, MeshError::TooLarge { .. }), "{e}");
+    assert!(e.to_string().contains("huge.aff"), "{e}");
+
+    // `load_with` lowers the budget of a scene to its limit.
+    let museum = bart("museum/museum5.aff");
+    let limits = LoadLimits {
+        max_file_bytes: 100_000,
+    };
+    let e = load_with(&museum, None, &limits).unwrap_err();
+    assert!(matches!(e.innermost(), MeshError::TooLarge { .. }), "{e}");
+    assert!(e.to_string().contains("100000 bytes"), "{e}");
+    let limits = LoadLimits {
+        max_file_bytes: 100_000_000,
+    };
+    assert_eq!(
+        load_with(&museum, None, &limits).unwrap(),
+        load(&museum).unwrap()
+    );
 }
 
 // ---------------------------------------------------------------------------------------------

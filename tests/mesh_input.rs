@@ -8,7 +8,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use oavm::mesh::{Mesh, MeshError, load, parse_obj, parse_ply};
+use oavm::mesh::{LoadLimits, Mesh, MeshError, load, load_with, parse_obj, parse_ply};
 
 // ---------------------------------------------------------------------------------------------
 // A PLY writer
@@ -670,6 +670,58 @@ fn duplicate_and_degenerate_triangles_keep_their_ids() {
 
 // ---------------------------------------------------------------------------------------------
 // Files and formats
+
+#[test]
+fn files_over_the_size_limit_are_refused_and_point_to_the_streaming_pack() {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("tetra.ply");
+    let bytes = simple_ply(Enc::Le, &TETRA, &tetra_faces());
+    std::fs::write(&ply, &bytes).unwrap();
+    let len = bytes.len() as u64;
+    let at_most = |max_file_bytes| load_with(&ply, None, &LoadLimits { max_file_bytes });
+    assert_eq!(at_most(len).unwrap(), expected(&TETRA, &tetra_faces()));
+    let e = assert_error!(
+        at_most(len - 1),
+        MeshError::FileTooLarge { .. },
+        "tetra.ply",
+        &format!("{len} bytes"),
+        "oavm-pack --mem-budget"
+    );
+    assert!(
+        matches!(e, MeshError::FileTooLarge { bytes, limit, .. } if bytes == len && limit == len - 1)
+    );
+    // OBJ too; and a sparse file of a gibibyte is refused by its size, without reading it.
+    let obj = dir.path().join("one.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let limits = LoadLimits { max_file_bytes: 10 };
+    assert_error!(
+        load_with(&obj, None, &limits),
+        MeshError::FileTooLarge { .. },
+        "one.obj"
+    );
+    let big = dir.path().join("big.ply");
+    std::fs::File::create(&big)
+        .unwrap()
+        .set_len(1 << 30)
+        .unwrap();
+    let limits = LoadLimits {
+        max_file_bytes: 1 << 20,
+    };
+    assert_error!(
+        load_with(&big, None, &limits),
+        MeshError::FileTooLarge {
+            bytes: 1073741824,
+            ..
+        },
+        "big.ply"
+    );
+    // `load` reads with the documented default.
+    assert_eq!(LoadLimits::default().max_file_bytes, 64 << 30);
+    assert_eq!(
+        LoadLimits::default().max_file_bytes,
+        LoadLimits::DEFAULT_MAX_FILE_BYTES
+    );
+}
 
 #[test]
 fn missing_file_is_an_io_error_naming_the_path() {

@@ -80,7 +80,10 @@
 //! (by lexically normalised path), against nesting deeper than [`MAX_INCLUDE_DEPTH`], and against
 //! exponential expansion: all include instances together may hold at most [`MAX_PARSED_BYTES`]
 //! (each counting [`INCLUDE_COST`] more than its size), so the mesh made stays within a small
-//! multiple of that.
+//! multiple of that. Files are read from the file system through `mesh::read`: an include whose
+//! size is more than what is left of that budget is refused before it is read, no read takes
+//! more than what is left, and a file that changes while it is read is an error
+//! ([`MeshError::Changed`]).
 
 mod geometry;
 mod kb;
@@ -96,6 +99,7 @@ use std::path::{Component, Path, PathBuf};
 
 use glam::DVec3;
 
+use super::read::{ReadError, read_file};
 use super::{Mesh, MeshError};
 use parser::Parser;
 use transform::apply;
@@ -172,26 +176,76 @@ impl AffScene {
 /// Reads the AFF scene `path` and its includes from the file system, posed at `time` (default:
 /// the animation start, or 0).
 pub fn load_aff(path: &Path, time: Option<f64>) -> Result<AffScene, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: path.to_owned(),
-        source,
-    })?;
-    parse_aff_with(&bytes, path, time, &mut |p| std::fs::read(p))
+    load_aff_within(path, time, MAX_PARSED_BYTES)
+}
+
+/// [`load_aff`] with all files together bounded by `budget` bytes (at most
+/// [`MAX_PARSED_BYTES`]) instead of [`MAX_PARSED_BYTES`].
+pub(crate) fn load_aff_within(
+    path: &Path,
+    time: Option<f64>,
+    budget: u64,
+) -> Result<AffScene, MeshError> {
+    let bytes = read_file(path, budget).map_err(|e| read_error(e, path, budget, budget))?;
+    parse_within(&bytes, path, time, budget, &mut read_file)
 }
 
 /// Parses the AFF scene held in `bytes`, named `name` in errors; includes are read from the file
 /// system, relative to `name`'s directory.
 pub fn parse_aff(bytes: &[u8], name: &str, time: Option<f64>) -> Result<AffScene, MeshError> {
-    parse_aff_with(bytes, Path::new(name), time, &mut |p| std::fs::read(p))
+    parse_within(
+        bytes,
+        Path::new(name),
+        time,
+        MAX_PARSED_BYTES,
+        &mut read_file,
+    )
 }
 
 /// Parses the AFF scene held in `bytes`, whose path is `path` (for errors and for resolving
-/// includes), reading included files with `read`.
+/// includes), reading included files with `read`. `read` is given no size limit: the budget
+/// ([`MAX_PARSED_BYTES`]) is checked on what it returns.
 pub fn parse_aff_with(
     bytes: &[u8],
     path: &Path,
     time: Option<f64>,
     read: &mut dyn FnMut(&Path) -> std::io::Result<Vec<u8>>,
+) -> Result<AffScene, MeshError> {
+    parse_within(bytes, path, time, MAX_PARSED_BYTES, &mut |p, _| {
+        read(p).map_err(ReadError::Io)
+    })
+}
+
+/// Reads an included file: its path and the most bytes it may hold.
+type ReadInclude<'r> = dyn FnMut(&Path, u64) -> Result<Vec<u8>, ReadError> + 'r;
+
+/// The [`MeshError`] of a failed read of `path`, when `left` bytes were left of `budget`.
+fn read_error(e: ReadError, path: &Path, left: u64, budget: u64) -> MeshError {
+    match e {
+        ReadError::Io(source) => MeshError::Io {
+            path: path.to_owned(),
+            source,
+        },
+        ReadError::TooLarge { bytes } => MeshError::TooLarge {
+            file: path.display().to_string(),
+            detail: format!(
+                "the file holds {bytes} bytes, more than the {left} bytes left of the {budget} \
+                 bytes of AFF a scene may read (counting a file once per inclusion, and \
+                 {INCLUDE_COST} bytes more for each)"
+            ),
+        },
+        ReadError::Changed => MeshError::Changed {
+            path: path.to_owned(),
+        },
+    }
+}
+
+fn parse_within(
+    bytes: &[u8],
+    path: &Path,
+    time: Option<f64>,
+    budget: u64,
+    read: &mut ReadInclude,
 ) -> Result<AffScene, MeshError> {
     let name = path.display().to_string();
     if let Some(t) = time
@@ -202,11 +256,11 @@ pub fn parse_aff_with(
             time: t,
         });
     }
-    let mut p = Parser::new(read);
+    let mut p = Parser::new(read, budget);
     let top = normalize(path);
     p.stack.push(top);
     p.parsed = bytes.len() as u64;
-    check_budget(p.parsed, &name)?;
+    check_budget(p.parsed, budget, &name)?;
     p.parse_file(bytes, &name, path)?;
     let time = time.unwrap_or(p.animation.map_or(0.0, |a| a.0));
     let pose = p.pose(time)?;
@@ -236,13 +290,13 @@ pub fn parse_aff_with(
     })
 }
 
-fn check_budget(parsed: u64, file: &str) -> Result<(), MeshError> {
-    if parsed > MAX_PARSED_BYTES {
+fn check_budget(parsed: u64, budget: u64, file: &str) -> Result<(), MeshError> {
+    if parsed > budget {
         return Err(MeshError::TooLarge {
             file: file.to_owned(),
             detail: format!(
-                "the includes expand to more than {MAX_PARSED_BYTES} bytes of AFF (counting a \
-                 file once per inclusion)"
+                "the includes expand to more than {budget} bytes of AFF (counting a file once \
+                 per inclusion)"
             ),
         });
     }

@@ -13,7 +13,10 @@ use super::keyframes::Animation;
 use super::tokens::{Src, Tokens, looks_like_number, show};
 use super::transform::{Affine, trs};
 use super::view::parse_view;
-use super::{AffCounts, AffView, INCLUDE_COST, MAX_INCLUDE_DEPTH, check_budget, normalize};
+use super::{
+    AffCounts, AffView, INCLUDE_COST, MAX_INCLUDE_DEPTH, ReadInclude, check_budget, normalize,
+    read_error,
+};
 use crate::mesh::MeshError;
 
 pub(super) enum NodeKind {
@@ -46,11 +49,13 @@ pub(super) struct AnimTri {
 }
 
 pub(super) struct Parser<'r> {
-    pub(super) read: &'r mut dyn FnMut(&Path) -> std::io::Result<Vec<u8>>,
+    pub(super) read: &'r mut ReadInclude<'r>,
     pub(super) cache: HashMap<PathBuf, Rc<Vec<u8>>>,
     /// Include stack, normalised paths, top file first.
     pub(super) stack: Vec<PathBuf>,
+    /// Bytes parsed so far, against `budget` (see [`super::MAX_PARSED_BYTES`]).
     pub(super) parsed: u64,
+    pub(super) budget: u64,
     pub(super) detail: i64,
     pub(super) files: Vec<String>,
     pub(super) file_ids: HashMap<String, usize>,
@@ -73,9 +78,10 @@ pub(super) struct Parser<'r> {
 }
 
 impl<'r> Parser<'r> {
-    pub(super) fn new(read: &'r mut dyn FnMut(&Path) -> std::io::Result<Vec<u8>>) -> Parser<'r> {
+    pub(super) fn new(read: &'r mut ReadInclude<'r>, budget: u64) -> Parser<'r> {
         Parser {
             read,
+            budget,
             cache: HashMap::new(),
             stack: Vec::new(),
             parsed: 0,
@@ -305,12 +311,14 @@ impl<'r> Parser<'r> {
         let bytes = match self.cache.get(&key) {
             Some(b) => Rc::clone(b),
             None => {
-                let b = Rc::new((self.read)(&target).map_err(|source| {
-                    wrap(MeshError::Io {
-                        path: target.clone(),
-                        source,
-                    })
-                })?);
+                // What the budget leaves for this file, known before it is read.
+                let left = self
+                    .budget
+                    .saturating_sub(self.parsed)
+                    .saturating_sub(INCLUDE_COST);
+                let b = (self.read)(&target, left)
+                    .map_err(|e| wrap(read_error(e, &target, left, self.budget)))?;
+                let b = Rc::new(b);
                 self.cache.insert(key.clone(), Rc::clone(&b));
                 b
             }
@@ -320,7 +328,7 @@ impl<'r> Parser<'r> {
             .parsed
             .saturating_add(bytes.len() as u64)
             .saturating_add(INCLUDE_COST);
-        check_budget(self.parsed, &inner).map_err(wrap)?;
+        check_budget(self.parsed, self.budget, &inner).map_err(wrap)?;
         self.stack.push(key);
         let result = self.parse_file(&bytes, &inner, &target);
         self.stack.pop();
