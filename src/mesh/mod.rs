@@ -3,8 +3,9 @@
 //!
 //! Everything read here is untrusted: any bytes give a [`Mesh`] or a [`MeshError`] naming the
 //! file and the place, never a panic, and no count read from a file makes us allocate more than
-//! the file's own size can back. The parsers work on `&[u8]`, so they run the same over a `Vec`
-//! and over a memory-mapped file.
+//! the file's own size can back. A file is read whole only up to a size limit ([`LoadLimits`],
+//! checked before reading), and must not change while it is read ([`MeshError::Changed`]). The
+//! parsers work on `&[u8]`, so they run the same over a `Vec` and over a memory-mapped file.
 //!
 //! Primitive ids follow `../shared/RAYS.md`: triangle `i` of [`Mesh::triangles`] is the `i`-th
 //! triangle of the file after fan triangulation, in file order. `positions[i]` is the file's

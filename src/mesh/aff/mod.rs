@@ -94,6 +94,7 @@ mod tessellate;
 mod tokens;
 mod transform;
 mod view;
+mod work;
 
 use std::path::{Component, Path, PathBuf};
 
@@ -316,43 +317,6 @@ fn normalize(path: &Path) -> PathBuf {
         }
     }
     out.iter().collect()
-}
-
-/// What posing reads, counted for the tests that keep it linear in the input (counts, not
-/// timings): the key records the spline and key searches touch, and the animations evaluated.
-/// Per thread, and only in test builds; elsewhere the calls compile to nothing.
-#[cfg(test)]
-pub(crate) mod work {
-    use std::cell::Cell;
-
-    thread_local! {
-        static KEYS: Cell<u64> = const { Cell::new(0) };
-        static EVALUATIONS: Cell<u64> = const { Cell::new(0) };
-    }
-
-    pub(crate) fn keys(n: usize) {
-        KEYS.with(|c| c.set(c.get() + n as u64));
-    }
-
-    pub(crate) fn evaluation() {
-        EVALUATIONS.with(|c| c.set(c.get() + 1));
-    }
-
-    /// The counts since the last call: `(keys, evaluations)`.
-    pub(crate) fn take() -> (u64, u64) {
-        (
-            KEYS.with(|c| c.replace(0)),
-            EVALUATIONS.with(|c| c.replace(0)),
-        )
-    }
-}
-
-#[cfg(not(test))]
-pub(crate) mod work {
-    #[inline(always)]
-    pub(crate) fn keys(_: usize) {}
-    #[inline(always)]
-    pub(crate) fn evaluation() {}
 }
 
 #[cfg(test)]

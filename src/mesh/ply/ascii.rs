@@ -164,10 +164,31 @@ fn read_ascii_element(
     text: &mut Text,
     out: &mut Builder,
 ) -> Result<(), MeshError> {
-    let file = body.file;
     if plan.fields.is_empty() || plan.count == 0 {
         return Ok(());
     }
+    make_room(body, plan, text, out)?;
+    for record in 0..plan.count {
+        text.skip_blank();
+        if text.at_end() {
+            return Err(MeshError::Truncated {
+                file: body.file.to_owned(),
+                at: Place::Line(text.line),
+                detail: format!(
+                    "the file ends before {} (of {})",
+                    plan.record(record),
+                    plan.count
+                ),
+            });
+        }
+        read_ascii_record(body, plan, record, text, out)?;
+    }
+    Ok(())
+}
+
+/// Checks that the bytes left can hold the element's records at their smallest, and reserves
+/// room for what they yield.
+fn make_room(body: &Body, plan: &Plan, text: &Text, out: &mut Builder) -> Result<(), MeshError> {
     // Each record holds at least one value per property, each value needs a character and a
     // separator; the very last record may lack its final newline.
     let remaining = text.bytes.len() - text.pos;
@@ -175,7 +196,7 @@ fn read_ascii_element(
     let needed = plan.count.checked_mul(min_record as u64).map(|n| n - 1);
     if needed.is_none_or(|n| n > remaining as u64) {
         return Err(MeshError::Truncated {
-            file: file.to_owned(),
+            file: body.file.to_owned(),
             at: Place::Line(text.line),
             detail: format!(
                 "the header declares {} `{}` records of {} values, which need at least {} bytes, but {} bytes remain",
@@ -197,8 +218,20 @@ fn read_ascii_element(
             .reserve(reservation(plan.count, remaining, min_record + 6)),
         Role::Other => {}
     }
+    Ok(())
+}
 
-    let missing = |why: Missing, record: u64, line: u64, field: usize| match why {
+/// Reads record `record`, which starts at the text's current position, to the end of its line.
+fn read_ascii_record(
+    body: &Body,
+    plan: &Plan,
+    record: u64,
+    text: &mut Text,
+    out: &mut Builder,
+) -> Result<(), MeshError> {
+    let file = body.file;
+    let line = text.line;
+    let missing = |why: Missing, field: usize| match why {
         Missing::EndOfFile => MeshError::Truncated {
             file: file.to_owned(),
             at: Place::Line(line),
@@ -219,87 +252,52 @@ fn read_ascii_element(
             ),
         },
     };
-    let bad = |record: u64, line: u64, token: &[u8], what: String| MeshError::BadValue {
+    let bad = |token: &[u8], what: String| MeshError::BadValue {
         file: file.to_owned(),
         at: Place::Line(line),
         detail: format!("{}: `{}` is not {what}", plan.record(record), show(token)),
     };
-
-    for record in 0..plan.count {
-        text.skip_blank();
-        if text.at_end() {
-            return Err(MeshError::Truncated {
-                file: file.to_owned(),
-                at: Place::Line(text.line),
-                detail: format!(
-                    "the file ends before {} (of {})",
-                    plan.record(record),
-                    plan.count
-                ),
-            });
-        }
-        let line = text.line;
-        let mut xyz = [0f32; 3];
-        for (i, field) in plan.fields.iter().enumerate() {
-            let token = text.token().map_err(|m| missing(m, record, line, i))?;
-            match *field {
-                Field::Skip(_) => {}
-                Field::Coord { axis, ty } => {
-                    xyz[axis] = parse_coord(token, ty)
-                        .ok_or_else(|| bad(record, line, token, "a number".to_owned()))?;
+    let mut xyz = [0f32; 3];
+    for (i, field) in plan.fields.iter().enumerate() {
+        let token = text.token().map_err(|m| missing(m, i))?;
+        match *field {
+            Field::Skip(_) => {}
+            Field::Coord { axis, ty } => {
+                xyz[axis] = parse_coord(token, ty).ok_or_else(|| bad(token, "a number".into()))?;
+            }
+            Field::SkipList { count, .. } => {
+                let n = list_len(token, count)
+                    .ok_or_else(|| bad(token, format!("a list length of type {count:?}")))?;
+                for _ in 0..n {
+                    text.token().map_err(|m| missing(m, i))?;
                 }
-                Field::SkipList { count, .. } => {
-                    let n = list_len(token, count).ok_or_else(|| {
-                        bad(
-                            record,
-                            line,
-                            token,
-                            format!("a list length of type {count:?}"),
-                        )
-                    })?;
-                    for _ in 0..n {
-                        text.token().map_err(|m| missing(m, record, line, i))?;
-                    }
-                }
-                Field::Indices { count, item } => {
-                    let n = list_len(token, count).ok_or_else(|| {
-                        bad(
-                            record,
-                            line,
-                            token,
-                            format!("a list length of type {count:?}"),
-                        )
-                    })?;
-                    let mut fan = Fan::default();
-                    for _ in 0..n {
-                        let token = text.token().map_err(|m| missing(m, record, line, i))?;
-                        let index = parse_typed_int(token, item).ok_or_else(|| {
-                            bad(
-                                record,
-                                line,
-                                token,
-                                format!("a vertex index of type {item:?}"),
-                            )
-                        })?;
-                        out.corner(index, record, Place::Line(line), &mut fan, file)?;
-                    }
+            }
+            Field::Indices { count, item } => {
+                let n = list_len(token, count)
+                    .ok_or_else(|| bad(token, format!("a list length of type {count:?}")))?;
+                let mut fan = Fan::default();
+                for _ in 0..n {
+                    let token = text.token().map_err(|m| missing(m, i))?;
+                    let index = parse_typed_int(token, item)
+                        .ok_or_else(|| bad(token, format!("a vertex index of type {item:?}")))?;
+                    out.corner(index, record, Place::Line(line), &mut fan, file)?;
                 }
             }
         }
-        if !text.end_record() {
-            return Err(MeshError::CountMismatch {
-                file: file.to_owned(),
-                at: Place::Line(line),
-                detail: format!(
-                    "{} has more values than its {} properties",
-                    plan.record(record),
-                    plan.fields.len()
-                ),
-            });
-        }
-        if plan.role == Role::Vertex {
-            out.vertex(xyz, record, Place::Line(line), file)?;
-        }
+    }
+    if !text.end_record() {
+        return Err(MeshError::CountMismatch {
+            file: file.to_owned(),
+            at: Place::Line(line),
+            detail: format!(
+                "{} has more values than its {} properties",
+                plan.record(record),
+                plan.fields.len()
+            ),
+        });
+    }
+    if plan.role == Role::Vertex {
+        out.vertex(xyz, record, Place::Line(line), file)?;
     }
     Ok(())
 }

@@ -151,63 +151,76 @@ fn read_binary_element<const BIG: bool, S: Sink>(
     }
     let mut pos = pos;
     for record in 0..plan.count {
-        let record_start = pos;
-        out.reached(record_start)?;
-        let at = Place::Byte(record_start as u64);
-        let ends = |_| {
-            truncated(
-                record_start,
-                format!(
-                    "the file ends inside {} (of {})",
-                    plan.record(record),
-                    plan.count
-                ),
-            )
-        };
-        let mut xyz = [0f32; 3];
-        for field in &plan.fields {
-            let rest = &bytes[pos..];
-            match *field {
-                Field::Skip(ty) => {
-                    if rest.len() < ty.size() {
-                        return Err(ends(()).into());
-                    }
-                    pos += ty.size();
+        pos = read_binary_record::<BIG, S>(body, plan, record, pos, out)?;
+    }
+    Ok(pos)
+}
+
+/// Reads record `record` of an element whose records vary in size, from byte `pos`; returns
+/// the offset just past it.
+fn read_binary_record<const BIG: bool, S: Sink>(
+    body: &Body,
+    plan: &Plan,
+    record: u64,
+    start: usize,
+    out: &mut S,
+) -> Result<usize, S::Error> {
+    let (file, bytes) = (body.file, body.bytes);
+    out.reached(start)?;
+    let at = Place::Byte(start as u64);
+    let ends = |_| MeshError::Truncated {
+        file: file.to_owned(),
+        at,
+        detail: format!(
+            "the file ends inside {} (of {})",
+            plan.record(record),
+            plan.count
+        ),
+    };
+    let mut pos = start;
+    let mut xyz = [0f32; 3];
+    for field in &plan.fields {
+        let rest = &bytes[pos..];
+        match *field {
+            Field::Skip(ty) => {
+                if rest.len() < ty.size() {
+                    return Err(ends(()).into());
                 }
-                Field::Coord { axis, ty } => {
-                    xyz[axis] = coord_at::<BIG>(rest, ty).ok_or(()).map_err(ends)?;
-                    pos += field.min_binary_size();
+                pos += ty.size();
+            }
+            Field::Coord { axis, ty } => {
+                xyz[axis] = coord_at::<BIG>(rest, ty).ok_or(()).map_err(ends)?;
+                pos += field.min_binary_size();
+            }
+            Field::SkipList { count, item } => {
+                let n = list_length::<BIG>(body, plan, record, pos, count)?;
+                pos += count.size();
+                let size = n
+                    .checked_mul(item.size())
+                    .filter(|&s| s <= bytes.len() - pos)
+                    .ok_or(())
+                    .map_err(ends)?;
+                pos += size;
+            }
+            Field::Indices { count, item } => {
+                let n = list_length::<BIG>(body, plan, record, pos, count)?;
+                pos += count.size();
+                let size = n
+                    .checked_mul(item.size())
+                    .filter(|&s| s <= bytes.len() - pos)
+                    .ok_or(())
+                    .map_err(ends)?;
+                let mut fan = Fan::default();
+                for corner in bytes[pos..pos + size].chunks_exact(item.size()) {
+                    let index = int_at::<BIG>(corner, item).ok_or(()).map_err(ends)?;
+                    out.corner(index, record, at, &mut fan, file)?;
                 }
-                Field::SkipList { count, item } => {
-                    let n = list_length::<BIG>(body, plan, record, pos, count)?;
-                    pos += count.size();
-                    let size = n
-                        .checked_mul(item.size())
-                        .filter(|&s| s <= bytes.len() - pos)
-                        .ok_or(())
-                        .map_err(ends)?;
-                    pos += size;
-                }
-                Field::Indices { count, item } => {
-                    let n = list_length::<BIG>(body, plan, record, pos, count)?;
-                    pos += count.size();
-                    let size = n
-                        .checked_mul(item.size())
-                        .filter(|&s| s <= bytes.len() - pos)
-                        .ok_or(())
-                        .map_err(ends)?;
-                    let mut fan = Fan::default();
-                    for corner in bytes[pos..pos + size].chunks_exact(item.size()) {
-                        let index = int_at::<BIG>(corner, item).ok_or(()).map_err(ends)?;
-                        out.corner(index, record, at, &mut fan, file)?;
-                    }
-                    pos += size;
-                }
+                pos += size;
             }
         }
-        if plan.role == Role::Vertex && S::VERTICES {
-            out.vertex(xyz, record, at, file)?;
-        }
+    }
+    if plan.role == Role::Vertex && S::VERTICES {
+        out.vertex(xyz, record, at, file)?;
     }
     Ok(pos)
 }
