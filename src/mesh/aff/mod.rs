@@ -42,7 +42,7 @@
 //!   `t ax ay az deg T C B`), `scale` (rows `t sx sy sz T C B`), each with at least 4 rows, and
 //!   `visibility` (rows `t flag`). Transforms follow Kochanek–Bartels splines (Kochanek, Bartels
 //!   1984): positions and scales as cubic Hermite segments, rotations as quaternion `squad`
-//!   segments, as BART's reference code computes them; see [`kb`] for the maths. `k`
+//!   segments, as BART's reference code computes them; see `kb.rs` for the maths. `k`
 //!   blocks may come before or after the `x` they animate, in any file; when a name has several
 //!   `k` blocks the last one read counts (BART's list lookup finds the newest). An object is
 //!   visible until its first visibility key, then as the latest key at or before the time says;

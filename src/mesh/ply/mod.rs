@@ -10,7 +10,7 @@
 //!   ([`Fan`](super::Fan));
 //! - every other element is skipped, wherever it stands; `face` may come before `vertex`.
 //!
-//! Reading is in two steps: [`header`] turns the header into a `Header`, [`plan`] turns that
+//! Reading is in two steps: [`header`] turns the header into a `Header`, [`plan`](mod@plan) turns that
 //! into one `Plan` per element (what to do with each property), then the body is read element
 //! after element by [`ascii`] or [`binary`].
 //!

@@ -128,7 +128,7 @@ pub(crate) fn check_vertex(
     }
 }
 
-/// The sink of [`parse_ply`]: the whole mesh in memory.
+/// The sink of [`parse_ply`](super::parse_ply): the whole mesh in memory.
 #[derive(Debug, Default)]
 pub(super) struct Builder {
     pub(super) positions: Vec<[f32; 3]>,
