@@ -1,32 +1,40 @@
 //! BART AFF scenes (`oavm::mesh::aff`): the three real scenes' counts, views and animation;
 //! small scenes built here for each statement; bad input of every kind; random mutations.
 //!
-//! The real scenes live in `../shared/scenes/bart/`; their tests are skipped (with a note) when
-//! that directory is not there.
+//! The real scenes live in `../shared/scenes/bart/`; a test that wants one fails when it is not
+//! there.
 
 use std::collections::HashMap;
 use std::io;
 use std::path::{Path, PathBuf};
 
-use oavm::mesh::{AffScene, Mesh, MeshError, Place, load, load_aff, load_at, parse_aff_with};
+use oavm::mesh::{
+    AffScene, LoadLimits, Mesh, MeshError, Place, load, load_aff, load_at, load_with, parse_aff,
+    parse_aff_with,
+};
 use oavm::rays::SplitMix64;
 
 // ---------------------------------------------------------------------------------------------
 // The real scenes
 
+/// A file of the BART scenes. They are part of the test data: a missing file fails the test
+/// that wants it (a skipped test would pass without checking anything).
 fn bart(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/scenes/bart")
-        .join(rel)
+        .join(rel);
+    assert!(
+        p.is_file(),
+        "{} is missing: the BART scenes are test data, expected in ../shared/scenes/bart next to \
+         the crate (see ../shared/scenes/README.md)",
+        p.display()
+    );
+    p
 }
 
-fn scene(rel: &str, time: Option<f64>) -> Option<AffScene> {
+fn scene(rel: &str, time: Option<f64>) -> AffScene {
     let p = bart(rel);
-    if !p.exists() {
-        eprintln!("skipping: {} is not here", p.display());
-        return None;
-    }
-    Some(load_aff(&p, time).unwrap_or_else(|e| panic!("{e}")))
+    load_aff(&p, time).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// Triangles whose corners differ between two poses of one scene.
@@ -39,9 +47,7 @@ fn moved(a: &Mesh, b: &Mesh) -> usize {
 
 #[test]
 fn kitchen_has_the_papers_counts_and_its_viewpoint() {
-    let Some(s) = scene("kitchen/kitchen.aff", None) else {
-        return;
-    };
+    let s = scene("kitchen/kitchen.aff", None);
     assert_eq!(s.faces(), 110_561);
     assert_eq!(s.mesh.triangles.len(), 110_561);
     assert_eq!(s.mesh.positions.len(), 63_706);
@@ -63,33 +69,29 @@ fn kitchen_has_the_papers_counts_and_its_viewpoint() {
     assert_eq!(s.lights[0], [2.15, 2.00, 0.90]);
 
     // The toy car drives: some triangles move between t = 0 and t = 10, most stay.
-    let later = scene("kitchen/kitchen.aff", Some(10.0)).unwrap();
+    let later = scene("kitchen/kitchen.aff", Some(10.0));
     let n = moved(&s.mesh, &later.mesh);
     assert!(n > 1000 && n < 20_000, "{n} triangles moved");
     // The file's start time is the default.
-    let at0 = scene("kitchen/kitchen.aff", Some(0.0)).unwrap();
+    let at0 = scene("kitchen/kitchen.aff", Some(0.0));
     assert_eq!(at0.mesh, s.mesh);
 }
 
 #[test]
 fn robots_have_the_papers_counts_and_walk() {
-    let Some(s) = scene("robot/Robot.aff", None) else {
-        return;
-    };
+    let s = scene("robot/Robot.aff", None);
     assert_eq!(s.faces(), 71_708);
     assert_eq!(s.mesh.triangles.len(), 71_708);
     assert_eq!(s.mesh.positions.len(), 134_127);
     assert_eq!(s.animation, Some((0.0, 50.0, 800)));
-    let later = scene("robot/Robot.aff", Some(25.0)).unwrap();
+    let later = scene("robot/Robot.aff", Some(25.0));
     // The city (city2.aff, 9,218 triangles) stands still; every part of the ten robots moves.
     assert_eq!(moved(&s.mesh, &later.mesh), 71_708 - 9_218);
 }
 
 #[test]
 fn museum_has_the_papers_counts_and_its_animated_triangles_move() {
-    let Some(s) = scene("museum/museum5.aff", None) else {
-        return;
-    };
+    let s = scene("museum/museum5.aff", None);
     assert_eq!(s.faces(), 10_143);
     assert_eq!(s.counts.animated_triangles, 1_024);
     assert_eq!(s.counts.cones, 8);
@@ -102,8 +104,8 @@ fn museum_has_the_papers_counts_and_its_animated_triangles_move() {
         s.time, -1.0,
         "`a -1.0 5.0 300`: the default time is the start"
     );
-    let a = scene("museum/museum5.aff", Some(0.5)).unwrap();
-    let b = scene("museum/museum5.aff", Some(2.5)).unwrap();
+    let a = scene("museum/museum5.aff", Some(0.5));
+    let b = scene("museum/museum5.aff", Some(2.5));
     let n = moved(&a.mesh, &b.mesh);
     assert!(n > 900 && n <= 1_024, "{n} triangles moved");
 }
@@ -111,9 +113,6 @@ fn museum_has_the_papers_counts_and_its_animated_triangles_move() {
 #[test]
 fn load_dispatches_aff_and_load_at_rejects_a_time_for_other_formats() {
     let p = bart("museum/museum5.aff");
-    if !p.exists() {
-        return;
-    }
     let mesh = load(&p).unwrap();
     assert_eq!(mesh, load_aff(&p, None).unwrap().mesh);
     assert_eq!(
@@ -123,6 +122,135 @@ fn load_dispatches_aff_and_load_at_rejects_a_time_for_other_formats() {
     let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bunny.ply");
     let e = load_at(&bunny, Some(1.0)).unwrap_err();
     assert!(matches!(e, MeshError::NotAnimated { .. }), "{e}");
+}
+
+/// An xxh3 digest of everything a pose yields: the mesh (f32 position bytes, then triangle
+/// indices, little-endian), then the lights and the camera path (f64 bits).
+fn digest(s: &AffScene) -> (u64, u64) {
+    let mut mesh = Vec::new();
+    for p in &s.mesh.positions {
+        for c in p {
+            mesh.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for t in &s.mesh.triangles {
+        for i in t {
+            mesh.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+    let mut rest = Vec::new();
+    let mut put = |v: [f64; 3]| {
+        v.iter()
+            .for_each(|c| rest.extend_from_slice(&c.to_le_bytes()))
+    };
+    s.lights.iter().for_each(|&l| put(l));
+    if let Some(c) = s.camera_path {
+        put(c.from);
+        put(c.at);
+        put(c.up);
+    }
+    (
+        xxhash_rust::xxh3::xxh3_64(&mesh),
+        xxhash_rust::xxh3::xxh3_64(&rest),
+    )
+}
+
+/// Digests of the three scenes posed at the start, a quarter (an off-key time), the middle and
+/// the end of their animation, recorded with the reader as it was before it used glam and
+/// evaluated each animation once: any change of arithmetic that moves one bit of one vertex
+/// shows here.
+#[test]
+fn poses_of_the_real_scenes_are_bit_identical_to_the_recorded_digests() {
+    const RECORDED: &[(&str, f64, u64, u64)] = &[
+        (
+            "kitchen/kitchen.aff",
+            0.0,
+            0xdffe3e4b15fdd00d,
+            0x8c2b72a474e9503e,
+        ),
+        (
+            "kitchen/kitchen.aff",
+            5.3,
+            0xc15c8634b1c23b37,
+            0x91bb8b7736326b74,
+        ),
+        (
+            "kitchen/kitchen.aff",
+            10.0,
+            0xfcf0330297faddd5,
+            0xd3c67a6c967595fe,
+        ),
+        (
+            "kitchen/kitchen.aff",
+            20.0,
+            0xe783811c6bf19a13,
+            0xe1e73d8750166d6f,
+        ),
+        (
+            "robot/Robot.aff",
+            0.0,
+            0x5c1157efdfe791d7,
+            0x7567727496893861,
+        ),
+        (
+            "robot/Robot.aff",
+            12.7,
+            0x4af170d16e0e5316,
+            0x417bf81330f4538a,
+        ),
+        (
+            "robot/Robot.aff",
+            25.0,
+            0x3460e7abc6afeb95,
+            0x7eaabe8f41d185a5,
+        ),
+        (
+            "robot/Robot.aff",
+            50.0,
+            0xaebd25eecc191ea1,
+            0x4a9c6391476f9414,
+        ),
+        (
+            "museum/museum5.aff",
+            -1.0,
+            0xb4901757bdaacf95,
+            0x643581104800ddad,
+        ),
+        (
+            "museum/museum5.aff",
+            0.6,
+            0x959a27260d1d9c8a,
+            0x9279a04f484a8eb1,
+        ),
+        (
+            "museum/museum5.aff",
+            2.0,
+            0xf2ff4ca1dd418643,
+            0x581d1121d3069c21,
+        ),
+        (
+            "museum/museum5.aff",
+            5.0,
+            0x8a8c03763c819170,
+            0x5fe16559d0a05a7d,
+        ),
+    ];
+    let mut got = Vec::new();
+    for (rel, times) in [
+        ("kitchen/kitchen.aff", [0.0, 5.3, 10.0, 20.0]),
+        ("robot/Robot.aff", [0.0, 12.7, 25.0, 50.0]),
+        ("museum/museum5.aff", [-1.0, 0.6, 2.0, 5.0]),
+    ] {
+        for t in times {
+            let (m, r) = digest(&scene(rel, Some(t)));
+            got.push((rel, t, m, r));
+        }
+    }
+    let text: Vec<String> = got
+        .iter()
+        .map(|(rel, t, m, r)| format!("(\"{rel}\", {t:?}, {m:#018x}, {r:#018x}),"))
+        .collect();
+    assert_eq!(got, RECORDED, "digests now:\n{}", text.join("\n"));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -572,6 +700,63 @@ fn exponential_includes_hit_the_byte_budget() {
     assert!(matches!(e.innermost(), MeshError::TooLarge { .. }), "{e}");
 }
 
+#[test]
+fn includes_larger_than_the_budget_left_are_refused_naming_the_file_and_line() {
+    use oavm::mesh::aff::{INCLUDE_COST, MAX_PARSED_BYTES};
+    let dir = tempfile::tempdir().unwrap();
+    let top = dir.path().join("top.aff");
+    let text = "p 3 0 0 0 1 0 0 0 1 0\n\ni 0 big.aff\n";
+    std::fs::write(&top, text).unwrap();
+    // Sparse: it would fit the budget alone, not after the top file and the inclusion cost.
+    let big = dir.path().join("big.aff");
+    let size = MAX_PARSED_BYTES - INCLUDE_COST - text.len() as u64 + 1;
+    std::fs::File::create(&big).unwrap().set_len(size).unwrap();
+    for e in [
+        load_aff(&top, None).unwrap_err(),
+        parse_aff(text.as_bytes(), &top.display().to_string(), None).unwrap_err(),
+    ] {
+        assert!(matches!(e, MeshError::Included { line: 3, .. }), "{e}");
+        let inner = e.innermost();
+        assert!(
+            matches!(inner, MeshError::TooLarge { file, .. } if file.ends_with("big.aff")),
+            "{e}"
+        );
+        let msg = e.to_string();
+        assert!(msg.contains(&format!("holds {size} bytes")), "{msg}");
+        assert!(msg.contains(&format!("{} bytes left", size - 1)), "{msg}");
+    }
+    // A small include is read (and is not AFF: a NUL is an unknown keyword).
+    std::fs::File::create(&big).unwrap().set_len(2).unwrap();
+    let e = load_aff(&top, None).unwrap_err();
+    assert!(matches!(e.innermost(), MeshError::Aff { .. }), "{e}");
+
+    // The top file alone over the budget.
+    let huge = dir.path().join("huge.aff");
+    std::fs::File::create(&huge)
+        .unwrap()
+        .set_len(MAX_PARSED_BYTES + 1)
+        .unwrap();
+    let e = load_aff(&huge, None).unwrap_err();
+    assert!(matches!(e, MeshError::TooLarge { .. }), "{e}");
+    assert!(e.to_string().contains("huge.aff"), "{e}");
+
+    // `load_with` lowers the budget of a scene to its limit.
+    let museum = bart("museum/museum5.aff");
+    let limits = LoadLimits {
+        max_file_bytes: 100_000,
+    };
+    let e = load_with(&museum, None, &limits).unwrap_err();
+    assert!(matches!(e.innermost(), MeshError::TooLarge { .. }), "{e}");
+    assert!(e.to_string().contains("100000 bytes"), "{e}");
+    let limits = LoadLimits {
+        max_file_bytes: 100_000_000,
+    };
+    assert_eq!(
+        load_with(&museum, None, &limits).unwrap(),
+        load(&museum).unwrap()
+    );
+}
+
 // ---------------------------------------------------------------------------------------------
 // Random mutations
 
@@ -729,9 +914,6 @@ fn png_size(path: &Path) -> (u32, u32) {
 #[test]
 fn pack_poses_a_scene_at_a_time_and_trace_takes_its_view() {
     let museum = bart("museum/museum5.aff");
-    if !museum.exists() {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let pack = env!("CARGO_BIN_EXE_oavm-pack");
     let trace = env!("CARGO_BIN_EXE_oavm-trace");

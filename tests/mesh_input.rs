@@ -8,7 +8,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use oavm::mesh::{Mesh, MeshError, load, parse_obj, parse_ply};
+use oavm::mesh::{LoadLimits, Mesh, MeshError, load, load_with, parse_obj, parse_ply};
 
 // ---------------------------------------------------------------------------------------------
 // A PLY writer
@@ -183,9 +183,11 @@ fn expected(positions: &[[f64; 3]], faces: &[Vec<i64>]) -> Mesh {
     }
 }
 
-/// Writes the mesh in all three encodings and checks each reads back as `expected`.
+/// Writes the mesh in all three encodings, checks each reads back as `expected`, and returns
+/// the mesh read (so that the caller's own checks are on what the reader gave).
 fn check_all_encodings(ty: &'static str, positions: &[[f64; 3]], faces: &[Vec<i64>]) -> Mesh {
     let want = expected(positions, faces);
+    let mut read = Vec::new();
     for enc in ENCODINGS {
         let bytes = write_ply(
             enc,
@@ -193,8 +195,9 @@ fn check_all_encodings(ty: &'static str, positions: &[[f64; 3]], faces: &[Vec<i6
         );
         let got = parse_ply(&bytes, "case.ply").unwrap_or_else(|e| panic!("{enc:?}: {e}"));
         assert_eq!(got, want, "{enc:?}");
+        read.push(got);
     }
-    want
+    read.pop().expect("three encodings")
 }
 
 /// Asserts an error of the given kind whose message contains every needle.
@@ -375,11 +378,12 @@ fn ascii_little_and_big_endian_give_the_same_mesh() {
         let bytes = write_ply(enc, &elems);
         let got = parse_ply(&bytes, "rich.ply").unwrap_or_else(|e| panic!("{enc:?}: {e}"));
         assert_eq!(got, want, "{enc:?}");
+        // What the reader gave, spelled out: the doubles were rounded once, from f64 to f32
+        // (1 + 2^-24 read straight as an f32 would not be 1), and the faces were fanned.
+        assert_eq!(got.positions[3][0], (1.0f64 / 3.0) as f32, "{enc:?}");
+        assert_eq!(got.positions[5][0], 1.0, "{enc:?}");
+        assert_eq!(got.triangles.len(), 1 + 2 + 3, "{enc:?}");
     }
-    // The doubles were rounded once, from f64 to f32.
-    assert_eq!(want.positions[3][0], (1.0f64 / 3.0) as f32);
-    assert_eq!(want.positions[5][0], 1.0);
-    assert_eq!(want.triangles.len(), 1 + 2 + 3);
 }
 
 #[test]
@@ -666,6 +670,58 @@ fn duplicate_and_degenerate_triangles_keep_their_ids() {
 
 // ---------------------------------------------------------------------------------------------
 // Files and formats
+
+#[test]
+fn files_over_the_size_limit_are_refused_and_point_to_the_streaming_pack() {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("tetra.ply");
+    let bytes = simple_ply(Enc::Le, &TETRA, &tetra_faces());
+    std::fs::write(&ply, &bytes).unwrap();
+    let len = bytes.len() as u64;
+    let at_most = |max_file_bytes| load_with(&ply, None, &LoadLimits { max_file_bytes });
+    assert_eq!(at_most(len).unwrap(), expected(&TETRA, &tetra_faces()));
+    let e = assert_error!(
+        at_most(len - 1),
+        MeshError::FileTooLarge { .. },
+        "tetra.ply",
+        &format!("{len} bytes"),
+        "oavm-pack --mem-budget"
+    );
+    assert!(
+        matches!(e, MeshError::FileTooLarge { bytes, limit, .. } if bytes == len && limit == len - 1)
+    );
+    // OBJ too; and a sparse file of a gibibyte is refused by its size, without reading it.
+    let obj = dir.path().join("one.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let limits = LoadLimits { max_file_bytes: 10 };
+    assert_error!(
+        load_with(&obj, None, &limits),
+        MeshError::FileTooLarge { .. },
+        "one.obj"
+    );
+    let big = dir.path().join("big.ply");
+    std::fs::File::create(&big)
+        .unwrap()
+        .set_len(1 << 30)
+        .unwrap();
+    let limits = LoadLimits {
+        max_file_bytes: 1 << 20,
+    };
+    assert_error!(
+        load_with(&big, None, &limits),
+        MeshError::FileTooLarge {
+            bytes: 1073741824,
+            ..
+        },
+        "big.ply"
+    );
+    // `load` reads with the documented default.
+    assert_eq!(LoadLimits::default().max_file_bytes, 64 << 30);
+    assert_eq!(
+        LoadLimits::default().max_file_bytes,
+        LoadLimits::DEFAULT_MAX_FILE_BYTES
+    );
+}
 
 #[test]
 fn missing_file_is_an_io_error_naming_the_path() {

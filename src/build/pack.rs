@@ -88,7 +88,13 @@ pub fn pack(
     let t0 = Instant::now();
     progress.phase("parsing the mesh", None, false);
     let mesh_bytes = std::fs::metadata(mesh_path).map(|m| m.len()).unwrap_or(0);
-    let mesh = crate::mesh::load_at(mesh_path, opts.time)?;
+    // The in-memory build holds the file and many times its triangles: a file larger than the
+    // memory available is for the streaming pack, which the error suggests.
+    let limits = crate::mesh::LoadLimits {
+        max_file_bytes: crate::os::available_memory()
+            .unwrap_or(crate::mesh::LoadLimits::DEFAULT_MAX_FILE_BYTES),
+    };
+    let mesh = crate::mesh::load_with(mesh_path, opts.time, &limits)?;
     let parse_seconds = t0.elapsed().as_secs_f64();
 
     let (parts, stats) = build(&mesh, &opts.build, progress)?;

@@ -133,6 +133,24 @@ pub enum MeshError {
     #[error("{file}: too large: {detail}")]
     TooLarge { file: String, detail: String },
 
+    /// A PLY or OBJ file larger than [`LoadLimits::max_file_bytes`](super::LoadLimits): it is
+    /// refused before it is read.
+    #[error(
+        "{file}: the file holds {bytes} bytes, more than the {limit} bytes a mesh may have to be \
+         read whole into memory; pack it with `oavm-pack --mem-budget`, which streams the mesh \
+         instead (it reads binary PLY: convert other formats first)"
+    )]
+    FileTooLarge {
+        file: String,
+        bytes: u64,
+        limit: u64,
+    },
+
+    /// The file's length, change time or inode differed after it was read from before: it was
+    /// written while we read it, so its bytes may mix two versions.
+    #[error("{}: the file changed while it was being read", path.display())]
+    Changed { path: PathBuf },
+
     /// A BART AFF statement this reader cannot read: an unknown keyword, a missing `{`, an
     /// unbalanced `}`, a mesh index out of range, too few keyframes, an include cycle.
     #[error("{file}: line {line}: bad AFF: {detail}")]

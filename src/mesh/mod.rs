@@ -3,17 +3,18 @@
 //!
 //! Everything read here is untrusted: any bytes give a [`Mesh`] or a [`MeshError`] naming the
 //! file and the place, never a panic, and no count read from a file makes us allocate more than
-//! the file's own size can back. The parsers work on `&[u8]`, so they run the same over a `Vec`
-//! and over a memory-mapped file.
+//! the file's own size can back. A file is read whole only up to a size limit ([`LoadLimits`],
+//! checked before reading), and must not change while it is read ([`MeshError::Changed`]). The
+//! parsers work on `&[u8]`, so they run the same over a `Vec` and over a memory-mapped file.
 //!
 //! Primitive ids follow `../shared/RAYS.md`: triangle `i` of [`Mesh::triangles`] is the `i`-th
 //! triangle of the file after fan triangulation, in file order. `positions[i]` is the file's
 //! vertex `i` (PLY vertex record `i`, OBJ `v` line `i + 1`), used or not.
 
 pub mod aff;
-pub mod kb;
 mod obj;
 mod ply;
+mod read;
 pub mod stream;
 
 use std::path::Path;
@@ -49,9 +50,35 @@ impl Mesh {
     }
 }
 
+/// How much of a file [`load_with`] may read whole into memory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoadLimits {
+    /// The largest PLY or OBJ file read: a larger one is an error
+    /// ([`MeshError::FileTooLarge`]) before a byte of it is read. For an AFF scene, the budget
+    /// of all its files together ([`aff::MAX_PARSED_BYTES`]) is lowered to this when it is
+    /// smaller.
+    pub max_file_bytes: u64,
+}
+
+impl LoadLimits {
+    /// The limit of [`load`] and [`load_at`]: 64 GiB, a bound on what one file may make us
+    /// allocate, not a fit to any machine. The tools pass a tighter one, from the memory they
+    /// may use; a mesh beyond it is for the streaming pack (`oavm-pack --mem-budget`).
+    pub const DEFAULT_MAX_FILE_BYTES: u64 = 64 << 30;
+}
+
+impl Default for LoadLimits {
+    fn default() -> LoadLimits {
+        LoadLimits {
+            max_file_bytes: LoadLimits::DEFAULT_MAX_FILE_BYTES,
+        }
+    }
+}
+
 /// Reads the mesh in `path`. The format is PLY if the file starts with the PLY magic line,
 /// else a BART AFF scene if the extension is `.aff` (posed at its default time, see
 /// [`load_aff`]), else OBJ if the extension is `.obj` or the first statements are OBJ statements.
+/// The file may hold up to [`LoadLimits::DEFAULT_MAX_FILE_BYTES`] (see [`load_with`]).
 pub fn load(path: &Path) -> Result<Mesh, MeshError> {
     load_at(path, None)
 }
@@ -59,19 +86,36 @@ pub fn load(path: &Path) -> Result<Mesh, MeshError> {
 /// Like [`load`], posing an AFF scene at `time` (`None`: its default time). A time for a file
 /// that is not AFF is an error ([`MeshError::NotAnimated`]).
 pub fn load_at(path: &Path, time: Option<f64>) -> Result<Mesh, MeshError> {
+    load_with(path, time, &LoadLimits::default())
+}
+
+/// Like [`load_at`], reading at most `limits.max_file_bytes` of the file. The file must not
+/// change while it is read ([`MeshError::Changed`]).
+pub fn load_with(path: &Path, time: Option<f64>, limits: &LoadLimits) -> Result<Mesh, MeshError> {
     if is_aff(path) {
-        return load_aff(path, time).map(|scene| scene.mesh);
+        let budget = limits.max_file_bytes.min(aff::MAX_PARSED_BYTES);
+        return aff::load_aff_within(path, time, budget).map(|scene| scene.mesh);
     }
     if time.is_some() {
         return Err(MeshError::NotAnimated {
             file: path.display().to_string(),
         });
     }
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: path.to_owned(),
-        source,
-    })?;
     let name = path.display().to_string();
+    let bytes = read::read_file(path, limits.max_file_bytes).map_err(|e| match e {
+        read::ReadError::Io(source) => MeshError::Io {
+            path: path.to_owned(),
+            source,
+        },
+        read::ReadError::TooLarge { bytes } => MeshError::FileTooLarge {
+            file: name.clone(),
+            bytes,
+            limit: limits.max_file_bytes,
+        },
+        read::ReadError::Changed => MeshError::Changed {
+            path: path.to_owned(),
+        },
+    })?;
     let extension = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase());
@@ -143,4 +187,40 @@ fn check_sizes(mesh: &Mesh, file: &str) -> Result<(), MeshError> {
         });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    fn sources(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+        for entry in std::fs::read_dir(dir).expect("src/mesh") {
+            let path = entry.expect("src/mesh").path();
+            if path.is_dir() {
+                sources(&path, out);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                out.push(path);
+            }
+        }
+    }
+
+    /// Mesh input sits below the tracer: it uses glam for its vector maths and imports nothing
+    /// from the tracer's `rays` module.
+    #[test]
+    fn mesh_input_does_not_import_the_rays_layer() {
+        let mut files = Vec::new();
+        sources(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("src/mesh"),
+            &mut files,
+        );
+        assert!(files.len() > 10, "{files:?}");
+        for file in files {
+            let text = std::fs::read_to_string(&file).expect("a source file");
+            assert!(
+                !text.contains(concat!("crate::", "rays")),
+                "{} imports the rays module",
+                file.display()
+            );
+        }
+    }
 }

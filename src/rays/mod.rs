@@ -16,29 +16,6 @@ pub use file::{
 pub use rng::SplitMix64;
 pub use sets::{SHADOW_EPSILON, default_light, random_rays, shadow_ray, shadow_rays};
 
-// Until the mesh reader moves to glam (its own branch): the vector helpers it still calls.
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-#[allow(dead_code)] // until the mesh reader moves to glam
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn normalize(a: [f64; 3]) -> [f64; 3] {
-    let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-    if l > 0.0 { a.map(|x| x / l) } else { a }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
