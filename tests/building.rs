@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use common::*;
 use oavm::build::{self, PackOptions, Quiet};
-use oavm::physical::writer::BlockOptions;
+use oavm::physical::BlockOptions;
 use oavm::rays::{self, Bounds, Camera};
 use oavm::{Hit, Scene};
 use tempfile::TempDir;

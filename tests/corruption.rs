@@ -47,11 +47,11 @@ use std::time::{Duration, Instant};
 use oavm::build::{TreeParts, encode_with};
 use oavm::logical::SceneOptions;
 use oavm::physical::AlignedBytes;
+use oavm::physical::BlockOptions;
 use oavm::physical::format::{
     BlockEntry, BlockHeader, Header, LevelEntry, NodeRecord, RankWord, SectionEntry, SectionKind,
     TriRecord, VolumeRecord,
 };
-use oavm::physical::writer::BlockOptions;
 use oavm::rays::{Bounds, Camera, SplitMix64, random_rays};
 use oavm::{BuildOptions, Error, FormatError, Hit, Mesh, Ray, Scene};
 use xxhash_rust::xxh3::xxh3_64;

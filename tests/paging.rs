@@ -18,8 +18,8 @@ use std::sync::OnceLock;
 
 use oavm::build::encode_with;
 use oavm::logical::{Order, SceneOptions};
+use oavm::physical::BlockOptions;
 use oavm::physical::format::CODEC_RAW;
-use oavm::physical::writer::BlockOptions;
 use oavm::physical::{AlignedBytes, BlockView};
 use oavm::rays::{self, Bounds, Camera};
 use oavm::render::RenderOptions;

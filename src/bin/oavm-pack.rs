@@ -8,7 +8,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use oavm::build::{self, BuildOptions, PackOptions, PackReport};
-use oavm::physical::writer::BlockOptions;
+use oavm::physical::BlockOptions;
 
 /// Packs a triangle mesh (PLY, OBJ, or a BART AFF scene posed at one time) into an .oavm file: a
 /// Morton-ordered octree with merged empty volumes, ready to be memory-mapped and traced by

@@ -11,13 +11,13 @@
 
 pub(crate) mod blocks;
 mod layout;
-pub mod merge;
+mod merge;
 mod pack;
 mod prepare;
 mod spill;
 mod stats;
 mod streaming;
-pub mod subdivide;
+pub(crate) mod subdivide;
 mod write;
 
 use std::time::Instant;

@@ -6,6 +6,6 @@
 pub mod ray;
 pub mod reference;
 pub mod triangle;
-pub mod tribox;
+pub(crate) mod tribox;
 
 pub use ray::{AGREEMENT_TOLERANCE, Hit, Ray};

@@ -12,7 +12,6 @@ use bytemuck::{Pod, Zeroable};
 
 use super::format::*;
 use crate::error::FormatError;
-use crate::mapping::morton::{LATTICE_BITS, MAX_LEVEL};
 
 /// An opened `.oavm` file whose header, section table and level table have been validated.
 pub struct OavmFile<D> {

@@ -9,15 +9,16 @@
 //! logical layers', which read the records this layer casts).
 
 mod block;
-pub mod bounds;
+pub(crate) mod bounds;
 mod file;
 pub mod format;
 mod inspect;
-pub mod verify;
-pub mod writer;
+pub(crate) mod verify;
+pub(crate) mod writer;
 
 pub use block::{BlockError, BlockReader, BlockView, ReadBlock};
 pub use file::{AlignedBytes, OavmFile};
 pub use inspect::{
     DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel, inspect,
 };
+pub use writer::{BlockOptions, DEFAULT_BLOCK_SIZE, DEFAULT_ZSTD_LEVEL};

@@ -35,10 +35,6 @@ impl Defects {
         self.more += other.more;
     }
 
-    pub fn is_empty(&self) -> bool {
-        self.list.is_empty()
-    }
-
     /// The list, ending with a count of those not listed.
     pub fn into_list(self) -> Vec<String> {
         let mut list = self.list;

@@ -322,11 +322,6 @@ impl<S: Sink> FileWriter<S> {
         self.directory.len() as u32
     }
 
-    /// Bytes written so far.
-    pub fn bytes_written(&self) -> u64 {
-        self.at
-    }
-
     /// Appends the next block (its id is [`Self::block_count`] before the call).
     pub fn push(&mut self, block: StoredBlock) -> std::io::Result<u32> {
         if block.entry_id != self.block_count() {

@@ -303,7 +303,7 @@ fn every_block_reads_back_under_any_budget_and_threads() {
                     assert_eq!(c.misses, 40, "{what}");
                     assert_eq!(
                         c.bytes_read,
-                        s.dir.iter().map(|e| e.stored_len).sum(),
+                        s.dir.iter().map(|e| e.stored_len).sum::<u64>(),
                         "{what}"
                     );
                     assert_eq!(p.budget(), u64::MAX);

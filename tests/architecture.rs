@@ -1,0 +1,354 @@
+//! The module stack of `docs/architecture.md`, enforced: every top-level module of `src/`
+//! imports only modules below it in [`STACK`] (never one above, never in a circle), and `unsafe`
+//! appears in `src/os` only. The checker reads the sources (comments and string literals left
+//! out) and follows `crate::` paths, `use crate::{...}` groups and `super::` chains that climb
+//! to the crate root; the tests below it show that it catches what it must.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// The stack, bottom first: a module may import those before it.
+const STACK: [&str; 12] = [
+    "os", "error", "output", "geom", "rays", "mesh", "physical", "mapping", "build", "logical",
+    "render", "compare",
+];
+
+/// The module that may hold `unsafe` code (`#![deny(unsafe_code)]` elsewhere).
+const UNSAFE_HOME: &str = "os";
+
+fn src() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src")
+}
+
+/// Every `.rs` file under `dir`.
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).expect("read src") {
+        let p = e.expect("entry").path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// The module path of a file under `src/`: `src/a/b.rs` and `src/a/b/mod.rs` are `[a, b]`.
+fn module_path(file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(src()).expect("under src");
+    let mut parts: Vec<String> = rel
+        .iter()
+        .map(|c| c.to_string_lossy().into_owned())
+        .collect();
+    let last = parts.pop().expect("a file name");
+    if last != "mod.rs" && last != "lib.rs" {
+        parts.push(last.trim_end_matches(".rs").to_string());
+    }
+    parts
+}
+
+/// `text` with comments, string and character literals blanked out (so a doc link or a message
+/// naming a module is not an import).
+fn code_only(text: &str) -> String {
+    let b = text.as_bytes();
+    let mut out = String::with_capacity(text.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i..].starts_with(b"//") {
+            while i < b.len() && b[i] != b'\n' {
+                i += 1;
+            }
+        } else if b[i..].starts_with(b"/*") {
+            let mut depth = 0;
+            while i < b.len() {
+                if b[i..].starts_with(b"/*") {
+                    depth += 1;
+                    i += 2;
+                } else if b[i..].starts_with(b"*/") {
+                    depth -= 1;
+                    i += 2;
+                    if depth == 0 {
+                        break;
+                    }
+                } else {
+                    i += 1;
+                }
+            }
+        } else if b[i] == b'r' && (b[i..].starts_with(b"r\"") || b[i..].starts_with(b"r#")) {
+            // A raw string: r"...", r#"..."#.
+            let mut j = i + 1;
+            let mut hashes = 0;
+            while j < b.len() && b[j] == b'#' {
+                hashes += 1;
+                j += 1;
+            }
+            if j < b.len() && b[j] == b'"' {
+                let close: Vec<u8> = std::iter::once(b'"')
+                    .chain(std::iter::repeat_n(b'#', hashes))
+                    .collect();
+                j += 1;
+                while j < b.len() && !b[j..].starts_with(&close) {
+                    j += 1;
+                }
+                i = j + close.len();
+                out.push_str("\"\"");
+            } else {
+                out.push('r');
+                i += 1;
+            }
+        } else if b[i] == b'"' {
+            i += 1;
+            while i < b.len() && b[i] != b'"' {
+                i += if b[i] == b'\\' { 2 } else { 1 };
+            }
+            i += 1;
+            out.push_str("\"\"");
+        } else if b[i] == b'\'' && i + 2 < b.len() && (b[i + 2] == b'\'' || b[i + 1] == b'\\') {
+            // A character literal ('x', '\n'), not a lifetime.
+            i += 1;
+            while i < b.len() && b[i] != b'\'' {
+                i += if b[i] == b'\\' { 2 } else { 1 };
+            }
+            i += 1;
+            out.push_str("' '");
+        } else {
+            out.push(b[i] as char);
+            i += 1;
+        }
+    }
+    out
+}
+
+/// The top-level modules that code in module `path` (a module path under `src/`) names: through
+/// `crate::x`, `crate::{x, y::z}` and `super::` chains that reach the crate root.
+fn imports(path: &[String], code: &str) -> BTreeSet<String> {
+    let mut found = BTreeSet::new();
+    let tokens: Vec<&str> = code
+        .split(|c: char| {
+            !(c.is_alphanumeric() || c == '_' || c == ':' || c == '{' || c == '}' || c == ',')
+        })
+        .filter(|t| !t.is_empty())
+        .collect();
+    let joined = tokens.join(" ");
+    let bytes = joined.as_bytes();
+    let mut i = 0;
+    while i < joined.len() {
+        let rest = &joined[i..];
+        let at_word = i == 0 || !(bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'_');
+        if at_word && rest.starts_with("crate::") {
+            take_names(&rest["crate::".len()..], &mut found);
+            i += "crate::".len();
+        } else if at_word && rest.starts_with("super::") {
+            let mut n = 0;
+            let mut r = rest;
+            while r.starts_with("super::") {
+                n += 1;
+                r = &r["super::".len()..];
+            }
+            // `n` supers from a module `path.len()` deep reach the crate root when n >= depth.
+            if n >= path.len() {
+                take_names(r, &mut found);
+            }
+            i += "super::".len() * n;
+        } else {
+            i += rest.chars().next().map_or(1, char::len_utf8);
+        }
+    }
+    found
+}
+
+/// The first path segment(s) of `rest`: one name, or each of a `{a, b::c}` group.
+fn take_names(rest: &str, found: &mut BTreeSet<String>) {
+    let ident = |s: &str| -> String {
+        s.chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect()
+    };
+    if let Some(group) = rest.strip_prefix('{') {
+        let mut depth = 1;
+        let mut start = true;
+        let mut j = 0;
+        let g = group.as_bytes();
+        while j < g.len() && depth > 0 {
+            match g[j] {
+                b'{' => depth += 1,
+                b'}' => depth -= 1,
+                b',' if depth == 1 => start = true,
+                b' ' => {}
+                _ if start && depth == 1 => {
+                    let name = ident(&group[j..]);
+                    if !name.is_empty() {
+                        found.insert(name);
+                    }
+                    start = false;
+                }
+                _ => {}
+            }
+            j += 1;
+        }
+    } else {
+        let name = ident(rest);
+        if !name.is_empty() {
+            found.insert(name);
+        }
+    }
+}
+
+/// Imports against the stack: `(file, module, imported)` for each import of a module that is
+/// not below the file's module.
+fn violations(files: &[(Vec<String>, String, String)]) -> Vec<(String, String, String)> {
+    let rank = |m: &str| STACK.iter().position(|s| *s == m);
+    let mut bad = Vec::new();
+    for (path, file, code) in files {
+        let Some(top) = path.first() else { continue };
+        let Some(me) = rank(top) else { continue };
+        for name in imports(path, code) {
+            // Names that are not modules of the stack (`crate::Error`, re-exports at the root)
+            // are checked where they are defined.
+            if let Some(them) = rank(&name)
+                && them > me
+            {
+                bad.push((file.clone(), top.clone(), name));
+            }
+        }
+    }
+    bad
+}
+
+fn sources() -> Vec<(Vec<String>, String, String)> {
+    let mut files = Vec::new();
+    rust_files(&src(), &mut files);
+    files.sort();
+    files
+        .into_iter()
+        .filter(|f| !f.starts_with(src().join("bin")))
+        .map(|f| {
+            let code = code_only(&std::fs::read_to_string(&f).expect("read"));
+            let name = f
+                .strip_prefix(src())
+                .unwrap()
+                .to_string_lossy()
+                .into_owned();
+            (module_path(&f), name, code)
+        })
+        .collect()
+}
+
+#[test]
+fn every_module_imports_only_modules_below_it() {
+    let files = sources();
+    // Every top-level module of the crate is in the stack (a new one must be placed).
+    let tops: BTreeSet<String> = files
+        .iter()
+        .filter_map(|(p, ..)| p.first().cloned())
+        .collect();
+    let unplaced: Vec<&String> = tops
+        .iter()
+        .filter(|t| !STACK.contains(&t.as_str()))
+        .collect();
+    assert!(
+        unplaced.is_empty(),
+        "modules not in the stack of docs/architecture.md: {unplaced:?}"
+    );
+    let bad = violations(&files);
+    assert!(
+        bad.is_empty(),
+        "imports of modules above in the stack ({}):\n{}",
+        STACK.join(" < "),
+        bad.iter()
+            .map(|(f, m, n)| format!("  {f}: {m} imports {n}"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+}
+
+#[test]
+fn unsafe_code_lives_in_one_module() {
+    let lib = std::fs::read_to_string(src().join("lib.rs")).unwrap();
+    assert!(
+        lib.contains("#![deny(unsafe_code)]"),
+        "lib.rs must deny unsafe code"
+    );
+    let mut files = Vec::new();
+    rust_files(&src(), &mut files);
+    let mut found = Vec::new();
+    for f in files {
+        let code = code_only(&std::fs::read_to_string(&f).unwrap());
+        let words = code.split(|c: char| !(c.is_alphanumeric() || c == '_'));
+        if words.into_iter().any(|w| w == "unsafe") {
+            found.push(f.strip_prefix(src()).unwrap().to_path_buf());
+        }
+    }
+    assert!(
+        !found.is_empty(),
+        "the os module has unsafe code: the check must see it"
+    );
+    assert!(
+        found.iter().all(|f| f.starts_with(UNSAFE_HOME)),
+        "unsafe outside src/{UNSAFE_HOME}: {found:?}"
+    );
+    // Every unsafe block (and impl) says why it is sound.
+    for f in &found {
+        let text = std::fs::read_to_string(src().join(f)).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        for (i, l) in lines.iter().enumerate() {
+            let code = code_only(l);
+            let has = code
+                .split(|c: char| !(c.is_alphanumeric() || c == '_'))
+                .any(|w| w == "unsafe");
+            if !has || code.contains("unsafe_code") || code.trim_start().starts_with("#[") {
+                continue;
+            }
+            let before = lines[i.saturating_sub(8)..i].join("\n");
+            assert!(
+                before.contains("SAFETY:") || l.contains("SAFETY:"),
+                "{}:{}: unsafe without a SAFETY comment above it",
+                f.display(),
+                i + 1
+            );
+        }
+    }
+}
+
+// The checker itself: it must see what it is for.
+
+fn file(path: &str, code: &str) -> (Vec<String>, String, String) {
+    let p: Vec<String> = path.split('/').map(str::to_string).collect();
+    (p, path.to_string(), code_only(code))
+}
+
+#[test]
+fn the_checker_catches_upward_imports_in_every_form() {
+    let cases = [
+        file("physical/file", "use crate::logical::Scene;"),
+        file(
+            "physical/file",
+            "use crate::{error::Error, mapping::TreeMap};",
+        ),
+        file("geom/ray", "fn f() { let _ = crate::mesh::load(p); }"),
+        file("physical/block", "use super::super::build::blocks;"),
+        file("physical", "use super::build::x;"),
+        file(
+            "mapping/rank",
+            "use crate::{\n    physical::format,\n    logical::Order,\n};",
+        ),
+    ];
+    for c in &cases {
+        assert_eq!(violations(std::slice::from_ref(c)).len(), 1, "{}", c.2);
+    }
+    let fine = [
+        file(
+            "logical/scene",
+            "use crate::physical::format::Header; use crate::Error;",
+        ),
+        file(
+            "physical/file",
+            "// use crate::logical::Scene;\nlet s = \"crate::logical\";",
+        ),
+        file("physical/file", "/* crate::build */ use super::format::*;"),
+        file("build/blocks", "use super::super::physical::format;"),
+        file("physical/block", "use super::file::OavmFile;"),
+    ];
+    for c in &fine {
+        assert!(violations(std::slice::from_ref(c)).is_empty(), "{}", c.2);
+    }
+}
