@@ -128,6 +128,34 @@ enum RaySet {
 const DEFAULT_WAVE: usize = 65536;
 
 impl Args {
+    /// An option given where its mode is not (clap's `requires` does not fire when the mode's
+    /// own option is refused by a conflict of its own): a usage error, never ignored.
+    fn misplaced(&self) -> Option<String> {
+        let given = |o: bool, name: &str, needs: &str| {
+            o.then(|| format!("{name} needs {needs}; it was given without"))
+        };
+        let bench = self.random.is_some() || self.primary.is_some();
+        given(
+            (self.hits.is_some() || self.occluded.is_some()) && self.rays.is_none(),
+            "--hits/--occluded",
+            "--rays (batch mode)",
+        )
+        .or_else(|| {
+            given(
+                self.seed.is_some() && self.random.is_none(),
+                "--seed",
+                "--random N",
+            )
+        })
+        .or_else(|| {
+            given(
+                (self.shadow || self.wave.is_some()) && !bench,
+                "--shadow/--wave",
+                "--random N or --primary WxH",
+            )
+        })
+    }
+
     /// The mode the arguments ask for (clap has already refused the combinations that ask for
     /// two).
     fn mode(&self) -> Result<Mode, Error> {
@@ -179,6 +207,12 @@ impl Args {
 fn main() -> ExitCode {
     let start = Instant::now();
     let args = Args::parse();
+    if let Some(msg) = args.misplaced() {
+        use clap::CommandFactory;
+        Args::command()
+            .error(clap::error::ErrorKind::ArgumentConflict, msg)
+            .exit();
+    }
     cli::main_with("oavm-trace", || run(&args, start))
 }
 

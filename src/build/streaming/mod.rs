@@ -110,7 +110,10 @@ fn pass(
     f: &mut dyn FnMut(&[StreamTriangle]) -> Result<(), Error>,
 ) -> Result<u64, Error> {
     progress.phase(name, Some(ply.file_len()), true);
-    let n = ply.for_each_triangle_batch(positions, BATCH, &|b| progress.at(b), f)?;
+    // A file changed under the pass explains any error the pass met: that is the one reported.
+    let n = ply
+        .for_each_triangle_batch(positions, BATCH, &|b| progress.at(b), f)
+        .map_err(|e| ply.check_unchanged().err().unwrap_or(e))?;
     ply.check_unchanged()?;
     Ok(n)
 }
@@ -129,7 +132,9 @@ pub(super) fn pack_streaming(
 
     // 1. Vertices.
     progress.phase("reading vertices", Some(file_len), true);
-    let positions = ply.read_positions(&|b| progress.at(b))?;
+    let positions = ply
+        .read_positions(&|b| progress.at(b))
+        .map_err(|e| ply.check_unchanged().err().unwrap_or(e.into()))?;
     ply.check_unchanged()?;
 
     // 2. Bounds of the non-degenerate triangles, hence the root cube.
