@@ -102,6 +102,12 @@ pub struct StoredBlock {
     pub root_bounds: Vec<LinkBounds>,
 }
 
+/// Whether a block of `raw_len` bytes whose zstd frame is `z_len` bytes is stored compressed:
+/// when that is smaller, and within [`MAX_ZSTD_RATIO`] (which a reader enforces).
+fn worth_compressing(raw_len: u64, z_len: u64) -> bool {
+    z_len < raw_len && raw_len <= z_len.saturating_mul(MAX_ZSTD_RATIO)
+}
+
 /// The local level and reference count of the leaf with the most references in `unit`.
 fn largest_leaf(unit: UnitRef<'_>) -> (usize, usize) {
     let mut best = (0, 0);
@@ -174,11 +180,22 @@ pub fn store_block(
     id: u32,
     opts: &BlockOptions,
 ) -> Result<StoredBlock, Error> {
+    store_block_within(unit, root_level, id, opts, MAX_BLOCK_RAW_LEN)
+}
+
+/// [`store_block`] with `limit` for [`MAX_BLOCK_RAW_LEN`] (tests try it with a small one).
+fn store_block_within(
+    unit: UnitRef<'_>,
+    root_level: u32,
+    id: u32,
+    opts: &BlockOptions,
+    limit: u64,
+) -> Result<StoredBlock, Error> {
     let raw_len = block_layout(&block_header(unit, root_level, id)).map_or(u64::MAX, |(_, n)| n);
-    if raw_len > MAX_BLOCK_RAW_LEN {
+    if raw_len > limit {
         let largest = largest_leaf(unit);
         return Err(Error::Build(format!(
-            "block {id} would be {raw_len} bytes, more than the {MAX_BLOCK_RAW_LEN} bytes a \
+            "block {id} would be {raw_len} bytes, more than the {limit} bytes a \
              reader accepts (format-spec §2): a leaf at level {} holds {} triangle references \
              that subdivision cannot separate (many triangles at one place, or the depth limit); \
              raise --max-depth, or remove the duplicate triangles",
@@ -193,8 +210,7 @@ pub fn store_block(
         Some(level) => {
             let z = zstd::bulk::compress(&raw, level)
                 .map_err(|e| Error::Build(format!("compressing block {id}: {e}")))?;
-            let ratio_ok = raw_len <= (z.len() as u64).saturating_mul(MAX_ZSTD_RATIO);
-            if z.len() < raw.len() && ratio_ok {
+            if worth_compressing(raw_len, z.len() as u64) {
                 (CODEC_ZSTD, z)
             } else {
                 (CODEC_RAW, raw)
@@ -480,5 +496,83 @@ impl<S: Sink> FileWriter<S> {
         self.sink.patch(0, bytemuck::bytes_of(&header))?;
         self.sink.patch(header_size, table)?;
         Ok((self.sink, file_size))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A unit of one solid leaf holding `n` copies of one triangle (all with primitive id 0:
+    /// the most compressible block there is).
+    fn one_leaf(n: u32) -> UnitParts {
+        let tri = TriRecord {
+            v: [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            prim: 0,
+        };
+        let mut refs: Vec<u32> = Vec::new();
+        if n > MAX_INLINE_REFS {
+            refs.push(n);
+        }
+        refs.extend(0..n);
+        UnitParts {
+            levels: vec![LevelEntry {
+                node_count: 1,
+                internal_count: 0,
+                node_start: 0,
+                rank_start: 0,
+            }],
+            nodes: vec![NodeRecord::solid(0, n, LeafBounds::FULL)],
+            ranks: vec![RankWord {
+                internal: 0,
+                rank: 0,
+            }],
+            volumes: Vec::new(),
+            refs,
+            triangles: vec![tri; n as usize],
+        }
+    }
+
+    /// The writer refuses a block a reader would refuse, naming the leaf that made it so, rather
+    /// than writing a file the tracer rejects (before, a leaf of millions of copies of one
+    /// triangle gave a file with a 1.1 GB block).
+    #[test]
+    fn a_block_past_the_limit_is_refused_at_write() {
+        let unit = one_leaf(500);
+        let opts = BlockOptions::default();
+        let size = store_block(unit.as_ref(), 3, 0, &opts)
+            .unwrap()
+            .entry
+            .raw_len;
+        assert!(store_block_within(unit.as_ref(), 3, 0, &opts, size).is_ok());
+        let e = store_block_within(unit.as_ref(), 3, 0, &opts, size - 1)
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(
+            e.contains("a leaf at level 3 holds 500 triangle references"),
+            "{e}"
+        );
+    }
+
+    /// A block is stored compressed when that is smaller and within [`MAX_ZSTD_RATIO`], which
+    /// a reader enforces; else raw, which every reader reads.
+    #[test]
+    fn blocks_are_compressed_within_the_ratio_only() {
+        assert!(worth_compressing(1000, 999));
+        assert!(!worth_compressing(1000, 1000));
+        assert!(worth_compressing(64 * 100, 100));
+        assert!(!worth_compressing(64 * 100 + 1, 100));
+        assert!(!worth_compressing(u64::MAX, 0));
+        // A real block: copies of one triangle compress well, and within the ratio (its
+        // references, distinct and increasing, keep it there).
+        let opts = BlockOptions {
+            compress: Some(3),
+            ..BlockOptions::default()
+        };
+        let b = store_block(one_leaf(20_000).as_ref(), 0, 0, &opts).unwrap();
+        assert_eq!(b.entry.codec, CODEC_ZSTD);
+        assert!(b.entry.raw_len > 8 * b.entry.stored_len, "{:?}", b.entry);
+        assert!(b.entry.raw_len <= b.entry.stored_len * MAX_ZSTD_RATIO);
     }
 }
