@@ -48,6 +48,9 @@ pub struct PackReport {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub streaming: Option<StreamingReport>,
     pub total_seconds: f64,
+    /// The process's peak resident set size when the file was written (`VmHWM`; what the
+    /// memory budget of the streaming pack bounds), where the system says.
+    pub peak_rss_bytes: Option<u64>,
 }
 
 /// What the streaming builder did ([`streaming::pack_streaming`]).
@@ -121,5 +124,6 @@ pub fn pack(
         block_count,
         streaming: None,
         total_seconds: t0.elapsed().as_secs_f64(),
+        peak_rss_bytes: crate::os::peak_rss_bytes(),
     })
 }

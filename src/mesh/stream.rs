@@ -17,8 +17,9 @@
 //!   reading the whole body, so it reports any other defect of the body first).
 //!
 //! Mapped pages count in the process's memory (and in the page cache of its cgroup), so each
-//! pass gives back the pages behind it as it goes ([`MappedFile::release`]), every
-//! [`RELEASE_EVERY`] bytes: a pass over a file of any size holds at most that much of the map.
+//! pass gives back the pages behind it as it goes ([`MappedFile::release`]), every *window*
+//! of bytes ([`RELEASE_EVERY`] unless [`PlyStream::with_window`] sets another), and asks for two
+//! windows ahead: a pass over a file of any size holds at most three windows of the map.
 
 use std::path::Path;
 
@@ -29,8 +30,12 @@ use super::{Fan, MeshError, Place};
 use crate::error::Error;
 use crate::os::{MappedFile, page_size};
 
-/// How far a pass reads between two releases of the pages behind it (and two progress calls).
+/// How far a pass reads between two releases of the pages behind it (and two progress calls),
+/// unless [`PlyStream::with_window`] sets another window.
 pub const RELEASE_EVERY: usize = 16 << 20;
+
+/// The smallest window: smaller ones would release and advise too often to read at speed.
+pub const MIN_WINDOW: usize = 1 << 20;
 
 /// The largest triangle count: primitive ids are `u32` below `0xFFFFFFFF` (RAYS.md uses it for
 /// a miss), as [`parse_ply`](super::parse_ply) checks.
@@ -42,6 +47,8 @@ pub type StreamTriangle = (u32, [[f32; 3]; 3]);
 /// A binary PLY file, mapped, its header read and checked. See the module documentation.
 pub struct PlyStream {
     map: MappedFile,
+    /// Bytes read between two releases of the map behind a pass.
+    window: usize,
     /// The file, as given.
     path: std::path::PathBuf,
     ply: BinaryPly,
@@ -68,10 +75,18 @@ impl PlyStream {
         map.advise(Advice::Sequential);
         Ok(PlyStream {
             map,
+            window: RELEASE_EVERY,
             path: path.to_owned(),
             ply,
             name,
         })
+    }
+
+    /// The window of the passes (see the module documentation), at least [`MIN_WINDOW`]: a
+    /// pass holds at most three windows of the map.
+    pub fn with_window(mut self, bytes: usize) -> PlyStream {
+        self.window = bytes.max(MIN_WINDOW);
+        self
     }
 
     /// Records declared by the `vertex` element.
@@ -117,7 +132,7 @@ impl PlyStream {
         let mut sink = Positions {
             positions: Vec::new(),
             indices: IndexCheck::default(),
-            behind: Behind::new(&self.map, progress),
+            behind: Behind::new(&self.map, progress, self.window),
         };
         let end = self.ply.read(self.map.as_ref(), &self.name, &mut sink)?;
         sink.behind.finish(end);
@@ -159,7 +174,7 @@ impl PlyStream {
             triangles: 0,
             stopped: false,
             f,
-            behind: Behind::new(&self.map, progress),
+            behind: Behind::new(&self.map, progress, self.window),
         };
         let end = self.ply.read(self.map.as_ref(), &self.name, &mut sink)?;
         sink.flush()?;
@@ -189,6 +204,7 @@ impl PlyStream {
 /// Gives back the pages of the map behind a pass, and reports its progress.
 struct Behind<'a> {
     map: &'a MappedFile,
+    window: usize,
     progress: &'a dyn Fn(u64),
     /// Every page before this offset (a page boundary) has been released.
     released: usize,
@@ -197,9 +213,10 @@ struct Behind<'a> {
 }
 
 impl<'a> Behind<'a> {
-    fn new(map: &'a MappedFile, progress: &'a dyn Fn(u64)) -> Self {
+    fn new(map: &'a MappedFile, progress: &'a dyn Fn(u64), window: usize) -> Self {
         Behind {
             map,
+            window,
             progress,
             released: 0,
             // The first record read starts the read-ahead.
@@ -221,11 +238,11 @@ impl<'a> Behind<'a> {
             self.map.release(self.released, pos - self.released);
             self.released = pos / page_size() * page_size();
         }
-        self.next = pos.saturating_add(RELEASE_EVERY);
+        self.next = pos.saturating_add(self.window);
         // Asks for the next two steps now, so that the disk reads them while we parse: the
         // map's sequential advice alone reads ahead too little to keep up.
         self.map
-            .advise_range(Advice::WillNeed, pos, 2 * RELEASE_EVERY);
+            .advise_range(Advice::WillNeed, pos, 2 * self.window);
         (self.progress)(pos as u64);
     }
 

@@ -77,9 +77,11 @@ pub(super) fn plan(
         });
         Ok(())
     })?;
-    // Positions, and the histogram and the cell-to-chunk table (4 bytes a cell each).
-    let fixed = positions.len() as u64 * 12 + (8u64 << (3 * h));
-    let spill_bytes = (mem_budget / 8).clamp(16 << 20, 256 << 20);
+    // Positions, the histogram and the cell-to-chunk table (4 bytes a cell each), and the
+    // passes' three windows of the map.
+    let fixed =
+        positions.len() as u64 * 12 + (8u64 << (3 * h)) + 3 * super::window(mem_budget) as u64;
+    let spill_bytes = (mem_budget / 8).clamp(1 << 20, 256 << 20);
     let chunk_budget = mem_budget.saturating_sub(fixed + spill_bytes);
     let chunk_triangles = (chunk_budget / BYTES_PER_CHUNK_TRIANGLE).max(opts.leaf_size as u64 * 8);
     let (top, chunks) = top_tree(&counts, h, chunk_triangles, opts.merge);
