@@ -8,6 +8,8 @@
 //! seconds. Hostile inputs and outputs (files changed while read, outputs that must not be
 //! replaced, caps) are in `tests/safety.rs`.
 
+mod common;
+
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -309,7 +311,7 @@ fn pack_is_deterministic_for_any_thread_count() {
 #[test]
 fn pack_reads_ply_and_obj_scenes() {
     let dir = TempDir::new().unwrap();
-    let scenes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
+    let scenes = common::shared_scene("");
 
     // The bundled bunny is the ascii original converted to binary with the same geometry: the
     // two encodings must pack to the same bytes.
@@ -1123,4 +1125,264 @@ fn trace_waves_and_orders_do_not_change_the_answers() {
             }
         }
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Claims that were untested: the image's content, --camera-path, --compress=LEVEL,
+// --no-block-checks on a damaged file, oavm-inspect
+
+/// The rendered image shows what the f64 reference sees: each pixel whose ray hits the bunny
+/// (by the reference) is shaded, each whose ray misses is the background of its row (the
+/// leftmost pixel of the row, which misses); rays through edges aside.
+#[test]
+fn the_rendered_image_shows_what_the_reference_sees() {
+    let dir = TempDir::new().unwrap();
+    let (file, _) = pack_bunny(dir.path(), "bunny.oavm", &[]);
+    let png = dir.path().join("b.png");
+    let (w, h) = (96u32, 72u32);
+    assert_success(&run(oavm_trace()
+        .arg(&file)
+        .args(["--width", &w.to_string(), "--height", &h.to_string(), "-o"])
+        .arg(&png)));
+    let decoder = png::Decoder::new(std::io::Cursor::new(fs::read(&png).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut rgb = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut rgb).unwrap();
+    assert_eq!((info.width, info.height), (w, h));
+    let pixel = |x: u32, y: u32| {
+        let at = 3 * (y * w + x) as usize;
+        [rgb[at], rgb[at + 1], rgb[at + 2]]
+    };
+    let mesh = oavm::mesh::load(&bunny_ply()).unwrap();
+    let tris = mesh.corners();
+    let scene = Scene::open(&file).unwrap();
+    let camera = Camera::framing(&bounds_of(&scene));
+    let pixels = camera.pixels(w, h);
+    let (mut hits, mut wrong, mut grazing) = (0, Vec::new(), 0);
+    for y in 0..h {
+        assert!(
+            !oavm::geom::reference::closest(&tris, &pixels.ray(0, y)).is_hit(),
+            "the left column sees the background"
+        );
+        let background = pixel(0, y);
+        for x in 0..w {
+            let ray = pixels.ray(x, y);
+            let sees = oavm::geom::reference::closest(&tris, &ray).is_hit();
+            hits += sees as usize;
+            if sees == (pixel(x, y) == background) {
+                if oavm::geom::reference::grazes(&tris, &ray) {
+                    grazing += 1;
+                } else {
+                    wrong.push((x, y, sees));
+                }
+            }
+        }
+    }
+    assert!(hits > (w * h / 10) as usize, "{hits} pixels see the bunny");
+    assert!(
+        wrong.is_empty(),
+        "pixels that show the wrong thing: {wrong:?}"
+    );
+    assert!(grazing <= 3, "{grazing} grazing pixels");
+}
+
+/// `--camera-path` takes the camera of the scene's animated path (`k camera`) at its first
+/// frame, `--view` its `v` block: each frame equals the library's, traced from that camera, and
+/// the two differ.
+#[test]
+fn view_and_camera_path_take_their_cameras() {
+    let dir = TempDir::new().unwrap();
+    let aff = common::shared_scene("bart/museum/museum5.aff");
+    let file = dir.path().join("museum.oavm");
+    assert_success(&run(oavm_pack().arg(&aff).arg(&file)));
+    let scene = Scene::open(&file).unwrap();
+    let loaded = oavm::mesh::load_aff(&aff, None).unwrap();
+    let (v, path) = (loaded.view.unwrap(), loaded.camera_path.unwrap());
+    let mut digests = Vec::new();
+    for (flag, cam) in [(None, v), (Some("--camera-path"), path)] {
+        let mut cmd = oavm_trace();
+        cmd.arg(&file)
+            .args(["--primary", "80x60", "--json", "--view"])
+            .arg(&aff);
+        if let Some(f) = flag {
+            cmd.arg(f);
+        }
+        let o = run(&mut cmd);
+        assert_success(&o);
+        let got = json_of(&o)["sets"][0]["answers_xxh3"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        let camera = Camera::look_at(cam.from, cam.at, cam.up, cam.angle_deg).unwrap();
+        let rays = camera.primary_rays(80, 60);
+        let mut hits = vec![Hit::MISS; rays.len()];
+        scene.intersect_batch(&rays, &mut hits).unwrap();
+        assert!(
+            hits.iter().filter(|h| h.is_hit()).count() > 1000,
+            "{flag:?}"
+        );
+        let want = format!(
+            "{:016x}",
+            xxhash_rust::xxh3::xxh3_64(bytemuck::cast_slice(&hits))
+        );
+        assert_eq!(got, want, "{flag:?}");
+        digests.push(got);
+    }
+    assert_ne!(
+        digests[0], digests[1],
+        "the path's first frame is not the v block"
+    );
+}
+
+/// `--compress=LEVEL` reaches the file: both levels compress every block that shrinks, a
+/// higher level gives a smaller file, the answers do not change; a level zstd does not have is
+/// refused.
+#[test]
+fn compression_levels_reach_the_file() {
+    let dir = TempDir::new().unwrap();
+    let (raw, _) = pack_bunny(dir.path(), "raw.oavm", &[]);
+    let (fast, _) = pack_bunny(dir.path(), "fast.oavm", &["--compress=1"]);
+    let (small, _) = pack_bunny(dir.path(), "small.oavm", &["--compress=19"]);
+    let info = |p: &Path| {
+        let s = Scene::open(p).unwrap();
+        let zstd = s
+            .file()
+            .directory()
+            .iter()
+            .filter(|e| e.codec == oavm::physical::format::CODEC_ZSTD)
+            .count();
+        (
+            fs::metadata(p).unwrap().len(),
+            zstd,
+            s.file().directory().len(),
+        )
+    };
+    let (raw_len, raw_zstd, _) = info(&raw);
+    let (fast_len, fast_zstd, blocks) = info(&fast);
+    let (small_len, small_zstd, _) = info(&small);
+    assert_eq!(raw_zstd, 0);
+    assert!(
+        fast_zstd == blocks && small_zstd == blocks,
+        "{fast_zstd} {small_zstd} {blocks}"
+    );
+    assert!(
+        small_len < fast_len && fast_len < raw_len / 2,
+        "{raw_len} {fast_len} {small_len}"
+    );
+    let rays = oavm::rays::random_rays(&bounds_of(&Scene::open(&raw).unwrap()), 5000, 2);
+    let answers = |p: &Path| {
+        let mut h = vec![Hit::MISS; rays.len()];
+        Scene::open(p)
+            .unwrap()
+            .intersect_batch(&rays, &mut h)
+            .unwrap();
+        h
+    };
+    let want = answers(&raw);
+    assert!(want.iter().filter(|h| h.is_hit()).count() > 500);
+    assert!(answers(&fast) == want && answers(&small) == want);
+    let o = run(oavm_pack()
+        .arg(bunny_ply())
+        .arg(dir.path().join("x.oavm"))
+        .arg("--compress=23"));
+    let err = assert_failure(&o);
+    assert!(err.contains("--compress=23"), "{err}");
+    assert!(!dir.path().join("x.oavm").exists());
+}
+
+/// `--no-block-checks` on a file with a damaged raw block: no crash, whatever the damage gives
+/// (an error naming the block, or answers); with checks, an error naming the block; and
+/// `--verify` names it either way.
+#[test]
+fn unchecked_damaged_blocks_give_errors_or_answers_never_a_crash() {
+    let dir = TempDir::new().unwrap();
+    let (file, _) = pack_bunny(dir.path(), "bunny.oavm", &["--block-size", "16K"]);
+    let scene = Scene::open(&file).unwrap();
+    let dir_entries = scene.file().directory().to_vec();
+    drop(scene);
+    let mut bytes = fs::read(&file).unwrap();
+    // Damage every block: bytes at a tenth, half and nine tenths of each, as many kinds of
+    // record as that reaches (node records, ranks, references, triangles).
+    for e in &dir_entries {
+        for frac in [10, 2] {
+            let at = (e.offset + e.stored_len / frac) as usize;
+            bytes[at..at + 8].copy_from_slice(&0xdead_beef_dead_beefu64.to_le_bytes());
+        }
+    }
+    let damaged = dir.path().join("damaged.oavm");
+    fs::write(&damaged, &bytes).unwrap();
+    let o = run(oavm_trace().arg(&damaged).args(["--random", "20000"]));
+    let err = assert_error(&o, "oavm-trace", &damaged);
+    assert!(err.contains("checksum mismatch"), "{err}");
+    let o = run(oavm_trace()
+        .arg(&damaged)
+        .args(["--random", "20000", "--no-block-checks"]));
+    match o.status.code() {
+        Some(0) => {}
+        Some(1) => {
+            let err = text(&o.stderr);
+            assert!(err.contains("block"), "{err}");
+        }
+        other => panic!("--no-block-checks: {other:?}\n{}", describe(&o)),
+    }
+    let o = run(oavm_trace().arg(&damaged).arg("--verify"));
+    let err = assert_failure(&o);
+    assert!(err.contains("checksum mismatch"), "{err}");
+}
+
+/// `oavm-inspect` shows a file's structure in words and in JSON, agreeing with the file; its
+/// `--verify` finds damage.
+#[test]
+fn inspect_shows_the_structure() {
+    let dir = TempDir::new().unwrap();
+    let (file, _) = pack_bunny(
+        dir.path(),
+        "bunny.oavm",
+        &["--block-size", "64K", "--compress"],
+    );
+    let inspect = || Command::new(env!("CARGO_BIN_EXE_oavm-inspect"));
+    let o = run(inspect().arg(&file));
+    assert_success(&o);
+    let words = text(&o.stdout);
+    for needle in [
+        "format",
+        "version 3",
+        "sections:",
+        "top tree:",
+        "blocks:",
+        "zstd",
+    ] {
+        assert!(words.contains(needle), "{needle}: {words}");
+    }
+    let o = run(inspect()
+        .arg(&file)
+        .args(["--json", "--blocks", "--levels", "--verify"]));
+    assert_success(&o);
+    let v = json_of(&o);
+    let scene = Scene::open(&file).unwrap();
+    let h = scene.file().header();
+    assert_eq!(v["header"]["version"], 3);
+    assert_eq!(uint(&v["directory"], "blocks"), h.block_count);
+    assert_eq!(v["blocks"].as_array().unwrap().len() as u64, h.block_count);
+    assert_eq!(v["sections"].as_array().unwrap().len(), 7);
+    let levels = v["tree_levels"].as_array().unwrap();
+    assert_eq!(levels.len() as u32, h.level_count);
+    let (mut empty, mut solid) = (0, 0);
+    for l in levels {
+        empty += uint(l, "empty");
+        solid += uint(l, "solid");
+    }
+    assert_eq!((empty, solid), (h.empty_leaves, h.solid_leaves));
+    assert_eq!(v["verify"]["defects"].as_array().unwrap().len(), 0);
+    let decoded: u64 = scene.file().directory().iter().map(|e| e.raw_len).sum();
+    assert_eq!(uint(&v["directory"], "decoded_bytes"), decoded);
+    // Damage: --verify fails and names the block.
+    let mut bytes = fs::read(&file).unwrap();
+    let e = scene.file().directory()[1];
+    bytes[(e.offset + 20) as usize] ^= 0xff;
+    let bad = dir.path().join("bad.oavm");
+    fs::write(&bad, &bytes).unwrap();
+    let o = run(inspect().arg(&bad).arg("--verify"));
+    let err = assert_failure(&o);
+    assert!(err.contains("block 1"), "{err}");
 }
