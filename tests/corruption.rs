@@ -1,4 +1,4 @@
-//! Corrupted `.oavm` files, version 2 (format-spec.md §11; the "Bad input"): truncated,
+//! Corrupted `.oavm` files, version 3 (format-spec.md §11; hostile input): truncated,
 //! extended, wrong magic or version (version 1 files included), a bit flipped anywhere, regions
 //! rewritten with their checksums recomputed (inside compressed blocks too: decoded, changed,
 //! recompressed), damaged block directory entries, links and frames, files held in misaligned
@@ -3024,7 +3024,7 @@ fn misaligned_buffers_give_errors_not_panics() {
 /// Regression: a rank word whose `rank` is at least `2^61` used to overflow `rank + popcount`
 /// and `rank * 8` in the tracer's descent and in verify: a panic with overflow checks on, a
 /// wrapped index otherwise. Now the arithmetic is checked and the answer is a corruption error.
-/// In version 2, in the top tree's rank words and in a block's (raw and compressed).
+/// In the top tree's rank words and in a block's (raw and compressed).
 #[test]
 fn huge_rank_in_a_rank_word_is_an_error_not_a_panic() {
     let mut problems = Vec::new();

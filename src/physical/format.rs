@@ -96,7 +96,7 @@ pub enum SectionKind {
     Blocks = 1,
     /// The block directory (spec §8).
     Directory = 2,
-    /// The top tree (spec §4, §7): level table, node records, rank words, volumes.
+    /// The top tree (spec §4, §8.1): level table, node records, rank words, volumes.
     Levels = 3,
     Nodes = 4,
     Ranks = 5,
@@ -350,7 +350,7 @@ pub enum NodeKind {
     },
     /// A node with 8 children at the next level.
     Internal,
-    /// Top tree only (spec §7): the node is root `root` of block `block`, where its subtree is.
+    /// Top tree only (spec §8.1): the node is root `root` of block `block`, where its subtree is.
     Link { block: u32, root: u32 },
 }
 
@@ -397,7 +397,7 @@ impl NodeRecord {
         }
     }
 
-    /// A top-tree node whose subtree is root `root` of block `block` (spec §7).
+    /// A top-tree node whose subtree is root `root` of block `block` (spec §8.1).
     pub fn link(block: u32, root: u32) -> NodeRecord {
         debug_assert!(root <= MAX_LINK_ROOT);
         NodeRecord {
@@ -514,15 +514,15 @@ pub struct TriRecord {
 }
 const _: () = assert!(std::mem::size_of::<TriRecord>() == 40);
 
-/// Spec §8: how a block's bytes are stored.
+/// Spec §8.2: how a block's bytes are stored.
 pub const CODEC_RAW: u32 = 0;
-/// Spec §8: one zstd frame whose content is the block's raw bytes.
+/// Spec §8.2: one zstd frame whose content is the block's raw bytes.
 pub const CODEC_ZSTD: u32 = 1;
-/// Spec §8: raw blocks start at multiples of this (a page), so that paging one block in or out
+/// Spec §8.2: raw blocks start at multiples of this (a page), so that paging one block in or out
 /// never touches another's pages.
 pub const RAW_BLOCK_ALIGN: u64 = 4096;
 
-/// Spec §8: one entry of the block directory (48 bytes).
+/// Spec §8.2: one entry of the block directory (48 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable, serde::Serialize)]
 pub struct BlockEntry {
@@ -553,12 +553,11 @@ pub const MAX_BLOCK_RAW_LEN: u64 = 1 << 30;
 /// claims more, so a small frame cannot make it decode (and hold) a great deal.
 pub const MAX_ZSTD_RATIO: u64 = 64;
 
-/// Spec §8: the tag that starts every block's raw bytes ("OBLK", little-endian).
+/// Spec §8.3: the tag that starts every block's raw bytes ("OBLK", little-endian).
 pub const BLOCK_TAG: u32 = u32::from_le_bytes(*b"OBLK");
 
-/// Spec §8: the header of a block's raw bytes (64 bytes). The block's records follow: its level
-/// table at offset 64, then nodes, ranks, volumes, refs and triangles, each at the next multiple
-/// of 64 from the block's start.
+/// Spec §8.3: the header of a block's raw bytes (64 bytes), followed by the block's records as
+/// [`block_layout`] places them.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
 pub struct BlockHeader {
@@ -579,8 +578,9 @@ pub struct BlockHeader {
 }
 const _: () = assert!(std::mem::size_of::<BlockHeader>() == 64);
 
-/// Spec §8: the byte ranges, from a block's start, of its level table, nodes, ranks, volumes,
-/// refs and triangles, and the block's raw length; `None` if the counts overflow.
+/// Spec §8.3: the byte ranges, from a block's start, of its level table, nodes, ranks, volumes,
+/// refs and triangles (each at the next multiple of [`SECTION_ALIGN`]), and the block's raw
+/// length; `None` if the counts overflow.
 pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; 6], u64)> {
     let sizes = [
         (h.level_count as u64, std::mem::size_of::<LevelEntry>()),

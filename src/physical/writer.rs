@@ -10,7 +10,7 @@ use bytemuck::Zeroable;
 use super::format::*;
 use crate::error::Error;
 
-/// The records of one unit: the top tree, or the subtrees of one block (spec §7, §8).
+/// The records of one unit: the top tree, or the subtrees of one block (spec §8.1, §8.3).
 #[derive(Clone, Debug, Default)]
 pub struct UnitParts {
     pub levels: Vec<LevelEntry>,
