@@ -107,11 +107,11 @@ impl RayShear {
         let t = t_scaled / det;
         // det == 0 gives t = NaN or inf; NaN fails the range test, and det != 0 is required.
         // Non-finite vertices (rejected by the builder) give NaN too; an infinite t is a miss.
-        let hit = (all_pos | all_neg) & (det != 0.0) & (t <= tmax) & (t < f32::INFINITY);
-        if hit && t >= tmin {
+        let inside = (all_pos | all_neg) & (det != 0.0);
+        if inside & (t >= tmin) & (t <= tmax) & (t != f32::INFINITY) {
             return Some(t);
         }
-        if !(hit && t < 0.0 && tmin <= 0.0) {
+        if !(inside && t < 0.0 && tmin <= 0.0 && tmax >= 0.0) {
             return None;
         }
         let sheared = Sheared {
@@ -228,17 +228,19 @@ impl RayShear {
         let (szaz, szbz, szcz) = (sz * az, sz * bz, sz * cz);
         let t_scaled = u * szaz + v * szbz + w * szcz;
         let t = t_scaled / det;
-        let hit = (all_pos | all_neg)
-            & det.cmpne(zero)
-            & t.cmple(Vec4::splat(tmax))
-            & t.cmplt(Vec4::splat(f32::INFINITY));
-        let short = hit.bitmask() & !t.cmpge(Vec4::splat(tmin)).bitmask();
-        let mut mask = hit.bitmask() & !short;
+        let inside = (all_pos | all_neg) & det.cmpne(zero);
+        let mut mask = (inside & t.cmpge(Vec4::splat(tmin)) & t.cmple(Vec4::splat(tmax))).bitmask();
+        if mask != 0 {
+            // A hit at an infinite t (a subnormal direction) is a miss. (Checked only when some
+            // lane hits, which most groups of four do not: the common path is the paper's.)
+            mask &= !t.cmpeq(Vec4::splat(f32::INFINITY)).bitmask();
+        }
         let mut ts = t.to_array();
         // Inside, but t just below 0 with 0 in range: within the rounding of t, a hit at 0
-        // (the scalar test's rule, lane by lane with the same values).
-        let near = if tmin <= 0.0 {
-            short & t.cmplt(zero).bitmask()
+        // (the scalar test's rule, lane by lane with the same values). Shadow rays, whose tmin
+        // is above 0, never look.
+        let near = if tmin <= 0.0 && tmax >= 0.0 {
+            (inside & t.cmplt(zero)).bitmask() & !mask
         } else {
             0
         };
