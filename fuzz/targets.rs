@@ -1,0 +1,353 @@
+//! The bodies of the fuzz targets: one plain function per target, taking the input bytes.
+//!
+//! Compiled into the fuzz binaries (`fuzz/fuzz_targets/*.rs`, as module `targets`) and into the
+//! stable test `tests/fuzz_corpus.rs` (`#[path = "../fuzz/targets.rs"] mod targets;`), so the
+//! committed corpus and regressions are replayed through exactly the code that fuzzed them.
+//!
+//! Every input is untrusted: each function returns normally whatever the bytes are (an `Err`
+//! from the library is a fine outcome). A panic, abort, hang or unbounded allocation is a bug.
+//! Uses only `oavm`, `rayon`, `xxhash-rust` and `zstd`, which are dependencies of the main crate
+//! (so the test can use them) and of the fuzz crate.
+
+#![allow(dead_code)] // each fuzz binary uses one of the functions
+
+use std::sync::OnceLock;
+
+use oavm::logical::SceneOptions;
+use oavm::physical::AlignedBytes;
+use oavm::{Hit, Ray, Scene};
+use xxhash_rust::xxh3::xxh3_64;
+
+/// The targets, by name: the names of `fuzz/fuzz_targets/*.rs`, of `fuzz/corpus/<name>/` and of
+/// `fuzz/regressions/<name>/`.
+pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+    ("ply", ply),
+    ("obj", obj),
+    ("aff", aff),
+    ("rays", rays),
+    ("oavm", oavm_file),
+    ("oavm_fixed", oavm_fixed),
+];
+
+// ---------------------------------------------------------------------------------------------
+// Meshes
+
+/// PLY: ascii, binary little- and big-endian (the header says which).
+pub fn ply(data: &[u8]) {
+    let _ = oavm::mesh::parse_ply(data, "fuzz.ply");
+}
+
+/// OBJ (through `tobj`, with the crate's own checks around it).
+pub fn obj(data: &[u8]) {
+    let _ = oavm::mesh::parse_obj(data, "fuzz.obj");
+}
+
+/// BART AFF, the single-file parser: includes are answered "not found" (no disk access, so a
+/// run is deterministic and cannot read the machine's files). Parsed at the scene's default
+/// time, then, if that succeeded, again at a time picked from the input's hash among values
+/// that exercise the keyframe code: before, between and after keys, and extreme ones.
+pub fn aff(data: &[u8]) {
+    let path = std::path::Path::new("fuzz/scene.aff");
+    let mut no_includes = |p: &std::path::Path| -> std::io::Result<Vec<u8>> {
+        Err(std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            format!("{}: includes are not read while fuzzing", p.display()),
+        ))
+    };
+    if oavm::mesh::parse_aff_with(data, path, None, &mut no_includes).is_err() {
+        return;
+    }
+    const TIMES: [f64; 10] = [-1.0, 0.0, 0.25, 1.0, 2.5, 7.0, 1e-300, -1e300, 1e300, f64::MAX];
+    let h = xxh3_64(data);
+    let time = if h & 1 == 0 {
+        TIMES[(h >> 1) as usize % TIMES.len()]
+    } else {
+        // A time in [-2, 20), in steps of 1/64.
+        ((h >> 1) % (22 * 64)) as f64 / 64.0 - 2.0
+    };
+    let _ = oavm::mesh::parse_aff_with(data, path, Some(time), &mut no_includes);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Ray, hit and occlusion files (`../shared/RAYS.md`)
+
+/// The three batch files: the magic picks which parse gets past the header.
+pub fn rays(data: &[u8]) {
+    let _ = oavm::rays::parse_records::<Ray>(data, b"RAYS");
+    let _ = oavm::rays::parse_records::<Hit>(data, b"HITS");
+    let _ = oavm::rays::parse_records::<u8>(data, b"OCCL");
+}
+
+// ---------------------------------------------------------------------------------------------
+// `.oavm` files
+
+/// An `.oavm` file as given: open, verify, trace [`probe_rays`] (closest and any hit); then
+/// opened again under a memory budget of one byte with block checks off (so that raw blocks are
+/// paged in without their checksum and their contents reach the tracer even in this target),
+/// traced in block order and as given.
+pub fn oavm_file(data: &[u8]) {
+    open_verify_trace(data);
+}
+
+/// An `.oavm` file whose checksums are recomputed first ([`fix_checksums`]), so that mutations
+/// get past the header, section and block checksums into the structural checks, `verify` and
+/// the tracer; then as [`oavm_file`].
+pub fn oavm_fixed(data: &[u8]) {
+    let mut bytes = AlignedBytes::from_slice(data);
+    fix_checksums(bytes.as_mut_slice());
+    open_verify_trace(bytes.as_ref());
+}
+
+fn open_verify_trace(data: &[u8]) {
+    pool().install(|| {
+        if let Ok(scene) = Scene::from_bytes(AlignedBytes::from_slice(data), "fuzz.oavm") {
+            let _ = scene.verify();
+            trace(&scene, false);
+        }
+        let tiny = SceneOptions {
+            mem_budget: 1,
+            threads: 1,
+            check_blocks: false,
+        };
+        if let Ok(scene) = Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &tiny)
+        {
+            trace(&scene, true);
+        }
+    });
+}
+
+/// One thread: fuzzing wants runs that are deterministic and cost one core.
+fn pool() -> &'static rayon::ThreadPool {
+    static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
+    POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("a one-thread rayon pool")
+    })
+}
+
+fn trace(scene: &Scene<AlignedBytes>, blocks_order: bool) {
+    let h = scene.file().header();
+    let rays = probe_rays(h.mesh_min, h.mesh_max);
+    let mut hits = vec![Hit::MISS; rays.len()];
+    let mut occluded = vec![0u8; rays.len()];
+    if blocks_order {
+        let _ = scene.intersect_batch_ordered(&rays, &mut hits, oavm::logical::Order::Blocks);
+    } else {
+        let _ = scene.intersect_batch(&rays, &mut hits);
+    }
+    let _ = scene.occluded_batch(&rays, &mut occluded);
+}
+
+/// Number of rays of [`probe_rays`] spread over the mesh's box (the degenerate ones follow).
+pub const SPREAD_RAYS: usize = 64;
+
+/// A fixed set of rays for a file whose header gives the mesh box `lo..hi`: [`SPREAD_RAYS`]
+/// deterministic rays from points around and inside the box towards points in the box (some
+/// with finite `tmax`, some axis-aligned), then degenerate ones: along the box's edges and
+/// faces, starting on a corner, invalid (NaN, infinite, zero direction, `tmin > tmax`), and with
+/// tiny and huge directions. The box comes from the file, so it may be anything; arithmetic is
+/// in f64 and rounded to f32 (infinities make invalid rays, which must miss).
+pub fn probe_rays(lo: [f32; 3], hi: [f32; 3]) -> Vec<Ray> {
+    let lo = lo.map(f64::from);
+    let hi = hi.map(f64::from);
+    let ext: [f64; 3] = std::array::from_fn(|k| hi[k] - lo[k]);
+    let diag = ext.iter().map(|e| e * e).sum::<f64>().sqrt().max(1e-3);
+    let centre: [f64; 3] = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+    let mut state = 0x0a5f_17e5_u64;
+    let mut unit = move || {
+        // SplitMix64 (Steele, Lea, Flood 2014), uniform in [0, 1).
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    };
+    let f = |v: [f64; 3]| v.map(|c| c as f32);
+    let mut rays = Vec::with_capacity(SPREAD_RAYS + 32);
+    for i in 0..SPREAD_RAYS {
+        // From a point in the box grown by half its diagonal on every side (inside or out)...
+        let origin: [f64; 3] =
+            std::array::from_fn(|k| lo[k] - 0.5 * diag + (ext[k] + diag) * unit());
+        // ... towards a point of the box.
+        let target: [f64; 3] = std::array::from_fn(|k| lo[k] + ext[k] * unit());
+        let mut dir: [f64; 3] = std::array::from_fn(|k| target[k] - origin[k]);
+        if i % 8 == 7 {
+            // Axis-aligned: exact ties with cell faces.
+            let k = i / 8 % 3;
+            dir = [0.0; 3];
+            dir[k] = if i % 16 == 7 { 1.0 } else { -1.0 };
+        }
+        let tmax = if i % 4 == 3 { 0.5 } else { f64::INFINITY };
+        rays.push(Ray::new(f(origin), f(dir), 0.0, tmax as f32));
+    }
+    let inf = f32::INFINITY;
+    let (l, h, c) = (f(lo), f(hi), f(centre));
+    let x = [1.0, 0.0, 0.0];
+    let d = [1.0, 1.0, 1.0];
+    rays.extend([
+        // Along the box's edges and faces, and from its corners.
+        Ray::new(l, x, 0.0, inf),
+        Ray::new(l, [0.0, 1.0, 0.0], 0.0, inf),
+        Ray::new(l, [0.0, 0.0, 1.0], 0.0, inf),
+        Ray::new(h, [-1.0, 0.0, 0.0], 0.0, inf),
+        Ray::new(l, d, 0.0, inf),
+        Ray::new(h, [-1.0, -1.0, -1.0], 0.0, inf),
+        Ray::new([l[0], c[1], c[2]], [-1.0, 0.0, 0.0], -inf, inf),
+        Ray::new(c, [1.0, 1.0, 0.0], 0.0, inf),
+        // From the centre: a point, zero length, negative range, tiny and huge directions.
+        Ray::new(c, d, 0.0, 0.0),
+        Ray::new(c, d, 1.0, 1.0),
+        Ray::new(c, d, -inf, -1.0),
+        Ray::new(c, [1e-30, 1e-30, 1e-30], 0.0, inf),
+        Ray::new(c, [1e-45, 0.0, 0.0], 0.0, inf),
+        Ray::new(c, [1e30, -1e30, 1e30], 0.0, inf),
+        Ray::new(c, [-3.4e38, 3.4e38, 1.0], 0.0, inf),
+        // Invalid: must miss.
+        Ray::new(c, [0.0; 3], 0.0, inf),
+        Ray::new([f32::NAN; 3], d, 0.0, inf),
+        Ray::new(c, [f32::NAN, 1.0, 1.0], 0.0, inf),
+        Ray::new(c, [inf, 1.0, 1.0], 0.0, inf),
+        Ray::new([inf, 0.0, 0.0], d, 0.0, inf),
+        Ray::new(c, d, 2.0, 1.0),
+        Ray::new(c, d, f32::NAN, inf),
+        Ray::new(c, d, 0.0, f32::NAN),
+        // Far away, towards the box, and with tmin beyond the box.
+        Ray::new(f([centre[0] - 1e6 * diag, centre[1], centre[2]]), x, 0.0, inf),
+        Ray::new(f([centre[0] - 1e6 * diag, centre[1], centre[2]]), x, 1e12, inf),
+        Ray::new(f([-3e38, centre[1], centre[2]]), x, 0.0, inf),
+    ]);
+    rays
+}
+
+// ---------------------------------------------------------------------------------------------
+// Recomputing an `.oavm` file's checksums (format-spec.md §1-§3, §8.2)
+
+// Offsets, from format-spec.md (a mismatch with the code would only make the fuzzing weaker,
+// never wrong: everything here is bounds-checked).
+/// §2: the header's size, where the section table starts.
+const HEADER_LEN: usize = 256;
+/// §2: `file_size`.
+const HEADER_FILE_SIZE: usize = 32;
+/// §2: `checksum`, of header bytes `0..248` then the section table.
+const HEADER_CHECKSUM: usize = 248;
+/// §3: seven 48-byte section entries.
+const SECTIONS: usize = 7;
+const ENTRY_LEN: usize = 48;
+const TABLE_END: usize = HEADER_LEN + SECTIONS * ENTRY_LEN;
+/// §3: fields of a section entry.
+const ENTRY_OFFSET: usize = 8;
+const ENTRY_LENGTH: usize = 16;
+const ENTRY_CHECKSUM: usize = 40;
+/// §3: the directory is the second section (index 1); the blocks (index 0) have no checksum.
+const DIRECTORY: usize = 1;
+/// §8.2: 48-byte directory entries and their fields.
+const DIR_LEN: usize = 48;
+const DIR_OFFSET: usize = 0;
+const DIR_STORED_LEN: usize = 8;
+const DIR_RAW_LEN: usize = 16;
+const DIR_CODEC: usize = 24;
+const DIR_CHECKSUM: usize = 40;
+/// §8.2: codec 1 is zstd; §8.3: a decoded block starts with the tag `OBLK`.
+const CODEC_ZSTD: u32 = 1;
+const BLOCK_TAG: &[u8; 4] = b"OBLK";
+/// At most this many directory entries are fixed up (each costs a hash of its block).
+const MAX_FIXED_BLOCKS: usize = 4096;
+
+fn read_u32(b: &[u8], at: usize) -> Option<u32> {
+    Some(u32::from_le_bytes(b.get(at..at.checked_add(4)?)?.try_into().ok()?))
+}
+
+fn read_u64(b: &[u8], at: usize) -> Option<u64> {
+    Some(u64::from_le_bytes(b.get(at..at.checked_add(8)?)?.try_into().ok()?))
+}
+
+fn write_u64(b: &mut [u8], at: usize, v: u64) {
+    if let Some(dst) = at.checked_add(8).and_then(|end| b.get_mut(at..end)) {
+        dst.copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+/// `at..at + len` if it lies inside a buffer of `size` bytes.
+fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
+    let end = at.checked_add(len)?;
+    (end <= size as u64).then(|| at as usize..end as usize)
+}
+
+/// Rewrites `b` as a tool that edits a file in place would, so that only the structural checks
+/// can tell what changed:
+///
+/// 1. `file_size` (§2) is set to the buffer's length (so inserting or removing bytes still gets
+///    past the first header check);
+/// 2. every directory entry (§8.2, in the directory section as the section table places it)
+///    whose stored bytes lie in the file gets their checksum. A block marked zstd (codec 1) whose
+///    stored bytes are a decoded block (they start with the tag `OBLK`, §8.3) is compressed
+///    first, in place: the frame is written at its offset, the rest of its old bytes zeroed,
+///    `stored_len` and `raw_len` set. So a seed whose blocks are raw but marked zstd lets the
+///    mutator change the *contents* of compressed blocks, which it could not reach through a
+///    frame's bytes;
+/// 3. every section's checksum but the blocks' (§3), over the range its entry gives;
+/// 4. the header checksum (§2): header bytes 0..248, then the section table.
+///
+/// Ranges that are not inside the buffer are left alone (open or the pager rejects them).
+pub fn fix_checksums(b: &mut [u8]) {
+    if b.len() < TABLE_END {
+        return;
+    }
+    write_u64(b, HEADER_FILE_SIZE, b.len() as u64);
+    let dir_entry = HEADER_LEN + DIRECTORY * ENTRY_LEN;
+    let (Some(dir_at), Some(dir_len)) = (
+        read_u64(b, dir_entry + ENTRY_OFFSET),
+        read_u64(b, dir_entry + ENTRY_LENGTH),
+    ) else {
+        return;
+    };
+    if let Some(dir) = range(dir_at, dir_len, b.len()) {
+        for i in 0..(dir.len() / DIR_LEN).min(MAX_FIXED_BLOCKS) {
+            let e = dir.start + i * DIR_LEN;
+            let (Some(at), Some(len), Some(codec)) = (
+                read_u64(b, e + DIR_OFFSET),
+                read_u64(b, e + DIR_STORED_LEN),
+                read_u32(b, e + DIR_CODEC),
+            ) else {
+                continue;
+            };
+            let Some(stored) = range(at, len, b.len()) else {
+                continue;
+            };
+            if codec == CODEC_ZSTD && b[stored.clone()].starts_with(BLOCK_TAG) {
+                if let Ok(frame) = zstd::bulk::compress(&b[stored.clone()], 1)
+                    && frame.len() <= stored.len()
+                {
+                    let raw_len = stored.len() as u64;
+                    b[stored.clone()].fill(0);
+                    b[stored.start..stored.start + frame.len()].copy_from_slice(&frame);
+                    write_u64(b, e + DIR_STORED_LEN, frame.len() as u64);
+                    write_u64(b, e + DIR_RAW_LEN, raw_len);
+                }
+                let len = read_u64(b, e + DIR_STORED_LEN).unwrap_or(0);
+                let sum = xxh3_64(&b[stored.start..stored.start + len as usize]);
+                write_u64(b, e + DIR_CHECKSUM, sum);
+                continue;
+            }
+            let sum = xxh3_64(&b[stored]);
+            write_u64(b, e + DIR_CHECKSUM, sum);
+        }
+    }
+    for i in DIRECTORY..SECTIONS {
+        let e = HEADER_LEN + i * ENTRY_LEN;
+        let (Some(at), Some(len)) = (read_u64(b, e + ENTRY_OFFSET), read_u64(b, e + ENTRY_LENGTH))
+        else {
+            continue;
+        };
+        if let Some(r) = range(at, len, b.len()) {
+            let sum = xxh3_64(&b[r]);
+            write_u64(b, e + ENTRY_CHECKSUM, sum);
+        }
+    }
+    let mut covered = Vec::with_capacity(HEADER_CHECKSUM + SECTIONS * ENTRY_LEN);
+    covered.extend_from_slice(&b[..HEADER_CHECKSUM]);
+    covered.extend_from_slice(&b[HEADER_LEN..TABLE_END]);
+    write_u64(b, HEADER_CHECKSUM, xxh3_64(&covered));
+}
