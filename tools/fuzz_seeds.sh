@@ -45,7 +45,7 @@ open(f"{tmp}/bunny600.ply", "w").write("\n".join(out) + "\n")
 EOF
 cp "$seeds/ply/dragon60_ascii.ply" "$tmp/dragon60.ply"
 cp "$scenes/cornell_box/CornellBox-Original.obj" "$tmp/cornell.obj"
-cp "$seeds/aff/statements.aff" "$tmp/statements.aff"
+cp "$seeds/aff/museum_block.aff" "$seeds/aff/keys_only.aff" "$tmp/"
 
 # Ray files: random, primary and shadow rays of a small mesh; hits and occlusion answers of them.
 (cd "$tmp" && "$bin/examples/rays" dragon60.ply dragon --random 16 --width 4 --height 3 >/dev/null)
@@ -57,12 +57,13 @@ pack() { # NAME MESH ARGS...
 pack cornell cornell.obj
 pack cornell_z cornell.obj --compress
 pack dragon60_4k dragon60.ply --block-size 4K
-pack dragon60_leaf1 dragon60.ply --leaf-size 1 --max-depth 8
+pack dragon60_leaf2 dragon60.ply --leaf-size 2 --max-depth 6 --block-size 16K
+pack dragon60_leaf1_z dragon60.ply --leaf-size 1 --max-depth 7 --compress
 pack bunny600_4k bunny600.ply --block-size 4K
 pack bunny600_4k_z bunny600.ply --block-size 4K --compress=1
-pack bunny600_nomerge bunny600.ply --block-size 4K --no-merge --leaf-size 4
-pack statements statements.aff --block-size 4K
-pack statements_t statements.aff --block-size 4K --time 1.5
+pack dragon60_nomerge dragon60.ply --block-size 4K --no-merge --leaf-size 4
+pack museum_block museum_block.aff --block-size 4K
+pack keys_t keys_only.aff --time 0.5
 for s in random primary shadow; do
     cp "$tmp/dragon.$s.rays" "$seeds/rays/"
 done
@@ -86,7 +87,7 @@ done
 # For oavm_fixed: raw files whose blocks are all marked zstd (codec 1) and the header flagged
 # COMPRESSED; the target's fix-up compresses such blocks before opening (fuzz/targets.rs,
 # fix_checksums), so mutations reach the decoded contents of compressed blocks.
-python3 - "$seeds/oavm_fixed" "$tmp"/cornell.oavm "$tmp"/bunny600_4k.oavm "$tmp"/statements.oavm <<'EOF'
+python3 - "$seeds/oavm_fixed" "$tmp"/cornell.oavm "$tmp"/bunny600_4k.oavm "$tmp"/museum_block.oavm <<'EOF'
 import os, struct, sys
 out = sys.argv[1]
 for path in sys.argv[2:]:
