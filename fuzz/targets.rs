@@ -240,7 +240,8 @@ const TABLE_END: usize = HEADER_LEN + SECTIONS * ENTRY_LEN;
 const ENTRY_OFFSET: usize = 8;
 const ENTRY_LENGTH: usize = 16;
 const ENTRY_CHECKSUM: usize = 40;
-/// §3: the directory is the second section (index 1); the blocks (index 0) have no checksum.
+/// §3: the blocks are the first section (index 0, no checksum), the directory the second.
+const BLOCKS: usize = 0;
 const DIRECTORY: usize = 1;
 /// §8.2: 48-byte directory entries and their fields.
 const DIR_LEN: usize = 48;
@@ -284,9 +285,9 @@ fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
 ///    whose stored bytes lie in the file gets their checksum. A block marked zstd (codec 1) whose
 ///    stored bytes are a decoded block (they start with the tag `OBLK`, §8.3) is compressed
 ///    first, in place: the frame is written at its offset, the rest of its old bytes zeroed,
-///    `stored_len` and `raw_len` set. So a seed whose blocks are raw but marked zstd lets the
-///    mutator change the *contents* of compressed blocks, which it could not reach through a
-///    frame's bytes;
+///    `stored_len` and `raw_len` set (and the blocks section's length, if the block ended it).
+///    So a seed whose blocks are raw but marked zstd lets the mutator change the *contents* of
+///    compressed blocks, which it could not reach through a frame's bytes;
 /// 3. every section's checksum but the blocks' (§3), over the range its entry gives;
 /// 4. the header checksum (§2): header bytes 0..248, then the section table.
 ///
@@ -325,6 +326,18 @@ pub fn fix_checksums(b: &mut [u8]) {
                     b[stored.start..stored.start + frame.len()].copy_from_slice(&frame);
                     write_u64(b, e + DIR_STORED_LEN, frame.len() as u64);
                     write_u64(b, e + DIR_RAW_LEN, raw_len);
+                    // A block that ended the blocks section still ends it (§2: no padding
+                    // after the last block).
+                    let blocks = HEADER_LEN + BLOCKS * ENTRY_LEN;
+                    if let (Some(at), Some(len)) = (
+                        read_u64(b, blocks + ENTRY_OFFSET),
+                        read_u64(b, blocks + ENTRY_LENGTH),
+                    ) && at.checked_add(len) == Some(stored.end as u64)
+                        && at <= stored.start as u64
+                    {
+                        let end = (stored.start + frame.len()) as u64;
+                        write_u64(b, blocks + ENTRY_LENGTH, end - at);
+                    }
                 }
                 let len = read_u64(b, e + DIR_STORED_LEN).unwrap_or(0);
                 let sum = xxh3_64(&b[stored.start..stored.start + len as usize]);

@@ -31,7 +31,7 @@ TARGETS=(oavm_fixed oavm ply aff obj rays)
 
 max_len() {
     case $1 in
-    oavm | oavm_fixed) echo 131072 ;;
+    oavm | oavm_fixed) echo 32768 ;;
     rays) echo 8192 ;;
     *) echo 16384 ;;
     esac

@@ -1,12 +1,16 @@
 #!/usr/bin/env python3
-"""Writes the seed inputs of the fuzz targets that are cut from the test scenes or written by hand.
+"""Seed inputs of the fuzz targets, for tools/fuzz_seeds.sh.
 
-    tools/fuzz_seeds.py SCENES OUT
+    tools/fuzz_seeds.py meshes SCENES OUT    mesh seeds cut from the scenes or written by hand,
+                                             into OUT/ply, OUT/obj, OUT/aff
+    tools/fuzz_seeds.py cuts SCENES DIR      DIR/dragon20.ply, DIR/dragon200.ply: the first 20
+                                             and 200 triangles of the dragon, to pack
+    tools/fuzz_seeds.py zmark OUT FILE...    for each raw .oavm FILE, OUT/<name>_zmark.oavm
+                                             (see zmark below)
 
-SCENES is ../shared/scenes; OUT gets one folder per target (ply, obj, aff). The ray files and
-.oavm seeds are made by the project's own binaries (tools/fuzz_seeds.sh calls this script, then
-those). Seeds are small on purpose: libFuzzer mutates small inputs much faster, and the parsers'
-paths do not depend on a file's length.
+SCENES is ../shared/scenes. The ray files and .oavm seeds are made by the project's own binaries
+(tools/fuzz_seeds.sh). Seeds are small on purpose: libFuzzer mutates small inputs much faster,
+and the parsers' paths do not depend on a file's length.
 """
 
 import os
@@ -14,7 +18,71 @@ import re
 import struct
 import sys
 
-SCENES, OUT = sys.argv[1], sys.argv[2]
+
+
+def dragon_cuts(scenes, out):
+    text = open(f"{scenes}/dragon/dragon_vrip_res4.ply").read()
+    head, body = text.split("end_header\n", 1)
+    rows = body.splitlines()
+    nv = int(re.search(r"element vertex (\d+)", head).group(1))
+    verts, faces = rows[:nv], [list(map(int, r.split()[1:])) for r in rows[nv:]]
+    for n in (20, 200):
+        part = faces[:n]
+        used = {}
+        for f in part:
+            for i in f:
+                used.setdefault(i, len(used))
+        order = sorted(used, key=used.get)
+        lines = ["ply", "format ascii 1.0", f"element vertex {len(order)}", "property float x",
+                 "property float y", "property float z", f"element face {len(part)}",
+                 "property list uchar int vertex_indices", "end_header"]
+        lines += [verts[i].strip() for i in order]
+        lines += ["3 " + " ".join(str(used[i]) for i in f) for f in part]
+        with open(f"{out}/dragon{n}.ply", "w") as fh:
+            fh.write("\n".join(lines) + "\n")
+
+
+def zmark(out, paths):
+    """Raw .oavm files with every block marked zstd (codec 1) and the header flagged COMPRESSED.
+
+    The oavm_fixed target's fix-up compresses such blocks before opening (fuzz/targets.rs,
+    fix_checksums), so mutations reach the decoded contents of compressed blocks. Laid out again
+    with every block and section at the next multiple of 64 (what §8.2 asks of compressed
+    blocks), not of 4096, to keep them small; the fix-up recomputes the checksums."""
+    up = lambda x: (x + 63) // 64 * 64
+    entry = lambda i: 256 + 48 * i  # §3: section entry i
+    for path in paths:
+        with open(path, "rb") as fh:
+            b = fh.read()
+        sec = [struct.unpack_from("<QQ", b, entry(i) + 8) for i in range(7)]
+        new = bytearray(b[:sec[0][0]])
+        struct.pack_into("<I", new, 12, struct.unpack_from("<I", b, 12)[0] | 2)  # §2: COMPRESSED
+        directory = bytearray(b[sec[1][0]:sec[1][0] + sec[1][1]])
+        for e in range(0, len(directory), 48):  # §8.2: each block, 64-aligned
+            off, stored = struct.unpack_from("<QQ", directory, e)
+            new += bytes(up(len(new)) - len(new))
+            struct.pack_into("<Q", directory, e, len(new))
+            struct.pack_into("<I", directory, e + 24, 1)  # codec: zstd
+            new += b[off:off + stored]
+        struct.pack_into("<QQ", new, entry(0) + 8, sec[0][0], len(new) - sec[0][0])
+        for i in range(1, 7):
+            new += bytes(up(len(new)) - len(new))
+            struct.pack_into("<Q", new, entry(i) + 8, len(new))
+            new += directory if i == 1 else b[sec[i][0]:sec[i][0] + sec[i][1]]
+        struct.pack_into("<Q", new, 32, len(new))  # §2: file_size
+        name = os.path.basename(path).replace(".oavm", "_zmark.oavm")
+        with open(os.path.join(out, name), "wb") as fh:
+            fh.write(new)
+
+
+if sys.argv[1] == "cuts":
+    dragon_cuts(sys.argv[2], sys.argv[3])
+    sys.exit(0)
+if sys.argv[1] == "zmark":
+    zmark(sys.argv[2], sys.argv[3:])
+    sys.exit(0)
+assert sys.argv[1] == "meshes", __doc__
+SCENES, OUT = sys.argv[2], sys.argv[3]
 
 
 def write(target, name, data):
