@@ -27,6 +27,7 @@ pub const TARGETS: &[(&str, fn(&[u8]))] = &[
     ("rays", rays),
     ("oavm", oavm_file),
     ("oavm_fixed", oavm_fixed),
+    ("pack", pack),
 ];
 
 // ---------------------------------------------------------------------------------------------
@@ -66,6 +67,61 @@ pub fn aff(data: &[u8]) {
         ((h >> 1) % (22 * 64)) as f64 / 64.0 - 2.0
     };
     let _ = oavm::mesh::parse_aff_with(data, path, Some(time), &mut no_includes);
+}
+
+/// Most triangles [`pack`] builds a tree of (building is the slow part).
+pub const PACK_MAX_TRIANGLES: usize = 512;
+
+/// A PLY mesh (any bytes), packed as `oavm-pack` would: parsed, built with options picked from
+/// the input's hash (depth 2 to 6, or 10 for at most 32 triangles; leaf size 1 to 8; merged or
+/// not), encoded in 4 KiB blocks raw or compressed, opened and verified. Mesh bytes are
+/// untrusted, so the builder must give an error or a file, and **a file our own builder wrote
+/// must verify clean**: a defect panics (it is a bug of the builder, the writer or verify).
+/// Then the probe rays are traced. Meshes of more than [`PACK_MAX_TRIANGLES`] are not built.
+pub fn pack(data: &[u8]) {
+    use oavm::physical::writer::{BlockOptions, encode_with};
+    let Ok(mesh) = oavm::mesh::parse_ply(data, "fuzz.ply") else {
+        return;
+    };
+    if mesh.triangles.len() > PACK_MAX_TRIANGLES {
+        return;
+    }
+    let h = xxh3_64(data);
+    let opts = oavm::BuildOptions {
+        max_depth: if mesh.triangles.len() <= 32 && h & 3 == 0 {
+            10
+        } else {
+            2 + 2 * ((h >> 2) % 3) as u32
+        },
+        leaf_size: 1 << ((h >> 4) % 4),
+        merge: h >> 6 & 1 == 0,
+    };
+    let blocks = BlockOptions {
+        block_size: 4096,
+        compress: (h >> 7 & 1 == 0).then_some(1),
+    };
+    pool().install(|| {
+        let Ok((parts, _)) = oavm::build::build(&mesh, &opts, &|_| {}) else {
+            return;
+        };
+        let Ok(file) = encode_with(&parts, &blocks) else {
+            return;
+        };
+        let scene = Scene::from_bytes(file, "fuzz.oavm")
+            .unwrap_or_else(|e| panic!("a file the builder wrote ({opts:?}, {blocks:?}) does not open: {e}"));
+        let report = scene.verify();
+        assert!(
+            report.is_ok(),
+            "a file the builder wrote ({opts:?}, {blocks:?}) has defects: {:?}",
+            report.defects
+        );
+        let h = scene.file().header();
+        let rays = probe_rays(h.mesh_min, h.mesh_max);
+        let mut hits = vec![Hit::MISS; rays.len()];
+        scene
+            .intersect_batch(&rays, &mut hits)
+            .unwrap_or_else(|e| panic!("tracing a file the builder wrote fails: {e}"));
+    });
 }
 
 // ---------------------------------------------------------------------------------------------

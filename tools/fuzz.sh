@@ -11,7 +11,9 @@
 #                                       30) or it has run --max minutes (default 240)
 #   tools/fuzz.sh status                progress of every target from its log
 #   tools/fuzz.sh cmin TARGET|all       minimise what fuzzing found, with the committed corpus,
-#                                       into fuzz/corpus/TARGET/ (the corpus tests replay)
+#                                       into fuzz/corpus/TARGET/ (the corpus tests replay): the
+#                                       smallest inputs that cover every edge covered
+#                                       (-use_counters=0)
 #
 # Where things go (none of it committed but fuzz/corpus/):
 #   fuzz/logs/TARGET.log       libFuzzer's output of the latest run of TARGET
@@ -27,7 +29,7 @@ cd "$(dirname "$0")/.."
 root=$PWD
 fuzz=$root/fuzz
 bin=$fuzz/target/x86_64-unknown-linux-gnu/release
-TARGETS=(oavm_fixed oavm ply aff obj rays)
+TARGETS=(oavm_fixed oavm pack ply aff obj rays)
 
 max_len() {
     case $1 in
@@ -160,7 +162,10 @@ cmin() { # TARGET: merge the committed corpus and fuzz/work/corpus into a new mi
     [ -x "$bin/$t" ] || die "$bin/$t is not built: run tools/fuzz.sh build"
     rm -rf "$new"
     mkdir -p "$new" "$fuzz/corpus/$t" "$fuzz/work/corpus/$t"
-    nice -n 19 "$bin/$t" -merge=1 -rss_limit_mb=2048 -timeout=10 -max_len="$(max_len "$t")" \
+    # -use_counters=0: one input per coverage edge, not per hit-count bucket of an edge (ft),
+    # which keeps the committed corpus to a few MB; fuzz/work/corpus keeps everything.
+    nice -n 19 "$bin/$t" -merge=1 -use_counters=0 -rss_limit_mb=2048 -timeout=10 \
+        -max_len="$(max_len "$t")" \
         "$new" "$fuzz/corpus/$t" "$fuzz/work/corpus/$t" >"$fuzz/logs/$t.cmin.log" 2>&1 ||
         die "merge of $t failed, see fuzz/logs/$t.cmin.log"
     rm -rf "$fuzz/corpus/$t"

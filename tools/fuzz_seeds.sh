@@ -15,7 +15,7 @@ root=$PWD
 scenes=$root/../shared/scenes
 seeds=$root/fuzz/work/seeds
 rm -rf "$seeds"
-mkdir -p "$seeds"/{ply,obj,aff,rays,oavm,oavm_fixed}
+mkdir -p "$seeds"/{ply,obj,aff,rays,oavm,oavm_fixed,pack}
 python3 tools/fuzz_seeds.py meshes "$scenes" "$seeds"
 
 nice -n 19 cargo build --release --quiet --bins --example rays
@@ -25,6 +25,8 @@ trap 'rm -rf "$tmp"' EXIT
 
 python3 tools/fuzz_seeds.py cuts "$scenes" "$tmp"
 cp "$seeds/ply/dragon60_ascii.ply" "$tmp/dragon60.ply"
+# pack builds PLY meshes: the PLY seeds and the cuts.
+cp "$seeds"/ply/* "$tmp"/dragon20.ply "$tmp"/dragon200.ply "$seeds/pack/"
 cp "$scenes/cornell_box/CornellBox-Original.obj" "$tmp/cornell.obj"
 cp "$seeds/aff/museum_block.aff" "$seeds/aff/keys_only.aff" "$tmp/"
 
