@@ -18,9 +18,12 @@ use oavm::physical::AlignedBytes;
 use oavm::{Hit, Ray, Scene};
 use xxhash_rust::xxh3::xxh3_64;
 
+/// A target: its name and its body.
+pub type Target = (&'static str, fn(&[u8]));
+
 /// The targets, by name: the names of `fuzz/fuzz_targets/*.rs`, of `fuzz/corpus/<name>/` and of
 /// `fuzz/regressions/<name>/`.
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[Target] = &[
     ("ply", ply),
     ("obj", obj),
     ("aff", aff),
@@ -58,7 +61,18 @@ pub fn aff(data: &[u8]) {
     if oavm::mesh::parse_aff_with(data, path, None, &mut no_includes).is_err() {
         return;
     }
-    const TIMES: [f64; 10] = [-1.0, 0.0, 0.25, 1.0, 2.5, 7.0, 1e-300, -1e300, 1e300, f64::MAX];
+    const TIMES: [f64; 10] = [
+        -1.0,
+        0.0,
+        0.25,
+        1.0,
+        2.5,
+        7.0,
+        1e-300,
+        -1e300,
+        1e300,
+        f64::MAX,
+    ];
     let h = xxh3_64(data);
     let time = if h & 1 == 0 {
         TIMES[(h >> 1) as usize % TIMES.len()]
@@ -77,7 +91,10 @@ pub const PACK_MAX_TRIANGLES: usize = 512;
 /// not), encoded in 4 KiB blocks raw or compressed, opened and verified. Mesh bytes are
 /// untrusted, so the builder must give an error or a file, and **a file our own builder wrote
 /// must verify clean**: a defect panics (it is a bug of the builder, the writer or verify).
-/// Then the probe rays are traced. Meshes of more than [`PACK_MAX_TRIANGLES`] are not built.
+/// Then the probe rays are traced, closest and any hit, and **must agree with brute force**
+/// over the mesh ([`agree`]): the tracer shares only the triangle test with it, so a
+/// disagreement is a ray the traversal lost. Meshes of more than [`PACK_MAX_TRIANGLES`] are not
+/// built.
 pub fn pack(data: &[u8]) {
     use oavm::physical::writer::{BlockOptions, encode_with};
     let Ok(mesh) = oavm::mesh::parse_ply(data, "fuzz.ply") else {
@@ -107,8 +124,9 @@ pub fn pack(data: &[u8]) {
         let Ok(file) = encode_with(&parts, &blocks) else {
             return;
         };
-        let scene = Scene::from_bytes(file, "fuzz.oavm")
-            .unwrap_or_else(|e| panic!("a file the builder wrote ({opts:?}, {blocks:?}) does not open: {e}"));
+        let scene = Scene::from_bytes(file, "fuzz.oavm").unwrap_or_else(|e| {
+            panic!("a file the builder wrote ({opts:?}, {blocks:?}) does not open: {e}")
+        });
         let report = scene.verify();
         assert!(
             report.is_ok(),
@@ -118,10 +136,60 @@ pub fn pack(data: &[u8]) {
         let h = scene.file().header();
         let rays = probe_rays(h.mesh_min, h.mesh_max);
         let mut hits = vec![Hit::MISS; rays.len()];
+        let mut occluded = vec![0u8; rays.len()];
         scene
             .intersect_batch(&rays, &mut hits)
+            .and_then(|_| scene.occluded_batch(&rays, &mut occluded))
             .unwrap_or_else(|e| panic!("tracing a file the builder wrote fails: {e}"));
+        // The reference: every ray against every triangle, with the same watertight test.
+        let (lo, hi) = (h.mesh_min, h.mesh_max);
+        let diagonal = (0..3)
+            .map(|k| (f64::from(hi[k]) - f64::from(lo[k])).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let centre: [f64; 3] = std::array::from_fn(|k| 0.5 * (f64::from(lo[k]) + f64::from(hi[k])));
+        for (i, ray) in rays.iter().enumerate() {
+            // Known limit, not checked: an origin more than ~2^32 root cubes away loses its hits
+            // (the entry point `o + t0 * d` is computed in f64 in lattice units, trace.rs
+            // `Tree::start`, and cancels catastrophically; see the fuzzing report).
+            let far = (0..3).any(|k| {
+                (f64::from(ray.origin[k]) - centre[k]).abs() > FAR_ORIGIN * diagonal.max(1e-30)
+            });
+            if far {
+                continue;
+            }
+            let want = oavm::geom::brute::intersect(&mesh, ray);
+            let want_occluded = oavm::geom::brute::occluded(&mesh, ray);
+            assert!(
+                agree(&hits[i], &want, ray, diagonal) && (occluded[i] != 0) == want_occluded,
+                "probe ray {i} {ray:?} ({opts:?}, {blocks:?}): oavm {:?} occluded {}, brute \
+                 force {want:?} occluded {want_occluded}",
+                hits[i],
+                occluded[i]
+            );
+        }
     });
+}
+
+/// Rays of [`pack`] whose origin is more than this many mesh diagonals from the mesh's box are
+/// not compared with brute force (a known precision limit of the tracer, see [`pack`]).
+pub const FAR_ORIGIN: f64 = (1u64 << 28) as f64;
+
+/// `RAYS.md`'s agreement rule, with the distance along the ray (`t` times the direction's
+/// length: the probe rays' directions are not unit) in place of `t`: both miss, or both hit at
+/// points at most `1e-4` of the mesh's diagonal apart along the ray.
+fn agree(a: &Hit, b: &Hit, ray: &Ray, diagonal: f64) -> bool {
+    let len = ray
+        .dir
+        .iter()
+        .map(|&d| f64::from(d).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    a.is_hit() == b.is_hit()
+        && (!a.is_hit()
+            || a.t == b.t
+            || (f64::from(a.t) - f64::from(b.t)).abs() * len
+                <= oavm::geom::ray::AGREEMENT_TOLERANCE * diagonal)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -165,7 +233,8 @@ fn open_verify_trace(data: &[u8]) {
             threads: 1,
             check_blocks: false,
         };
-        if let Ok(scene) = Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &tiny)
+        if let Ok(scene) =
+            Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &tiny)
         {
             trace(&scene, true);
         }
@@ -270,8 +339,18 @@ pub fn probe_rays(lo: [f32; 3], hi: [f32; 3]) -> Vec<Ray> {
         Ray::new(c, d, f32::NAN, inf),
         Ray::new(c, d, 0.0, f32::NAN),
         // Far away, towards the box, and with tmin beyond the box.
-        Ray::new(f([centre[0] - 1e6 * diag, centre[1], centre[2]]), x, 0.0, inf),
-        Ray::new(f([centre[0] - 1e6 * diag, centre[1], centre[2]]), x, 1e12, inf),
+        Ray::new(
+            f([centre[0] - 1e6 * diag, centre[1], centre[2]]),
+            x,
+            0.0,
+            inf,
+        ),
+        Ray::new(
+            f([centre[0] - 1e6 * diag, centre[1], centre[2]]),
+            x,
+            1e12,
+            inf,
+        ),
         Ray::new(f([-3e38, centre[1], centre[2]]), x, 0.0, inf),
     ]);
     rays
@@ -313,11 +392,15 @@ const BLOCK_TAG: &[u8; 4] = b"OBLK";
 const MAX_FIXED_BLOCKS: usize = 4096;
 
 fn read_u32(b: &[u8], at: usize) -> Option<u32> {
-    Some(u32::from_le_bytes(b.get(at..at.checked_add(4)?)?.try_into().ok()?))
+    Some(u32::from_le_bytes(
+        b.get(at..at.checked_add(4)?)?.try_into().ok()?,
+    ))
 }
 
 fn read_u64(b: &[u8], at: usize) -> Option<u64> {
-    Some(u64::from_le_bytes(b.get(at..at.checked_add(8)?)?.try_into().ok()?))
+    Some(u64::from_le_bytes(
+        b.get(at..at.checked_add(8)?)?.try_into().ok()?,
+    ))
 }
 
 fn write_u64(b: &mut [u8], at: usize, v: u64) {
@@ -329,7 +412,7 @@ fn write_u64(b: &mut [u8], at: usize, v: u64) {
 /// `at..at + len` if it lies inside a buffer of `size` bytes.
 fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
     let end = at.checked_add(len)?;
-    (end <= size as u64).then(|| at as usize..end as usize)
+    (end <= size as u64).then_some(at as usize..end as usize)
 }
 
 /// Rewrites `b` as a tool that edits a file in place would, so that only the structural checks
