@@ -39,13 +39,17 @@ const OPEN_BUGS: &[OpenBug] = &[
         "pack",
         "sliver_behind_origin",
         targets::pack_strict,
-        "the same function, on long slivers, both ways (any direction scale gives the same): probe \
-     ray 77 from (-84.5, -30.7, -0.0459) along (1, -1, 1). (1) A false hit: triangle 58, a \
-     sliver 170 units long, is met at t = -0.000296 (exact rational arithmetic), behind the \
-     origin, but the f32 test answers t = 0.123. (2) A false miss: triangle 26, another sliver \
-     sharing its far vertex, is hit at t = 0.000522 with barycentrics (0.50, 0.24, 0.26), well \
-     inside, and the f32 test answers no hit; so the tracer and brute force both miss it (the \
-     tracer answers no hit at all for this ray; the true closest hit is triangle 26)",
+        "the same lines, through cancellation instead of underflow (any direction scale gives the \
+     same): probe ray 77 from (-84.5, -30.7, -0.0459) along (1, -1, 1) past two slivers 170 \
+     units long whose vertices lie about 85 units from the origin. t_scaled = u*(sz*az) + \
+     v*(sz*bz) + w*(sz*cz) sums terms of about 25-50 to about 0.0006, and u, v, w are f32 \
+     products of coordinates near 85 (error about 4e-4), so t is off by about 0.01: triangle \
+     26 is hit well inside (barycentrics 0.50, 0.24, 0.26) at t = +0.000522 (exact rational \
+     arithmetic; the f32 edge functions have the right signs) but the test computes \
+     t = -0.0079 and rejects it, so tracer and brute force both miss it (the tracer answers no \
+     hit for this ray); triangle 58 is met at t = -0.000296, behind the origin, and brute force \
+     accepts it at t = 0.123. Expect the same near any large triangle: a shadow ray that starts \
+     1e-4 (SHADOW_EPSILON) off a floor whose vertices are ~100 units away can hit it",
     ),
 ];
 
