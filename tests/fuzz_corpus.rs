@@ -28,12 +28,13 @@ const OPEN_BUGS: &[OpenBug] = &[
         "huge_dir_from_surface",
         targets::pack_strict,
         "src/geom/triangle.rs:96-100 (RayShear::intersect, shared by the tracer and brute force): \
-     for a direction near f32::MAX (probe ray 78, dir (-3.4e38, 3.4e38, 1)) the shear factors \
-     sz = 1/d[kz] are subnormal, `t_scaled` underflows to -0.0 for a triangle 0.005 units \
-     *behind* the origin (exact t = -1.09e-41; in f32 sz*az = -1.9e-41 is subnormal and u*(sz*az) ~ 1e-48 rounds to -0.0), and `t >= tmin` accepts t = -0.0 >= 0.0: a \
-     false hit at t = 0. Brute force reports it, the tracer (correctly) does not visit that \
-     triangle's cell, so the target's brute-force oracle fails; the tracer gives the same false \
-     hit whenever such a triangle shares a visited cell",
+     for a direction near f32::MAX (probe ray 78, dir (-3.4e38, 3.4e38, 1)) the shear factor \
+     sz = 1/d[kz] is subnormal (-2.9e-39), sz*az (-1.9e-41) too, and u*(sz*az) (about 1e-48) \
+     rounds to -0.0, so t = -0.0 for a triangle 0.005 units *behind* the origin (exact \
+     t = -1.09e-41), and `t >= tmin` accepts -0.0 >= 0.0: a false hit at t = 0. Brute force \
+     reports it, the tracer (correctly) does not visit that triangle's cell, so the target's \
+     brute-force oracle fails; the tracer gives the same false hit whenever such a triangle \
+     shares a visited cell",
     ),
     (
         "pack",
