@@ -95,8 +95,8 @@ pub const PACK_MAX_TRIANGLES: usize = 512;
 /// mesh ([`agree`]), which shares only the triangle test with the tracer: where they disagree,
 /// a hit that the shared f32 test finds and an f64 test confirms ([`confirmed_hit`]) must not
 /// be lost by the tracer (a closest hit further than it, or no hit; an any-hit miss), else the
-/// traversal skipped a triangle and the target panics ([`pack_strict`]: any disagreement). Meshes of more than [`PACK_MAX_TRIANGLES`] are not
-/// built.
+/// traversal skipped a triangle and the target panics ([`pack_strict`]: any disagreement).
+/// Meshes of more than [`PACK_MAX_TRIANGLES`] are not built.
 pub fn pack(data: &[u8]) {
     pack_with(data, false);
 }
