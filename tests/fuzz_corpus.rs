@@ -1,0 +1,184 @@
+//! Replays the fuzz corpus and the crash reproducers on stable, through the very functions the
+//! fuzz targets call (`fuzz/targets.rs`, see `fuzz/README.md`).
+//!
+//! For every target: every file of `fuzz/corpus/<target>/` (the minimised corpus, committed;
+//! a missing or empty folder fails the test) and of `fuzz/regressions/<target>/` (inputs that
+//! once crashed a target, kept after the bug they show is fixed). Each must return normally:
+//! a panic is reported with the file's name and the test fails after trying every file. A
+//! reproducer of a bug not yet fixed is listed in [`OPEN_BUGS`] with its diagnosis; it is not
+//! replayed with the others but by [`open_bugs_still_fail`], which fails once the bug is gone
+//! (then remove its entry, and the file joins the regressions that must pass).
+
+#[path = "../fuzz/targets.rs"]
+mod targets;
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Reproducers (`fuzz/regressions/<target>/<file>`) of bugs found by fuzzing and not fixed yet:
+/// `(target, file, the function that shows the bug, what fails)`. Each panics when replayed
+/// through that function (see [`open_bugs_still_fail`]). None is open: the two reproducers of
+/// `fuzz/regressions/pack/` were listed here while `pack` compared the tracer with a brute force
+/// sharing its f32 triangle test; against the f64 reference they are rays that meet a triangle
+/// within the f32 test's rounding of `tmin` (a sliver, a direction near `f32::MAX`), which
+/// `targets::excused` allows, and they replay as regressions.
+type OpenBug = (&'static str, &'static str, fn(&[u8]), &'static str);
+const OPEN_BUGS: &[OpenBug] = &[];
+
+fn fuzz_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz")
+}
+
+/// The files of `dir`, sorted; `None` if it does not exist.
+fn files(dir: &Path) -> Option<Vec<PathBuf>> {
+    let mut out: Vec<PathBuf> = std::fs::read_dir(dir)
+        .ok()?
+        .map(|e| e.expect("a directory entry").path())
+        .filter(|p| p.is_file())
+        .collect();
+    out.sort();
+    Some(out)
+}
+
+fn is_open_bug(target: &str, file: &Path) -> bool {
+    let name = file.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    OPEN_BUGS.iter().any(|&(t, f, ..)| t == target && f == name)
+}
+
+/// Runs `run` on each file; returns the names of those that panicked.
+fn replay(run: fn(&[u8]), files: &[PathBuf]) -> Vec<String> {
+    let mut failed = Vec::new();
+    for f in files {
+        let data = std::fs::read(f).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+        if catch_unwind(AssertUnwindSafe(|| run(&data))).is_err() {
+            failed.push(f.display().to_string());
+        }
+    }
+    failed
+}
+
+#[test]
+fn corpus_and_regressions_replay() {
+    let dir = fuzz_dir();
+    let mut failed = Vec::new();
+    let mut summary = Vec::new();
+    for &(target, run) in targets::TARGETS {
+        let start = Instant::now();
+        let corpus = files(&dir.join("corpus").join(target)).unwrap_or_else(|| {
+            panic!(
+                "fuzz/corpus/{target}/ is missing: every target keeps a corpus (tools/fuzz.sh cmin)"
+            )
+        });
+        assert!(!corpus.is_empty(), "fuzz/corpus/{target}/ is empty");
+        let regressions: Vec<PathBuf> = files(&dir.join("regressions").join(target))
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|f| !is_open_bug(target, f))
+            .collect();
+        failed.extend(replay(run, &corpus));
+        failed.extend(replay(run, &regressions));
+        summary.push(format!(
+            "{target}: {} corpus files, {} regressions, {:.2} s",
+            corpus.len(),
+            regressions.len(),
+            start.elapsed().as_secs_f64()
+        ));
+    }
+    println!("{}", summary.join("\n"));
+    assert!(
+        failed.is_empty(),
+        "{} inputs panicked:\n{}",
+        failed.len(),
+        failed.join("\n")
+    );
+}
+
+#[test]
+fn open_bugs_still_fail() {
+    let dir = fuzz_dir();
+    let mut fixed = Vec::new();
+    for &(target, file, run, what) in OPEN_BUGS {
+        let path = dir.join("regressions").join(target).join(file);
+        assert!(
+            path.is_file(),
+            "OPEN_BUGS names a missing file {}",
+            path.display()
+        );
+        if replay(run, std::slice::from_ref(&path)).is_empty() {
+            fixed.push(format!("{} ({what})", path.display()));
+        }
+    }
+    assert!(
+        fixed.is_empty(),
+        "fixed, so remove them from OPEN_BUGS (they then replay with the regressions):\n{}",
+        fixed.join("\n")
+    );
+}
+
+/// The checksum fix-up of `oavm_fixed` (fuzz/README.md) does what it claims: on an intact file
+/// it changes nothing, and a raw file whose blocks are marked zstd comes out as a sound
+/// compressed file (verify finds nothing) that answers the probe rays as the raw one does.
+#[test]
+fn checksum_fixup_keeps_files_sound() {
+    use oavm::build::encode_with;
+    use oavm::physical::{AlignedBytes, BlockOptions};
+    use oavm::{BuildOptions, Hit, Scene};
+
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/scenes/cornell_box/CornellBox-Original.obj");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mesh = oavm::mesh::parse_obj(&bytes, "cornell").expect("the Cornell box parses");
+    let (parts, _) = oavm::build::build(
+        &mesh,
+        &BuildOptions {
+            leaf_size: 1,
+            ..BuildOptions::default()
+        },
+        &oavm::build::Quiet,
+    )
+    .expect("build");
+    let answers = |file: &[u8]| {
+        let scene = Scene::from_bytes(AlignedBytes::from_slice(file), "test.oavm").expect("open");
+        let report = scene.verify().expect("verify");
+        assert!(report.is_ok(), "{:?}", report.defects);
+        let h = scene.file().header();
+        let rays = targets::probe_rays(h.mesh_min, h.mesh_max);
+        let mut hits = vec![Hit::MISS; rays.len()];
+        scene.intersect_batch(&rays, &mut hits).expect("trace");
+        (scene.file().header().block_count, hits)
+    };
+    for compress in [None, Some(3)] {
+        let opts = BlockOptions {
+            block_size: 4096,
+            compress,
+        };
+        let file = encode_with(&parts, &opts).expect("encode");
+        let mut fixed = AlignedBytes::from_slice(file.as_ref());
+        targets::fix_checksums(fixed.as_mut_slice());
+        assert!(
+            fixed.as_ref() == file.as_ref(),
+            "the fix-up changed an intact file"
+        );
+        if compress.is_some() {
+            continue;
+        }
+        let (blocks, expected) = answers(file.as_ref());
+        assert!(blocks > 1, "the test wants a file of several blocks");
+        // Every block marked zstd (§8.2 codec at entry offset 24), the header flagged COMPRESSED
+        // (§2 flags at 12, bit 1): what the `_zmark` seeds are.
+        let mut marked = AlignedBytes::from_slice(file.as_ref());
+        let b = marked.as_mut_slice();
+        b[12] |= 2;
+        let dir = u64::from_le_bytes(b[256 + 48 + 8..256 + 48 + 16].try_into().unwrap()) as usize;
+        for i in 0..blocks as usize {
+            b[dir + 48 * i + 24] = 1;
+        }
+        targets::fix_checksums(b);
+        let (_, got) = answers(b);
+        assert_eq!(
+            got, expected,
+            "the fixed-up compressed file answers differently"
+        );
+    }
+}

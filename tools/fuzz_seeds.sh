@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# Writes the seed inputs of every fuzz target into fuzz/work/seeds/<target>/ (not committed: the
+# committed corpus, fuzz/corpus/<target>/, is what fuzzing kept of them, minimised).
+#
+#   tools/fuzz_seeds.sh
+#
+# Meshes are cut from ../shared/scenes or written by hand (tools/fuzz_seeds.py); ray, hit and
+# occlusion files and the .oavm files are made by the project's own release binaries from those
+# cuts. Each .oavm seed stays under 24 KB (fuzz.sh's -max_len for the oavm targets is 32768):
+# small inputs mutate faster and keep the committed corpus small; several blocks (4 KiB target
+# size), compressed and raw, deep trees and unmerged volumes fit in that.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+scenes=$root/../shared/scenes
+seeds=$root/fuzz/work/seeds
+rm -rf "$seeds"
+mkdir -p "$seeds"/{ply,obj,aff,rays,oavm,oavm_fixed,pack}
+python3 tools/fuzz_seeds.py meshes "$scenes" "$seeds"
+
+nice -n 19 cargo build --release --quiet --bins --example rays
+bin=$root/target/release
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+
+python3 tools/fuzz_seeds.py cuts "$scenes" "$tmp"
+cp "$seeds/ply/dragon60_ascii.ply" "$tmp/dragon60.ply"
+# pack builds PLY meshes: the PLY seeds and the cuts.
+cp "$seeds"/ply/* "$tmp"/dragon20.ply "$tmp"/dragon200.ply "$seeds/pack/"
+cp "$scenes/cornell_box/CornellBox-Original.obj" "$tmp/cornell.obj"
+cp "$seeds/aff/museum_block.aff" "$seeds/aff/keys_only.aff" "$tmp/"
+
+# Ray files: random, primary and shadow rays of a small mesh; hits and occlusion answers of them.
+(cd "$tmp" && "$bin/examples/rays" dragon60.ply dragon --random 16 --width 4 --height 3 >/dev/null)
+for s in random primary shadow; do
+    cp "$tmp/dragon.$s.rays" "$seeds/rays/"
+done
+printf 'RAYS\1\0\0\0\0\0\0\0\0\0\0\0' >"$seeds/rays/empty.rays"
+
+pack() { # NAME MESH ARGS...
+    local name=$1 mesh=$2
+    shift 2
+    "$bin/oavm-pack" "$tmp/$mesh" "$tmp/$name.oavm" --threads 1 "$@" >/dev/null
+}
+pack cornell cornell.obj
+pack cornell_z cornell.obj --compress
+pack dragon60_4k dragon60.ply --block-size 4K
+pack dragon200_4k_z dragon200.ply --block-size 4K --compress=1
+pack dragon20_deep_z dragon20.ply --leaf-size 3 --max-depth 8 --block-size 4K --compress
+pack dragon60_leaf4_z dragon60.ply --leaf-size 4 --max-depth 6 --block-size 4K --compress
+pack dragon20_nomerge_z dragon20.ply --block-size 4K --no-merge --leaf-size 4 --compress
+pack museum_block museum_block.aff --block-size 4K
+pack keys_t keys_only.aff --time 0.5
+for f in "$tmp"/*.oavm; do
+    size=$(stat -c %s "$f")
+    if [ "$size" -gt 24576 ]; then
+        echo "fuzz_seeds.sh: $(basename "$f") is $size bytes, over 24 KB" >&2
+        exit 1
+    fi
+    cp "$f" "$seeds/oavm/"
+    cp "$f" "$seeds/oavm_fixed/"
+done
+for s in primary random; do
+    "$bin/oavm-trace" "$tmp/dragon60_4k.oavm" --rays "$tmp/dragon.$s.rays" \
+        --hits "$seeds/rays/dragon.$s.hits" >/dev/null
+    "$bin/oavm-trace" "$tmp/dragon60_4k.oavm" --rays "$tmp/dragon.$s.rays" \
+        --occluded "$seeds/rays/dragon.$s.occl" >/dev/null
+done
+
+# Raw files with every block marked zstd, for oavm_fixed (see zmark in tools/fuzz_seeds.py).
+pack dragon200_4k dragon200.ply --block-size 4K
+pack dragon20_nomerge dragon20.ply --block-size 4K --no-merge --leaf-size 4
+python3 tools/fuzz_seeds.py zmark "$seeds/oavm_fixed" \
+    "$tmp"/cornell.oavm "$tmp"/dragon200_4k.oavm "$tmp"/museum_block.oavm "$tmp"/dragon20_nomerge.oavm
+
+for t in "$seeds"/*; do
+    printf '%-11s %3d files %7d bytes\n' "$(basename "$t")" "$(ls "$t" | wc -l)" "$(cat "$t"/* | wc -c)"
+done
