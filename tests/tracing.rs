@@ -638,20 +638,25 @@ fn a_hit_whose_t_is_not_finite_is_a_miss() {
     let rays = [
         Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, -1e-40], 0.0, f32::INFINITY),
         Ray::new([0.2, 0.2, 2.0], [1e-45, 1e-45, -1e-39], 0.0, f32::INFINITY),
+        // Away from the triangle, with an unbounded range behind: the hit is at t = -inf.
+        Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, 1e-40], f32::NEG_INFINITY, f32::INFINITY),
         // A control: the same origin with a normal direction hits.
         Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, -1.0], 0.0, f32::INFINITY),
     ];
-    let mut h = [Hit::MISS; 3];
+    let mut h = [Hit::MISS; 4];
     scene.intersect_batch(&rays, &mut h).unwrap();
     assert_eq!(h[0], Hit::MISS, "{:?}", h[0]);
     assert_eq!(h[1], Hit::MISS, "{:?}", h[1]);
-    assert_eq!(h[2], Hit { t: 2.0, prim: 0 });
-    let mut o = [9u8; 3];
+    assert_eq!(h[2], Hit::MISS, "{:?}", h[2]);
+    assert_eq!(h[3], Hit { t: 2.0, prim: 0 });
+    let mut o = [9u8; 4];
     scene.occluded_batch(&rays, &mut o).unwrap();
-    assert_eq!(o, [0, 0, 1]);
+    assert_eq!(o, [0, 0, 0, 1]);
     // The reference agrees: a hit beyond the f32 range is none.
     let tris = corners(&m);
-    assert_eq!(reference::closest(&tris, &rays[0]), Hit::MISS);
+    for r in &rays[..3] {
+        assert_eq!(reference::closest(&tris, r), Hit::MISS, "{r:?}");
+    }
 }
 
 /// Rays whose origin lies on a triangle hit it at `t = 0` whatever their direction (`RAYS.md`

@@ -2,8 +2,9 @@
 # Runs the fuzz targets of fuzz/ (see fuzz/README.md), one at a time, under `nice -n 19` so that
 # everyone else's builds win the CPU.
 #
-#   tools/fuzz.sh build                 build every target (nightly, cargo-fuzz, no sanitizer,
-#                                       debug assertions and overflow checks on)
+#   tools/fuzz.sh build                 build every target (nightly, cargo-fuzz, installed if
+#                                       missing; no sanitizer, debug assertions and overflow
+#                                       checks on)
 #   tools/fuzz.sh seeds                 write the seed inputs (tools/fuzz_seeds.sh)
 #   tools/fuzz.sh run TARGET|all [--plateau MIN] [--max MIN] [--stop-on-crash]
 #                                       fuzz each target until its coverage (`cov:` in libFuzzer's
@@ -60,6 +61,8 @@ ft_of() { sed -n -E 's/.* ft: ([0-9]+).*/\1/p' <<<"$1"; }
 execs_of() { sed -n -E 's/^#([0-9]+).*/\1/p' <<<"$1"; }
 
 build() {
+    # cargo-fuzz is not on the machine image: installed here on first use.
+    command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
     (cd "$fuzz" && nice -n 19 cargo +nightly fuzz build --release --debug-assertions \
         --sanitizer none)
 }

@@ -108,7 +108,9 @@ impl RayShear {
         // det == 0 gives t = NaN or inf; NaN fails the range test, and det != 0 is required.
         // Non-finite vertices (rejected by the builder) give NaN too; an infinite t is a miss.
         let inside = (all_pos | all_neg) & (det != 0.0);
-        if inside & (t >= tmin) & (t <= tmax) & (t != f32::INFINITY) {
+        // The range clamped to finite values: a hit at an infinite `t` is a miss.
+        let (lo, hi) = (tmin.max(-f32::MAX), tmax.min(f32::MAX));
+        if inside & (t >= lo) & (t <= hi) {
             return Some(t);
         }
         if !(inside && t < 0.0 && tmin <= 0.0 && tmax >= 0.0) {
@@ -121,7 +123,7 @@ impl RayShear {
             e: [u, v_, w],
             det,
         };
-        (t >= -sheared.t_error()).then_some(0.0)
+        sheared.rounds_to_zero(t).then_some(0.0)
     }
 }
 
@@ -155,9 +157,39 @@ impl Sheared {
         let de = 2.0 * (gamma(2.0) * mx * my + dy * mx + dx * my);
         2.0 * 3.0 * (gamma(3.0) * me * mz + de * mz + dz * me) / self.det.abs()
     }
+
+    /// Whether `t` (below 0) is within its rounding error of 0. An error bound that is not
+    /// finite (a subnormal direction, a degenerate shear) says nothing: no.
+    #[cold]
+    fn rounds_to_zero(&self, t: f32) -> bool {
+        let e = self.t_error();
+        e < f32::INFINITY && t >= -e
+    }
 }
 
 impl RayShear {
+    /// The origin-on-triangle rule of [`RayShear::intersect`] for the lanes `near` of
+    /// [`RayShear::intersect4`]: each redone by the scalar test (the same values bit for bit),
+    /// which hits at `t = 0` when `t` is within its rounding error of 0.
+    #[cold]
+    #[inline(never)]
+    fn origin_on_triangle(
+        &self,
+        tris: [&[[f32; 3]; 3]; 4],
+        near: u32,
+        tmin: f32,
+        tmax: f32,
+        mask: &mut u32,
+        ts: &mut [f32; 4],
+    ) {
+        for l in (0..4).filter(|l| near >> l & 1 == 1) {
+            if let Some(t) = self.intersect(tris[l], tmin, tmax) {
+                *mask |= 1 << l;
+                ts[l] = t;
+            }
+        }
+    }
+
     /// The watertight test on four triangles at once (SSE lanes through `glam::Vec4`), with the
     /// same operations in the same order as [`RayShear::intersect`], so every lane's answer is
     /// bit-for-bit the scalar answer. Returns the lanes that hit (bit `i` for `tris[i]`) and
@@ -229,36 +261,19 @@ impl RayShear {
         let t_scaled = u * szaz + v * szbz + w * szcz;
         let t = t_scaled / det;
         let inside = (all_pos | all_neg) & det.cmpne(zero);
-        let mut mask = (inside & t.cmpge(Vec4::splat(tmin)) & t.cmple(Vec4::splat(tmax))).bitmask();
-        if mask != 0 {
-            // A hit at an infinite t (a subnormal direction) is a miss. (Checked only when some
-            // lane hits, which most groups of four do not: the common path is the paper's.)
-            mask &= !t.cmpeq(Vec4::splat(f32::INFINITY)).bitmask();
-        }
+        // The range clamped to finite values: a hit at an infinite `t` (a subnormal direction)
+        // is a miss.
+        let (lo, hi) = (tmin.max(-f32::MAX), tmax.min(f32::MAX));
+        let inside = inside.bitmask();
+        let mut mask = inside & (t.cmpge(Vec4::splat(lo)) & t.cmple(Vec4::splat(hi))).bitmask();
         let mut ts = t.to_array();
-        // Inside, but t just below 0 with 0 in range: within the rounding of t, a hit at 0
-        // (the scalar test's rule, lane by lane with the same values). Shadow rays, whose tmin
-        // is above 0, never look.
-        let near = if tmin <= 0.0 && tmax >= 0.0 {
-            (inside & t.cmplt(zero)).bitmask() & !mask
-        } else {
-            0
-        };
-        if near != 0 {
-            let lane = |v: Vec4, l: usize| v.to_array()[l];
-            for l in (0..4).filter(|l| near >> l & 1 == 1) {
-                let sheared = Sheared {
-                    x: [lane(ax, l), lane(bx, l), lane(cx, l)],
-                    y: [lane(ay, l), lane(by, l), lane(cy, l)],
-                    z: [lane(szaz, l), lane(szbz, l), lane(szcz, l)],
-                    e: [lane(u, l), lane(v, l), lane(w, l)],
-                    det: lane(det, l),
-                };
-                if ts[l] >= -sheared.t_error() {
-                    mask |= 1 << l;
-                    ts[l] = 0.0;
-                }
-            }
+        // Inside, but t just below 0 with 0 in range: within the rounding of t, a hit at 0.
+        // Shadow rays, whose tmin is above 0, never look. The lanes that do (by their sign bits
+        // as they are: the scalar test decides) are rare, and are redone out of line by the
+        // scalar test, whose values are the same bit for bit.
+        let near = inside & t.is_negative_bitmask() & !mask;
+        if near != 0 && tmin <= 0.0 {
+            self.origin_on_triangle(tris, near, tmin, tmax, &mut mask, &mut ts);
         }
         (mask, ts)
     }

@@ -236,10 +236,11 @@ pub struct BlockView<'a> {
     pub triangles: &'a [TriRecord],
 }
 
-/// Spec §8.3, §11 ("every time a walk enters it"): reads the raw bytes of block `id` (described by `entry`): checks its header against the
-/// entry, its layout against its length and its level table against its counts, all in
-/// `O(levels)`, and casts its records in place. Errors say what is wrong.
 impl<'a> BlockView<'a> {
+    /// Spec §8.3, §11 ("every time a walk enters it"): reads the raw bytes of block `id`
+    /// (described by `entry`): checks its header against the entry, its layout against its
+    /// length and its level table against its counts, all in `O(levels)`, and casts its records
+    /// in place. Errors say what is wrong.
     pub fn parse(
         raw: &'a [u8],
         id: u32,
