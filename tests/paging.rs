@@ -638,3 +638,39 @@ fn cli_a_damaged_block_is_named_by_verify_and_by_a_trace_that_reaches_it() {
     assert_success(&o);
     assert!(out.exists());
 }
+
+/// The default threads under a budget smaller than the file: eight per core, but no more than
+/// leave three quarters of the budget to the cache (each thread keeps one block's room), never
+/// fewer than one per core, never more than the budget holds; one per core when the file fits.
+#[test]
+fn default_threads_leave_the_cache_most_of_the_budget() {
+    let bytes = packed(None);
+    let open = |budget: u64| {
+        Scene::from_bytes_with(
+            bytes.clone(),
+            "bunny.oavm",
+            &SceneOptions {
+                mem_budget: Some(budget),
+                threads: 64,
+                check_blocks: true,
+            },
+        )
+        .expect("open")
+    };
+    let largest = open(u64::MAX).file().header().max_block_raw_len;
+    let decoded = open(u64::MAX).decoded_bytes();
+    assert!(
+        decoded > 200 * largest,
+        "{decoded} bytes in blocks of up to {largest}"
+    );
+    // Room for 200 blocks: the quarter rule allows 50 threads, eight per core of 2 cores is 16.
+    assert_eq!(open(200 * largest).default_threads(2), 16);
+    // Room for 40: 10 threads, not 16.
+    assert_eq!(open(40 * largest).default_threads(2), 10);
+    // Room for 12: 3 by the quarter rule, but at least one per core (4).
+    assert_eq!(open(12 * largest).default_threads(4), 4);
+    // Room for 5: the budget holds 2 threads ((5 - 1) / 2), whatever the cores.
+    assert_eq!(open(5 * largest).default_threads(4), 2);
+    // The whole file fits: one per core.
+    assert_eq!(open(decoded).default_threads(2), 2);
+}

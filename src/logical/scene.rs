@@ -230,14 +230,22 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
 
     /// The threads to trace on when none are asked for, out of `cores`: one per core, or
     /// [`IO_THREADS_PER_CORE`] per core when the budget is smaller than the file's decoded
-    /// blocks (some trace while others wait for the disk); at most [`Self::threads`].
+    /// blocks (some trace while others wait for the disk), but then no more than leave three
+    /// quarters of the budget to the cache (each thread keeps one block's room of the budget
+    /// for the block it reads; with large blocks, eight threads per core would leave the
+    /// cache too little and every block would be read again and again); at most
+    /// [`Self::threads`].
     pub fn default_threads(&self, cores: usize) -> usize {
-        let per_core = if self.fits_in_budget() {
-            1
-        } else {
-            IO_THREADS_PER_CORE
-        };
-        cores.max(1).saturating_mul(per_core).min(self.threads)
+        let cores = cores.max(1);
+        if self.fits_in_budget() {
+            return cores.min(self.threads);
+        }
+        let largest = self.file.header().max_block_raw_len.max(1);
+        let quarter = usize::try_from(self.budget / largest / 4).unwrap_or(usize::MAX);
+        cores
+            .saturating_mul(IO_THREADS_PER_CORE)
+            .min(quarter.max(cores))
+            .min(self.threads)
     }
 
     /// What the scene is and holds.

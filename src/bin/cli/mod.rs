@@ -170,8 +170,9 @@ pub struct TraceArgs {
     #[arg(long, value_parser = parse_order)]
     pub order: Option<Order>,
     /// Worker threads. Default: one per core, or eight per core when the budget is smaller
-    /// than the file's decoded blocks (some threads trace while others wait for the disk);
-    /// lowered to what the budget holds.
+    /// than the file's decoded blocks (some threads trace while others wait for the disk), as
+    /// long as the block each thread reads takes at most a quarter of the budget; lowered to
+    /// what the budget holds.
     #[arg(long)]
     pub threads: Option<usize>,
 }
