@@ -639,7 +639,12 @@ fn a_hit_whose_t_is_not_finite_is_a_miss() {
         Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, -1e-40], 0.0, f32::INFINITY),
         Ray::new([0.2, 0.2, 2.0], [1e-45, 1e-45, -1e-39], 0.0, f32::INFINITY),
         // Away from the triangle, with an unbounded range behind: the hit is at t = -inf.
-        Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, 1e-40], f32::NEG_INFINITY, f32::INFINITY),
+        Ray::new(
+            [0.2, 0.2, 2.0],
+            [0.0, 0.0, 1e-40],
+            f32::NEG_INFINITY,
+            f32::INFINITY,
+        ),
         // A control: the same origin with a normal direction hits.
         Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, -1.0], 0.0, f32::INFINITY),
     ];
