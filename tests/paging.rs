@@ -554,7 +554,12 @@ fn cli_budget_and_order_do_not_change_the_output_files() {
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", describe(&o));
     }
     let o = run(trace_cmd(&file).arg("--shadow"));
-    assert!(assert_failure(&o).contains("--shadow needs"));
+    assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
+    assert!(
+        assert_failure(&o).contains("--shadow/--wave needs --random N or --primary WxH"),
+        "{}",
+        describe(&o)
+    );
 }
 
 #[test]

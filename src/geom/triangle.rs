@@ -113,79 +113,66 @@ impl RayShear {
         if inside & (t >= lo) & (t <= hi) {
             return Some(t);
         }
+        // Inside, but behind, with 0 in range: a hit at t = 0 if the origin lies on the
+        // triangle (t just below 0 is then the rounding of the f32 test).
         if !(inside && t < 0.0 && tmin <= 0.0 && tmax >= 0.0) {
             return None;
         }
-        let sheared = Sheared {
-            x: [ax, bx, cx],
-            y: [ay, by, cy],
-            z: [az, bz, cz],
-            e: [u, v_, w],
-            det,
-        };
-        sheared.rounds_to_zero(t).then_some(0.0)
+        origin_on_triangle(v, o).then_some(0.0)
     }
 }
 
-/// What the error bound of `t` needs of one triangle, sheared into the ray's frame.
-struct Sheared {
-    x: [f32; 3],
-    y: [f32; 3],
-    /// Scaled by `sz`.
-    z: [f32; 3],
-    /// The edge functions `u, v, w`.
-    e: [f32; 3],
-    det: f32,
-}
-
-/// `gamma(n)` of pbrt-v4: a bound on the relative error of `n` rounded f32 operations.
-fn gamma(n: f32) -> f32 {
-    let eps = f32::EPSILON * 0.5;
-    n * eps / (1.0 - n * eps)
-}
-
-impl Sheared {
-    /// A bound on the rounding error of `t`: pbrt-v4's `deltaT` of its robust triangle test,
-    /// doubled because our `x, y` are sheared from the unscaled `z`.
-    #[cold]
-    fn t_error(&self) -> f32 {
-        let max = |v: [f32; 3]| v[0].abs().max(v[1].abs()).max(v[2].abs());
-        let (mx, my, mz, me) = (max(self.x), max(self.y), max(self.z), max(self.e));
-        let dz = gamma(3.0) * mz;
-        let dx = gamma(5.0) * (mx + mz);
-        let dy = gamma(5.0) * (my + mz);
-        let de = 2.0 * (gamma(2.0) * mx * my + dy * mx + dx * my);
-        2.0 * 3.0 * (gamma(3.0) * me * mz + de * mz + dz * me) / self.det.abs()
+/// Whether `o` lies on triangle `v` (its plane, inside or on its edges), evaluated in f64 from
+/// the f32 coordinates: the differences are exact and the products nearly so, so the only
+/// allowance is the rounding of the f64 evaluation itself (32 ulps of the largest term), not of
+/// the f32 coordinates: a point near the triangle is not on it (the f64 reference agrees).
+#[cold]
+fn origin_on_triangle(v: &[[f32; 3]; 3], o: [f32; 3]) -> bool {
+    type V = [f64; 3];
+    let d = |a: [f32; 3], b: [f32; 3]| -> V { std::array::from_fn(|k| a[k] as f64 - b[k] as f64) };
+    let cross = |a: V, b: V| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let dot = |a: V, b: V| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let norm = |a: V| dot(a, a).sqrt();
+    let (e1, e2) = (d(v[1], v[0]), d(v[2], v[0]));
+    let n = cross(e1, e2);
+    let n_bound = norm(e1) * norm(e2);
+    let ulps = 32.0 * f64::EPSILON;
+    let s = d(o, v[0]);
+    if !(norm(n) > 0.0) || dot(n, s).abs() > ulps * n_bound * norm(s) {
+        return false;
     }
-
-    /// Whether `t` (below 0) is within its rounding error of 0. An error bound that is not
-    /// finite (a subnormal direction, a degenerate shear) says nothing: no.
-    #[cold]
-    fn rounds_to_zero(&self, t: f32) -> bool {
-        let e = self.t_error();
-        e < f32::INFINITY && t >= -e
-    }
+    // Each edge `a -> b`: `o` on its inner side (the side of the third corner), or on it.
+    (0..3).all(|i| {
+        let (a, b) = (v[i], v[(i + 1) % 3]);
+        let (e, p) = (d(b, a), d(o, a));
+        dot(cross(e, p), n) >= -ulps * norm(e) * norm(p) * n_bound
+    })
 }
 
 impl RayShear {
     /// The origin-on-triangle rule of [`RayShear::intersect`] for the lanes `near` of
-    /// [`RayShear::intersect4`]: each redone by the scalar test (the same values bit for bit),
-    /// which hits at `t = 0` when `t` is within its rounding error of 0.
+    /// [`RayShear::intersect4`] (inside, `t` below 0 by its sign bit, `tmin <= 0`): a hit at
+    /// `t = 0` where the origin lies on the triangle.
     #[cold]
     #[inline(never)]
-    fn origin_on_triangle(
+    fn origin_lanes(
         &self,
         tris: [&[[f32; 3]; 3]; 4],
         near: u32,
-        tmin: f32,
         tmax: f32,
         mask: &mut u32,
         ts: &mut [f32; 4],
     ) {
         for l in (0..4).filter(|l| near >> l & 1 == 1) {
-            if let Some(t) = self.intersect(tris[l], tmin, tmax) {
+            if tmax >= 0.0 && origin_on_triangle(tris[l], self.origin) {
                 *mask |= 1 << l;
-                ts[l] = t;
+                ts[l] = 0.0;
             }
         }
     }
@@ -267,13 +254,12 @@ impl RayShear {
         let inside = inside.bitmask();
         let mut mask = inside & (t.cmpge(Vec4::splat(lo)) & t.cmple(Vec4::splat(hi))).bitmask();
         let mut ts = t.to_array();
-        // Inside, but t just below 0 with 0 in range: within the rounding of t, a hit at 0.
-        // Shadow rays, whose tmin is above 0, never look. The lanes that do (by their sign bits
-        // as they are: the scalar test decides) are rare, and are redone out of line by the
-        // scalar test, whose values are the same bit for bit.
+        // Inside, but behind, with 0 in range: a hit at t = 0 if the origin lies on the
+        // triangle (the scalar test's rule, lane by lane). Shadow rays, whose tmin is above 0,
+        // never look; the lanes that do are rare and are looked at out of line.
         let near = inside & t.is_negative_bitmask() & !mask;
         if near != 0 && tmin <= 0.0 {
-            self.origin_on_triangle(tris, near, tmin, tmax, &mut mask, &mut ts);
+            self.origin_lanes(tris, near, tmax, &mut mask, &mut ts);
         }
         (mask, ts)
     }
