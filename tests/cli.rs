@@ -1035,8 +1035,9 @@ fn trace_says_when_the_file_is_a_directory() {
 }
 
 /// The tracer's default thread count: one per core, or eight per core under a memory budget
-/// smaller than the file's blocks (threads that wait on the disk), lowered to what the budget
-/// holds (two of the largest blocks a thread and one more), never the budget raised;
+/// smaller than the file's blocks (threads that wait on the disk) while their blocks take at
+/// most a quarter of it, lowered to what the budget holds (two of the largest blocks a thread
+/// and one more), never the budget raised;
 /// `--threads` overrides the default, and is lowered the same way, with a note.
 #[test]
 fn trace_threads_default_to_more_under_a_budget_and_never_raise_it() {
@@ -1045,15 +1046,20 @@ fn trace_threads_default_to_more_under_a_budget_and_never_raise_it() {
     let scene = oavm::Scene::open(&file).unwrap();
     let max = scene.file().header().max_block_raw_len;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u64;
-    let roomy = ((2 * 8 * cores + 1) * max).to_string();
+    // Roomy: eight threads per core keep at most a quarter of it for the blocks they read.
+    let roomy = ((4 * 8 * cores + 1) * max).to_string();
     assert!(
-        (2 * 8 * cores + 1) * max < scene.decoded_bytes(),
+        (4 * 8 * cores + 1) * max < scene.decoded_bytes(),
         "the budget must be smaller than the file"
     );
+    // Half as roomy: the threads are cut to keep three quarters of it for the cache.
+    let snug = ((2 * 8 * cores + 1) * max).to_string();
+    let snug_threads = ((2 * 8 * cores + 1) / 4).max(cores);
     let (five, seven) = ((5 * max).to_string(), (7 * max).to_string());
     for (extra, expect, note) in [
         (&[][..], cores, false),
         (&["--mem-budget", roomy.as_str()][..], 8 * cores, false),
+        (&["--mem-budget", snug.as_str()][..], snug_threads, false),
         (&["--mem-budget", five.as_str()][..], 2, false),
         (
             &["--mem-budget", seven.as_str(), "--threads", "3"][..],

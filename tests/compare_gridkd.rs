@@ -28,9 +28,9 @@ use rayon::prelude::*;
 /// 2 x 10^-7 s per ray and triangle here; `cargo run --release --example check_structures`
 /// checks all five structures on full-size sets.
 const RANDOM: usize = 4_000;
-/// 3,200 camera rays.
-const WIDTH: u32 = 64;
-const HEIGHT: u32 = 50;
+/// 6,912 camera rays (their shadow rays, about 2,000, must be at least 1,000).
+const WIDTH: u32 = 96;
+const HEIGHT: u32 = 72;
 
 fn allowed(n: usize) -> usize {
     n / 10_000

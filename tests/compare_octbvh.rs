@@ -22,7 +22,7 @@ fn bounds_of(t: &Triangles) -> Bounds {
     Bounds::of_points(t.v.iter().flatten().copied())
 }
 
-/// The ray sets of a scene: 4,000 random rays, 3,200 camera rays, and the shadow rays of the
+/// The ray sets of a scene: 4,000 random rays, 6,912 camera rays, and the shadow rays of the
 /// camera rays that hit (by brute force).
 fn ray_sets(mesh: &Mesh, t: &Triangles) -> Vec<(&'static str, Vec<Ray>)> {
     let tris = mesh.corners();
@@ -30,7 +30,7 @@ fn ray_sets(mesh: &Mesh, t: &Triangles) -> Vec<(&'static str, Vec<Ray>)> {
     // Small sets: the f64 brute force costs about 2 x 10^-7 s per ray and triangle here
     // (`cargo run --release --example check_structures` checks full-size sets).
     let random = rays::random_rays(&b, 4_000, 42);
-    let primary = Camera::framing(&b).primary_rays(64, 50);
+    let primary = Camera::framing(&b).primary_rays(96, 72);
     let hits: Vec<Hit> = primary
         .par_iter()
         .map(|r| reference::closest(&tris, r))
