@@ -144,7 +144,8 @@ fn origin_on_triangle(v: &[[f32; 3]; 3], o: [f32; 3]) -> bool {
     let n_bound = norm(e1) * norm(e2);
     let ulps = 32.0 * f64::EPSILON;
     let s = d(o, v[0]);
-    if !(norm(n) > 0.0) || dot(n, s).abs() > ulps * n_bound * norm(s) {
+    // `n` zero (a degenerate triangle) or NaN: not on it.
+    if norm(n).is_nan() || norm(n) == 0.0 || dot(n, s).abs() > ulps * n_bound * norm(s) {
         return false;
     }
     // Each edge `a -> b`: `o` on its inner side (the side of the third corner), or on it.
