@@ -124,8 +124,9 @@ impl RayShear {
 
 /// Whether `o` lies on triangle `v` (its plane, inside or on its edges), evaluated in f64 from
 /// the f32 coordinates: the differences are exact and the products nearly so, so the only
-/// allowance is the rounding of the f64 evaluation itself (32 ulps of the largest term), not of
-/// the f32 coordinates: a point near the triangle is not on it (the f64 reference agrees).
+/// allowance is the rounding of the f64 evaluation itself (32 ulps of the sum of the absolute
+/// terms), not of the f32 coordinates: a point near the triangle is not on it (the f64
+/// reference agrees).
 #[cold]
 fn origin_on_triangle(v: &[[f32; 3]; 3], o: [f32; 3]) -> bool {
     type V = [f64; 3];
@@ -138,21 +139,31 @@ fn origin_on_triangle(v: &[[f32; 3]; 3], o: [f32; 3]) -> bool {
         ]
     };
     let dot = |a: V, b: V| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let norm = |a: V| dot(a, a).sqrt();
-    let (e1, e2) = (d(v[1], v[0]), d(v[2], v[0]));
-    let n = cross(e1, e2);
-    let n_bound = norm(e1) * norm(e2);
+    // The same products on absolute values: what bounds the rounding of each (a static filter
+    // as in Shewchuk's predicates, term by term, so a sliver's long edges do not loosen it).
+    let abs = |a: V| a.map(f64::abs);
+    let cross_abs = |a: V, b: V| {
+        let (a, b) = (abs(a), abs(b));
+        [
+            a[1] * b[2] + a[2] * b[1],
+            a[2] * b[0] + a[0] * b[2],
+            a[0] * b[1] + a[1] * b[0],
+        ]
+    };
     let ulps = 32.0 * f64::EPSILON;
+    let (e1, e2) = (d(v[1], v[0]), d(v[2], v[0]));
+    let (n, n_abs) = (cross(e1, e2), cross_abs(e1, e2));
     let s = d(o, v[0]);
     // `n` zero (a degenerate triangle) or NaN: not on it.
-    if norm(n).is_nan() || norm(n) == 0.0 || dot(n, s).abs() > ulps * n_bound * norm(s) {
+    let n_len = dot(n, n).sqrt();
+    if n_len.is_nan() || n_len == 0.0 || dot(n, s).abs() > ulps * dot(n_abs, abs(s)) {
         return false;
     }
     // Each edge `a -> b`: `o` on its inner side (the side of the third corner), or on it.
     (0..3).all(|i| {
         let (a, b) = (v[i], v[(i + 1) % 3]);
         let (e, p) = (d(b, a), d(o, a));
-        dot(cross(e, p), n) >= -ulps * norm(e) * norm(p) * n_bound
+        dot(cross(e, p), n) >= -ulps * dot(cross_abs(e, p), n_abs)
     })
 }
 
