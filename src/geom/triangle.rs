@@ -5,7 +5,7 @@
 //! `W` are then evaluated on the sheared vertices. Edges shared by two triangles produce the same
 //! edge function with opposite sign in both, so a ray can never slip between them. Where an edge
 //! function is exactly zero in f32 it is recomputed in f64 (the paper's fallback), so points on an
-//! edge are classified consistently.
+//! edge are classified consistently; a recomputed value too small for an f32 keeps its sign.
 //!
 //! Deviations from the paper: no backface culling, and the `t` range test divides once after
 //! the sign tests instead of the paper's sign-xor trick; both give the same answers. Two rules
@@ -92,9 +92,9 @@ impl RayShear {
             let (ax, ay, bx, by, cx, cy) = (
                 ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64,
             );
-            u = (cx * by - cy * bx) as f32;
-            v_ = (ax * cy - ay * cx) as f32;
-            w = (bx * ay - by * ax) as f32;
+            u = narrow(cx * by - cy * bx);
+            v_ = narrow(ax * cy - ay * cx);
+            w = narrow(bx * ay - by * ax);
         }
         // Inside when the three edge functions agree in sign. Evaluated without branches (the
         // outcome is unpredictable); the caller branches once, on the answer, which is mostly
@@ -119,6 +119,21 @@ impl RayShear {
             return None;
         }
         origin_on_triangle(v, o).then_some(0.0)
+    }
+}
+
+/// An edge function recomputed in f64 (paper §4.2), back in f32 with its sign kept: the f64
+/// value's sign is exact (the products of two f32s are exact in f64, and their difference is
+/// rounded once), but a value below the smallest f32 subnormal would round to 0 and read as
+/// "on the edge" (a triangle a subnormal thick, seen by a ray along its plane, was then hit by
+/// rays missing it by 1e-4 of its size); it becomes the smallest subnormal of its sign instead.
+#[cold]
+fn narrow(x: f64) -> f32 {
+    let tiny = f32::from_bits(1);
+    match x as f32 {
+        0.0 if x > 0.0 => tiny,
+        0.0 if x < 0.0 => -tiny,
+        y => y,
     }
 }
 
@@ -242,9 +257,9 @@ impl RayShear {
                         cxa[l] as f64,
                         cya[l] as f64,
                     );
-                    ua[l] = (cx * by - cy * bx) as f32;
-                    va[l] = (ax * cy - ay * cx) as f32;
-                    wa[l] = (bx * ay - by * ax) as f32;
+                    ua[l] = narrow(cx * by - cy * bx);
+                    va[l] = narrow(ax * cy - ay * cx);
+                    wa[l] = narrow(bx * ay - by * ax);
                 }
             }
             (u, v, w) = (
@@ -288,6 +303,7 @@ pub fn intersect_triangle(ray: &Ray, v: &[[f32; 3]; 3]) -> Option<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::reference;
 
     const TRI: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
 
@@ -342,6 +358,35 @@ mod tests {
         assert_eq!(intersect_triangle(&r, &line), None);
         let r = Ray::new([0.5, 0.5, 1.0], [0.0, 0.0, -1.0], 0.0, f32::INFINITY);
         assert_eq!(intersect_triangle(&r, &point), None);
+    }
+
+    /// A triangle a subnormal thick (x between 0 and 1.7e-43, from `fuzz/regressions/pack/
+    /// subnormal_offset_origin`), seen by rays along its plane: the f32 edge functions
+    /// underflow to 0 and the f64 ones are below the smallest f32, so only their kept sign
+    /// tells a ray passing 6e-6 beside the triangle (a miss) from one through it (a hit). The
+    /// f64 reference decides both.
+    #[test]
+    fn underflowing_edge_functions_keep_their_sign() {
+        let thin = [
+            [f32::from_bits(121), 0.046508845, -0.046851568],
+            [f32::from_bits(15), f32::from_bits(16), f32::from_bits(17)],
+            [0.0, 0.059399605, -0.0496514],
+        ];
+        let beside = Ray::new(
+            [0.0, f32::from_bits(15), -0.0496572],
+            [0.0, 1.0, 0.0],
+            0.0,
+            f32::INFINITY,
+        );
+        assert_eq!(reference::hit_t(&thin, &beside), None);
+        assert_eq!(intersect_triangle(&beside, &thin), None, "scalar");
+        let shear = RayShear::new(&beside);
+        assert_eq!(shear.intersect4([&thin; 4], 0.0, f32::INFINITY).0, 0, "four lanes");
+        // Through it, from the side it faces: a hit at the reference's `t`.
+        let through = Ray::new([1.0, 0.0353, -0.0322], [-1.0, 0.0, 0.0], 0.0, f32::INFINITY);
+        let want = reference::hit_t(&thin, &through).expect("the reference hits it");
+        let got = intersect_triangle(&through, &thin).expect("a hit");
+        assert!((f64::from(got) - want).abs() < 1e-6, "{got} vs {want}");
     }
 
     /// The four-lane test gives bit-for-bit the scalar answers, edge cases included.
