@@ -146,12 +146,24 @@ pub fn grazes(tris: &[[[f32; 3]; 3]], ray: &Ray) -> bool {
                 0.0
             };
             s = s.clamp(0.0, 1.0);
-            // The ray's t closest to the segment's point at s.
-            let t = (s * de - dw) / dd;
+            // The ray's t closest to the segment's point at s; outside the ray's range, the
+            // range's nearer end, and the segment's point closest to it (Ericson, *Real-Time
+            // Collision Detection*, 5.1.9): a ray that starts beside an edge and leaves it
+            // grazes it too.
+            let mut t = (s * de - dw) / dd;
+            if !in_range(t) {
+                t = t.clamp(ray.tmin as f64, ray.tmax as f64);
+                let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+                s = if ee > 0.0 {
+                    (dot(sub(p, a), e) / ee).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+            }
             let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
             let q = [a[0] + s * e[0], a[1] + s * e[1], a[2] + s * e[2]];
             let gap = sub(p, q);
-            dot(gap, gap).sqrt() <= tol && in_range(t)
+            dot(gap, gap).sqrt() <= tol
         })
     })
 }
@@ -199,6 +211,12 @@ mod tests {
         // Through a corner, but behind the ray's range.
         let behind = Ray::new([0.0, 0.0, 2.0], [0.0, 0.0, 1.0], 0.0, 9.0);
         assert!(!grazes(&[TRI], &behind));
+        // Starting beside an edge (within rounding of it) and leaving it: the line's closest
+        // approach is behind the origin, the ray's is the origin.
+        let leaving = Ray::new([0.5, -5e-6, 0.0], [0.0, -1.0, 1.0], 0.0, 9.0);
+        assert!(grazes(&[TRI], &leaving), "starting on an edge");
+        let away = Ray::new([0.5, -1e-3, 0.0], [0.0, -1.0, 1.0], 0.0, 9.0);
+        assert!(!grazes(&[TRI], &away), "starting clear of it");
     }
 
     #[test]
