@@ -381,7 +381,11 @@ mod tests {
         assert_eq!(reference::hit_t(&thin, &beside), None);
         assert_eq!(intersect_triangle(&beside, &thin), None, "scalar");
         let shear = RayShear::new(&beside);
-        assert_eq!(shear.intersect4([&thin; 4], 0.0, f32::INFINITY).0, 0, "four lanes");
+        assert_eq!(
+            shear.intersect4([&thin; 4], 0.0, f32::INFINITY).0,
+            0,
+            "four lanes"
+        );
         // Through it, from the side it faces: a hit at the reference's `t`.
         let through = Ray::new([1.0, 0.0353, -0.0322], [-1.0, 0.0, 0.0], 0.0, f32::INFINITY);
         let want = reference::hit_t(&thin, &through).expect("the reference hits it");
