@@ -34,9 +34,10 @@
 //! divided by [`BYTES_PER_CHUNK_TRIANGLE`], a measured upper bound of the in-memory builder's
 //! peak per triangle. The trees of two chunks never coexist. Beyond the budget the process
 //! itself takes about 20 MB (its code, thread stacks); measured (`oavm-pack --json`'s
-//! `peak_rss_bytes`, 2026-12-01): the dragon (871,414 triangles) at a 16 MiB budget peaks at
-//! 34 MiB, at 64 MiB at 38 MiB; the file is 0.6 % larger at 16 MiB than packed in memory (460
-//! chunks, each in its own blocks), 0.002 % at 64 MiB.
+//! `peak_rss_bytes`, commit 3126c7f, format 3): the dragon (871,414 triangles, as a binary PLY)
+//! at a 16 MiB budget peaks at 33.2 MiB, at 64 MiB at 38.5 MiB; the file is 0.6 % larger at
+//! 16 MiB than packed in memory (460 chunks, each in its own blocks), 192 bytes larger at
+//! 64 MiB (39 chunks).
 //!
 //! **Differences from the in-memory build.** The top levels are split by the histogram rather
 //! than by the leaf size (they hold far more than `K` triangles either way), and a chunk's root
