@@ -127,7 +127,7 @@ impl RayShear {
 /// rounded once), but a value below the smallest f32 subnormal would round to 0 and read as
 /// "on the edge" (a triangle a subnormal thick, seen by a ray along its plane, was then hit by
 /// rays missing it by 1e-4 of its size); it becomes the smallest subnormal of its sign instead.
-#[cold]
+#[inline(always)]
 fn narrow(x: f64) -> f32 {
     let tiny = f32::from_bits(1);
     match x as f32 {
