@@ -39,8 +39,20 @@ pub fn triangle_overlaps_box(tri: &[[f64; 3]; 3], c: [f64; 3], h: [f64; 3]) -> b
         }
     }
 
-    // Triangle normal: the plane against the box.
-    let n = cross(e[0], e[1]);
+    // Triangle normal: the plane against the box. From the two shorter edges: the cross
+    // product's rounding grows with the lengths of its factors, and for a needle (two corners
+    // 1.5e-11 apart at coordinates of 1e6, found by fuzzing) the two long edges' rounding is
+    // larger than the short one, so their product points anywhere and the plane "separates"
+    // a box the needle passes through.
+    let len2 = e.map(|x| dot(x, x));
+    let longest = if len2[0] >= len2[1] && len2[0] >= len2[2] {
+        0
+    } else if len2[1] >= len2[2] {
+        1
+    } else {
+        2
+    };
+    let n = cross(e[(longest + 1) % 3], e[(longest + 2) % 3]);
     if n != [0.0; 3] {
         let d = dot(n, v[0]);
         let r = h[0] * n[0].abs() + h[1] * n[1].abs() + h[2] * n[2].abs();
@@ -152,6 +164,24 @@ mod tests {
         assert!(triangle_overlaps_box(&inside, C, H));
         let far = [[5.0, 5.0, 5.0], [6.0, 5.0, 5.0], [5.0, 6.0, 5.0]];
         assert!(!triangle_overlaps_box(&far, C, H));
+    }
+
+    /// A needle from `pack` fuzzing (two corners 1.5e-11 apart at 1e6): its long edge passes
+    /// through the box (the point at s = 0.58 along it is inside), so no axis separates them.
+    #[test]
+    fn a_needle_through_the_box_overlaps_it() {
+        let v = [
+            [1005977.1059603341, 1023.0009756097712, 1102925.5704544245],
+            [1074556.1996379578, 129331.44318158942, 1000514.644136103],
+            [1005977.1059603341, 1023.0009756097561, 1102925.5704544245],
+        ];
+        let (c, h) = ([917504.0, 131072.0, 917504.0], [131074.0; 3]);
+        let p: [f64; 3] = std::array::from_fn(|k| v[0][k] + 0.58 * (v[1][k] - v[0][k]));
+        assert!((0..3).all(|k| (p[k] - c[k]).abs() <= h[k]), "the witness is inside");
+        assert!(triangle_overlaps_box(&v, c, h));
+        // The same needle moved clear of the box is still separated.
+        let away = v.map(|p| [p[0] + 4e5, p[1], p[2]]);
+        assert!(!triangle_overlaps_box(&away, c, h));
     }
 
     #[test]
