@@ -457,35 +457,12 @@ pub fn probe_rays(lo: [f32; 3], hi: [f32; 3]) -> Vec<Ray> {
 // ---------------------------------------------------------------------------------------------
 // Recomputing an `.oavm` file's checksums (format-spec.md §1-§3, §8.2)
 
-// Offsets, from format-spec.md (a mismatch with the code would only make the fuzzing weaker,
-// never wrong: everything here is bounds-checked).
-/// §2: the header's size, where the section table starts.
-const HEADER_LEN: usize = 256;
-/// §2: `file_size`.
-const HEADER_FILE_SIZE: usize = 32;
-/// §2: `checksum`, of header bytes `0..248` then the section table.
-const HEADER_CHECKSUM: usize = 248;
-/// §3: seven 48-byte section entries.
-const SECTIONS: usize = 7;
-const ENTRY_LEN: usize = 48;
-const TABLE_END: usize = HEADER_LEN + SECTIONS * ENTRY_LEN;
-/// §3: fields of a section entry.
-const ENTRY_OFFSET: usize = 8;
-const ENTRY_LENGTH: usize = 16;
-const ENTRY_CHECKSUM: usize = 40;
-/// §3: the blocks are the first section (index 0, no checksum), the directory the second.
-const BLOCKS: usize = 0;
-const DIRECTORY: usize = 1;
-/// §8.2: 48-byte directory entries and their fields.
-const DIR_LEN: usize = 48;
-const DIR_OFFSET: usize = 0;
-const DIR_STORED_LEN: usize = 8;
-const DIR_RAW_LEN: usize = 16;
-const DIR_CODEC: usize = 24;
-const DIR_CHECKSUM: usize = 40;
-/// §8.2: codec 1 is zstd; §8.3: a decoded block starts with the tag `OBLK`.
-const CODEC_ZSTD: u32 = 1;
-const BLOCK_TAG: &[u8; 4] = b"OBLK";
+// Offsets, from format-spec.md, as the tests state them (a mismatch with the code would only
+// make the fuzzing weaker, never wrong: everything here is bounds-checked).
+#[path = "../tests/common/layout.rs"]
+mod layout;
+use layout::*;
+
 /// At most this many directory entries are fixed up (each costs a hash of its block).
 const MAX_FIXED_BLOCKS: usize = 4096;
 
@@ -533,7 +510,7 @@ pub fn fix_checksums(b: &mut [u8]) {
     if b.len() < TABLE_END {
         return;
     }
-    write_u64(b, HEADER_FILE_SIZE, b.len() as u64);
+    write_u64(b, FILE_SIZE_AT, b.len() as u64);
     let dir_entry = HEADER_LEN + DIRECTORY * ENTRY_LEN;
     let (Some(dir_at), Some(dir_len)) = (
         read_u64(b, dir_entry + ENTRY_OFFSET),
@@ -585,7 +562,7 @@ pub fn fix_checksums(b: &mut [u8]) {
             write_u64(b, e + DIR_CHECKSUM, sum);
         }
     }
-    for i in DIRECTORY..SECTIONS {
+    for i in DIRECTORY..SECTION_COUNT {
         let e = HEADER_LEN + i * ENTRY_LEN;
         let (Some(at), Some(len)) = (read_u64(b, e + ENTRY_OFFSET), read_u64(b, e + ENTRY_LENGTH))
         else {
@@ -596,7 +573,7 @@ pub fn fix_checksums(b: &mut [u8]) {
             write_u64(b, e + ENTRY_CHECKSUM, sum);
         }
     }
-    let mut covered = Vec::with_capacity(HEADER_CHECKSUM + SECTIONS * ENTRY_LEN);
+    let mut covered = Vec::with_capacity(HEADER_CHECKSUM + SECTION_COUNT * ENTRY_LEN);
     covered.extend_from_slice(&b[..HEADER_CHECKSUM]);
     covered.extend_from_slice(&b[HEADER_LEN..TABLE_END]);
     write_u64(b, HEADER_CHECKSUM, xxh3_64(&covered));

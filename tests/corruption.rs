@@ -57,57 +57,7 @@ use oavm::{BuildOptions, Error, FormatError, Hit, Mesh, Ray, Scene};
 use xxhash_rust::xxh3::xxh3_64;
 
 // ---------------------------------------------------------------------------------------------
-// The layout, as format-spec.md states it
-
-/// §2: the header is 256 bytes; its last 8 are the checksum of the bytes before them and of the
-/// section table.
-const HEADER_LEN: usize = 256;
-const HEADER_CHECKSUM: usize = 248;
-/// §2: header fields these tests rewrite.
-const VERSION_AT: usize = 8;
-const FILE_SIZE_AT: usize = 32;
-const ROOT_MIN_AT: usize = 40;
-const ROOT_SIZE_AT: usize = 64;
-const MAX_BLOCK_RAW_LEN_AT: usize = 144;
-/// §3: the section table follows the header: six 48-byte entries.
-const ENTRY_LEN: usize = 48;
-const SECTION_COUNT: usize = 7;
-const TABLE_END: usize = HEADER_LEN + SECTION_COUNT * ENTRY_LEN;
-/// §3: fields of a section table entry.
-const ENTRY_OFFSET: usize = 8;
-const ENTRY_LENGTH: usize = 16;
-const ENTRY_CHECKSUM: usize = 40;
-/// §3: positions in the section table.
-const BLOCKS: usize = 0;
-const DIRECTORY: usize = 1;
-const LEVELS: usize = 2;
-const NODES: usize = 3;
-const LINK_BOUNDS: usize = 6;
-/// §2: the blocks section starts at offset 4096.
-const BLOCKS_START: usize = 4096;
-/// §8.2: a directory entry and its fields.
-const DIR_LEN: usize = 48;
-const DIR_OFFSET: usize = 0;
-const DIR_STORED_LEN: usize = 8;
-const DIR_RAW_LEN: usize = 16;
-const DIR_CODEC: usize = 24;
-const DIR_ROOT_LEVEL: usize = 28;
-const DIR_ROOT_COUNT: usize = 32;
-const DIR_TRIANGLES: usize = 36;
-const DIR_CHECKSUM: usize = 40;
-/// §8.2: codecs, and where blocks of each start.
-const CODEC_RAW: u32 = 0;
-const CODEC_ZSTD: u32 = 1;
-const RAW_ALIGN: usize = 4096;
-const ALIGN: usize = 64;
-/// §8.3: a block's header, and where its counts are.
-const BLOCK_HEADER_LEN: usize = 64;
-const BH_LEVEL_COUNT: usize = 4;
-const BH_NODE_COUNT: usize = 16;
-/// §4.2: the kinds of node record (bits 30–31 of `meta`).
-const KIND_INTERNAL: u32 = 2;
-const KIND_LINK: u32 = 3;
-const LINK_ROOT_MASK: u32 = (1 << 30) - 1;
+use common::layout::*;
 
 /// Fields of a record: (offset in the record, name).
 type Fields = &'static [(usize, &'static str)];
