@@ -177,7 +177,10 @@ mod tests {
         ];
         let (c, h) = ([917504.0, 131072.0, 917504.0], [131074.0; 3]);
         let p: [f64; 3] = std::array::from_fn(|k| v[0][k] + 0.58 * (v[1][k] - v[0][k]));
-        assert!((0..3).all(|k| (p[k] - c[k]).abs() <= h[k]), "the witness is inside");
+        assert!(
+            (0..3).all(|k| (p[k] - c[k]).abs() <= h[k]),
+            "the witness is inside"
+        );
         assert!(triangle_overlaps_box(&v, c, h));
         // The same needle moved clear of the box is still separated.
         let away = v.map(|p| [p[0] + 4e5, p[1], p[2]]);
