@@ -284,9 +284,11 @@ impl RayShear {
         // Inside, but behind, with 0 in range: a hit at t = 0 if the origin lies on the
         // triangle (the scalar test's rule, lane by lane). Shadow rays, whose tmin is above 0,
         // never look; the lanes that do are rare and are looked at out of line.
-        let near = inside & t.is_negative_bitmask() & !mask;
-        if near != 0 && tmin <= 0.0 {
-            self.origin_lanes(tris, near, tmax, &mut mask, &mut ts);
+        if tmin <= 0.0 {
+            let near = inside & t.is_negative_bitmask() & !mask;
+            if near != 0 {
+                self.origin_lanes(tris, near, tmax, &mut mask, &mut ts);
+            }
         }
         (mask, ts)
     }
