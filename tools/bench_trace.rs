@@ -1,9 +1,11 @@
-//! Benchmark: the same rays through OAVM, obvhs and the bvh crate, in one process.
+//! Benchmark: the same rays through OAVM, obvhs and the bvh crate (and Embree 4 with the `embree`
+//! feature), in one process.
 //!
 //!     cargo bench --bench trace -- [--scene NAME=PATH]... [--reps N] [--random N] [--json]
+//!     tools/embree.sh cargo bench --bench trace --features embree -- ...
 //!
 //! Default scenes: the bunny and the dragon from `../shared/scenes`. For each scene it builds the
-//! three structures from the same triangles, generates primary rays (1024x768, the default camera
+//! structures from the same triangles, generates primary rays (1024x768, the default camera
 //! of `oavm-trace`), `--random` random rays (default 10^6) and shadow rays toward the default
 //! light from every primary hit, and traces every set with every structure on 1 and 2 threads,
 //! keeping the best of `--reps` runs. Throughput is printed as Mrays/s and as the ratio of OAVM to
@@ -19,6 +21,8 @@ use std::time::Instant;
 
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
 use oavm::{BuildOptions, Hit, Mesh, Ray, Scene};
+#[cfg(feature = "embree")]
+use peers::EmbreeScene;
 use peers::{BvhCrateScene, ObvhsScene};
 use rayon::prelude::*;
 use serde_json::json;
@@ -89,10 +93,79 @@ fn par_map<T: Send>(rays: &[Ray], out: &mut [T], f: impl Fn(&Ray) -> T + Sync) {
         });
 }
 
+/// A peer tracer, dispatched once per pass (never per ray) so every peer's inner loop calls its
+/// tracer directly, as OAVM's batch does.
+#[derive(Clone, Copy)]
+enum Peer<'a> {
+    Obvhs(&'a ObvhsScene),
+    Bvh(&'a BvhCrateScene),
+    #[cfg(feature = "embree")]
+    Embree(&'a EmbreeScene),
+}
+
+impl Peer<'_> {
+    fn name(self) -> &'static str {
+        match self {
+            Peer::Obvhs(_) => "obvhs",
+            Peer::Bvh(_) => "bvh",
+            #[cfg(feature = "embree")]
+            Peer::Embree(_) => "embree",
+        }
+    }
+
+    /// Traces every ray (in parallel on the current rayon pool): closest hits into `hits`, or
+    /// any-hit answers into `occluded` when `any`.
+    fn trace(self, rays: &[Ray], any: bool, hits: &mut [Hit], occluded: &mut [bool]) {
+        fn run(
+            rays: &[Ray],
+            any: bool,
+            hits: &mut [Hit],
+            occluded: &mut [bool],
+            closest: impl Fn(&Ray) -> Hit + Sync,
+            any_hit: impl Fn(&Ray) -> bool + Sync,
+        ) {
+            if any {
+                par_map(rays, occluded, any_hit);
+            } else {
+                par_map(rays, hits, closest);
+            }
+        }
+        match self {
+            Peer::Obvhs(s) => run(
+                rays,
+                any,
+                hits,
+                occluded,
+                |r| s.intersect(r),
+                |r| s.occluded(r),
+            ),
+            Peer::Bvh(s) => run(
+                rays,
+                any,
+                hits,
+                occluded,
+                |r| s.intersect(r),
+                |r| s.occluded(r),
+            ),
+            #[cfg(feature = "embree")]
+            Peer::Embree(s) => run(
+                rays,
+                any,
+                hits,
+                occluded,
+                |r| s.intersect(r),
+                |r| s.occluded(r),
+            ),
+        }
+    }
+}
+
 fn main() {
     let args = parse_args();
     let mut results = Vec::new();
     let mut failed = false;
+    #[cfg(feature = "embree")]
+    let mut embree_info = None;
     for (name, path) in &args.scenes {
         let mesh: Mesh = oavm::mesh::load(path).unwrap_or_else(|e| panic!("{e}"));
         let b = Bounds::of_points(mesh.positions.iter().copied());
@@ -110,8 +183,30 @@ fn main() {
         let t = Instant::now();
         let bvh = BvhCrateScene::build(&mesh.positions, &mesh.triangles);
         let bvh_build = t.elapsed().as_secs_f64();
+        #[allow(unused_mut)]
+        let mut peer_list = vec![Peer::Obvhs(&obvhs), Peer::Bvh(&bvh)];
+        #[allow(unused_mut)]
+        let mut builds = format!("obvhs {obvhs_build:.3} s, bvh {bvh_build:.3} s");
+        #[cfg(feature = "embree")]
+        let embree = {
+            let t = Instant::now();
+            let embree = EmbreeScene::build(&mesh.positions, &mesh.triangles);
+            // Embree builds with its own (TBB) threads, all cores.
+            builds += &format!(", embree {:.3} s", t.elapsed().as_secs_f64());
+            embree
+        };
+        #[cfg(feature = "embree")]
+        {
+            peer_list.push(Peer::Embree(&embree));
+            let info = embree.describe();
+            if !args.json && embree_info.is_none() {
+                println!("{info}");
+            }
+            embree_info = Some(info);
+        }
+        let peers = peer_list;
         eprintln!(
-            "{name}: {} triangles; build oavm {oavm_build:.3} s ({} nodes), obvhs {obvhs_build:.3} s, bvh {bvh_build:.3} s",
+            "{name}: {} triangles; build oavm {oavm_build:.3} s ({} nodes), {builds}",
             mesh.triangles.len(),
             stats.nodes
         );
@@ -132,56 +227,43 @@ fn main() {
         ];
 
         for (set, rays, any) in &sets {
+            let any = *any;
             // Answers once, for the cross-check.
             let mut ours = vec![Hit::MISS; rays.len()];
             let mut ours_occ = vec![0u8; rays.len()];
-            let counters = if *any {
+            let counters = if any {
                 scene.occluded_batch(rays, &mut ours_occ).expect("trace")
             } else {
                 scene.intersect_batch(rays, &mut ours).expect("trace")
             };
-            let mut obvhs_hits = vec![Hit::MISS; rays.len()];
-            let mut bvh_hits = vec![Hit::MISS; rays.len()];
+            let mut peer_hits = vec![Hit::MISS; rays.len()];
             let mut peer_occ = vec![false; rays.len()];
-            let mut disagree = [0usize; 2];
-            if *any {
-                par_map(rays, &mut peer_occ, |r| obvhs.occluded(r));
-                disagree[0] = peer_occ
-                    .iter()
-                    .zip(&ours_occ)
-                    .filter(|(p, o)| **p != (**o == 1))
-                    .count();
-                par_map(rays, &mut peer_occ, |r| bvh.occluded(r));
-                disagree[1] = peer_occ
-                    .iter()
-                    .zip(&ours_occ)
-                    .filter(|(p, o)| **p != (**o == 1))
-                    .count();
-            } else {
-                let agree = |a: &Hit, b: &Hit| a.agrees(b, diag);
-                par_map(rays, &mut obvhs_hits, |r| obvhs.intersect(r));
-                par_map(rays, &mut bvh_hits, |r| bvh.intersect(r));
-                disagree[0] = ours
-                    .iter()
-                    .zip(&obvhs_hits)
-                    .filter(|(a, b)| !agree(a, b))
-                    .count();
-                disagree[1] = ours
-                    .iter()
-                    .zip(&bvh_hits)
-                    .filter(|(a, b)| !agree(a, b))
-                    .count();
-            }
-            for (peer, d) in ["obvhs", "bvh"].iter().zip(disagree) {
+            let mut disagree = Vec::with_capacity(peers.len());
+            for &peer in &peers {
+                peer.trace(rays, any, &mut peer_hits, &mut peer_occ);
+                let d = if any {
+                    peer_occ
+                        .iter()
+                        .zip(&ours_occ)
+                        .filter(|(p, o)| **p != (**o == 1))
+                        .count()
+                } else {
+                    ours.iter()
+                        .zip(&peer_hits)
+                        .filter(|(a, b)| !a.agrees(b, diag))
+                        .count()
+                };
                 let rate = d as f64 / rays.len().max(1) as f64;
                 if rate > 1e-4 {
                     eprintln!(
-                        "!!! {name} {set}: OAVM and {peer} disagree on {d} of {} rays ({:.4} %)",
+                        "!!! {name} {set}: OAVM and {} disagree on {d} of {} rays ({:.4} %)",
+                        peer.name(),
                         rays.len(),
                         rate * 100.0
                     );
                     failed = true;
                 }
+                disagree.push(d);
             }
 
             for threads in [1usize, 2] {
@@ -189,52 +271,57 @@ fn main() {
                     .num_threads(threads)
                     .build()
                     .expect("pool");
-                let (t_oavm, t_obvhs, t_bvh) = pool.install(|| {
+                let (t_oavm, t_peers) = pool.install(|| {
                     let t_oavm = best_of(args.reps, || {
-                        if *any {
+                        if any {
                             scene.occluded_batch(rays, &mut ours_occ).expect("trace");
                         } else {
                             scene.intersect_batch(rays, &mut ours).expect("trace");
                         }
                     });
-                    let t_obvhs = best_of(args.reps, || {
-                        if *any {
-                            par_map(rays, &mut peer_occ, |r| obvhs.occluded(r));
-                        } else {
-                            par_map(rays, &mut obvhs_hits, |r| obvhs.intersect(r));
-                        }
-                    });
-                    let t_bvh = best_of(args.reps, || {
-                        if *any {
-                            par_map(rays, &mut peer_occ, |r| bvh.occluded(r));
-                        } else {
-                            par_map(rays, &mut bvh_hits, |r| bvh.intersect(r));
-                        }
-                    });
-                    (t_oavm, t_obvhs, t_bvh)
+                    let t_peers: Vec<f64> = peers
+                        .iter()
+                        .map(|&peer| {
+                            best_of(args.reps, || {
+                                peer.trace(rays, any, &mut peer_hits, &mut peer_occ)
+                            })
+                        })
+                        .collect();
+                    (t_oavm, t_peers)
                 });
                 let m = |t: f64| rays.len() as f64 / t / 1e6;
-                let row = json!({
+                let nodes = counters.nodes_visited as f64 / counters.rays.max(1) as f64;
+                let tris = counters.triangles_tested as f64 / counters.rays.max(1) as f64;
+                let mut row = json!({
                     "scene": name, "set": set, "rays": rays.len(), "threads": threads,
-                    "oavm_mrays_per_s": m(t_oavm), "obvhs_mrays_per_s": m(t_obvhs), "bvh_mrays_per_s": m(t_bvh),
-                    "oavm_over_obvhs": t_obvhs / t_oavm, "oavm_over_bvh": t_bvh / t_oavm,
-                    "disagree_obvhs": disagree[0], "disagree_bvh": disagree[1],
-                    "nodes_visited_per_ray": counters.nodes_visited as f64 / counters.rays.max(1) as f64,
-                    "triangles_tested_per_ray": counters.triangles_tested as f64 / counters.rays.max(1) as f64,
+                    "oavm_mrays_per_s": m(t_oavm),
+                    "nodes_visited_per_ray": nodes,
+                    "triangles_tested_per_ray": tris,
                 });
+                for ((peer, &t), &d) in peers.iter().zip(&t_peers).zip(&disagree) {
+                    let p = peer.name();
+                    row[format!("{p}_mrays_per_s")] = json!(m(t));
+                    row[format!("oavm_over_{p}")] = json!(t / t_oavm);
+                    row[format!("disagree_{p}")] = json!(d);
+                }
                 if !args.json {
+                    let speeds: String = peers
+                        .iter()
+                        .zip(&t_peers)
+                        .map(|(peer, &t)| format!(" | {} {:7.2}", peer.name(), m(t)))
+                        .collect();
+                    let ratios: String = peers
+                        .iter()
+                        .zip(&t_peers)
+                        .map(|(peer, &t)| format!("  oavm/{} {:5.2}x", peer.name(), t / t_oavm))
+                        .collect();
+                    let disagreements: Vec<String> =
+                        disagree.iter().map(|d| d.to_string()).collect();
                     println!(
-                        "{name:<7} {set:<8} {threads}T {:>8} rays | oavm {:7.2} | obvhs {:7.2} | bvh {:7.2} Mrays/s | oavm/obvhs {:5.2}x  oavm/bvh {:5.2}x | disagree {}/{} | nodes {:.1} tris {:.1} per ray",
+                        "{name:<7} {set:<8} {threads}T {:>8} rays | oavm {:7.2}{speeds} Mrays/s |{ratios} | disagree {} | nodes {nodes:.1} tris {tris:.1} per ray",
                         rays.len(),
                         m(t_oavm),
-                        m(t_obvhs),
-                        m(t_bvh),
-                        t_obvhs / t_oavm,
-                        t_bvh / t_oavm,
-                        disagree[0],
-                        disagree[1],
-                        counters.nodes_visited as f64 / counters.rays.max(1) as f64,
-                        counters.triangles_tested as f64 / counters.rays.max(1) as f64,
+                        disagreements.join("/"),
                     );
                 }
                 results.push(row);
@@ -242,11 +329,13 @@ fn main() {
         }
     }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&json!({ "options": args.opts, "results": results }))
-                .unwrap_or_default()
-        );
+        #[allow(unused_mut)]
+        let mut out = json!({ "options": args.opts, "results": results });
+        #[cfg(feature = "embree")]
+        {
+            out["embree"] = json!(embree_info);
+        }
+        println!("{}", serde_json::to_string_pretty(&out).unwrap_or_default());
     }
     if failed {
         std::process::exit(1);

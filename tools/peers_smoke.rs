@@ -1,6 +1,7 @@
 //! Smoke test of the peer tracers (`tools/peers/mod.rs`): builds the obvhs and `bvh` crate peers
-//! on a mesh (the Stanford bunny by default), traces seeded random rays through both and through
-//! brute force, and checks that they agree as `../shared/RAYS.md` defines it (both miss, or both
+//! (and Embree with the `embree` feature: `tools/embree.sh cargo run --release --example
+//! peers_smoke --features embree`) on a mesh (the Stanford bunny by default), traces seeded
+//! random rays through them and through brute force, and checks that they agree as `../shared/RAYS.md` defines it (both miss, or both
 //! hit with `|t1 - t2| <= 1e-4 * L`, `L` the bounding-box diagonal) on at least 99.99 % of rays.
 //! Prints build times and Mrays/s, single-threaded and with rayon. Exits 1 on disagreement.
 //!
@@ -127,6 +128,13 @@ fn run() -> Result<bool, String> {
     speed_row("bvh", primary, &|r| bvhc.intersect(r), &|r| {
         bvhc.occluded(r)
     });
+    #[cfg(feature = "embree")]
+    {
+        let embree = peers::EmbreeScene::build(&positions, &triangles);
+        speed_row("embree", primary, &|r| embree.intersect(r), &|r| {
+            embree.occluded(r)
+        });
+    }
 
     if compare {
         let all: Vec<Ray> = sets.iter().flat_map(|s| s.rays.iter().copied()).collect();
@@ -301,6 +309,19 @@ fn check(
         false,
     );
 
+    #[cfg(feature = "embree")]
+    {
+        ok &= check_embree(
+            positions,
+            triangles,
+            sets,
+            &all,
+            &reference,
+            &reference_occl,
+            diag,
+        );
+    }
+
     // What obvhs's own entry point would have answered (information, not a check).
     let stock: Vec<Hit> = all.par_iter().map(|r| obvhs.intersect_stock(r)).collect();
     let agree: Vec<bool> = stock
@@ -310,6 +331,86 @@ fn check(
         .collect();
     report("(info) obvhs stock ray_traverse", sets, &agree, 0.0);
 
+    ok
+}
+
+/// Embree (feature `embree`) against brute force on every set: closest hits, occlusion and
+/// consistency of the two (checked); hits at exactly `tmin`/`tmax` (reported).
+#[cfg(feature = "embree")]
+fn check_embree(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    sets: &[RaySet],
+    all: &[Ray],
+    reference: &[Hit],
+    reference_occl: &[bool],
+    diag: f64,
+) -> bool {
+    let start = Instant::now();
+    let embree = peers::EmbreeScene::build(positions, triangles);
+    println!(
+        "\n{}: build {:.3} s (Embree's own threads)",
+        embree.describe(),
+        start.elapsed().as_secs_f64()
+    );
+    let hits: Vec<Hit> = all.par_iter().map(|r| embree.intersect(r)).collect();
+    let occl: Vec<bool> = all.par_iter().map(|r| embree.occluded(r)).collect();
+    let mut ok = true;
+    let agree: Vec<bool> = hits
+        .iter()
+        .zip(reference)
+        .map(|(x, y)| x.agrees(y, diag))
+        .collect();
+    ok &= report("embree vs brute force", sets, &agree, REQUIRED);
+    let agree: Vec<bool> = occl
+        .iter()
+        .zip(reference_occl)
+        .map(|(x, y)| x == y)
+        .collect();
+    ok &= report("embree occluded vs brute force", sets, &agree, REQUIRED);
+    let agree: Vec<bool> = occl
+        .iter()
+        .zip(&hits)
+        .map(|(x, y)| *x == y.is_hit())
+        .collect();
+    ok &= report("embree occluded == hit", sets, &agree, 1.0);
+    let both = hits
+        .iter()
+        .zip(reference)
+        .filter(|(x, y)| x.is_hit() && y.is_hit())
+        .count();
+    let same = hits
+        .iter()
+        .zip(reference)
+        .filter(|(x, y)| x.is_hit() && x.prim == y.prim)
+        .count();
+    println!("same primitive id where both hit: embree/brute {same} of {both}");
+    // Inclusive ends, as for the other peers: re-trace own hits with tmax = t, then tmin = t.
+    // Information only: Embree's Möller test compares in scaled units (`absDen * tnear < T`,
+    // `T <= absDen * tfar`) and reports `t = T / absDen`, so its own `t` given back as an end
+    // can fall either side; its documentation guarantees nothing for hits "exactly at (or very
+    // close to) tnear or tfar". No benchmark ray has a hit at an end.
+    let cases: Vec<(Ray, Hit)> = sets[0]
+        .rays
+        .iter()
+        .zip(&hits)
+        .filter(|(_, h)| h.is_hit())
+        .map(|(r, h)| (*r, *h))
+        .take(2000)
+        .collect();
+    let bad_tmax = cases
+        .par_iter()
+        .filter(|(r, h)| embree.intersect(&Ray { tmax: h.t, ..*r }).t != h.t)
+        .count();
+    let bad_tmin = cases
+        .par_iter()
+        .filter(|(r, h)| embree.intersect(&Ray { tmin: h.t, ..*r }).t != h.t)
+        .count();
+    println!(
+        "  {:<32} {} rays: t == tmax lost {bad_tmax}, t == tmin lost {bad_tmin}  (info)",
+        "embree",
+        cases.len(),
+    );
     ok
 }
 
@@ -368,16 +469,24 @@ fn check_tiny_meshes() -> bool {
         let obvhs = ObvhsScene::build(&mesh.positions, &mesh.triangles);
         let bvhc = BvhCrateScene::build(&mesh.positions, &mesh.triangles);
         let brute = peers::brute_force_intersect(&mesh.positions, &mesh.triangles, &ray);
-        let got = [
+        #[allow(unused_mut)]
+        let mut got = vec![
             ("obvhs", obvhs.intersect(&ray)),
             ("bvh", bvhc.intersect(&ray)),
             ("brute force", brute),
         ];
-        let occl = [
+        #[allow(unused_mut)]
+        let mut occl = vec![
             obvhs.occluded(&ray),
             bvhc.occluded(&ray),
             peers::brute_force_occluded(&mesh.positions, &mesh.triangles, &ray),
         ];
+        #[cfg(feature = "embree")]
+        {
+            let embree = peers::EmbreeScene::build(&mesh.positions, &mesh.triangles);
+            got.push(("embree", embree.intersect(&ray)));
+            occl.push(embree.occluded(&ray));
+        }
         for ((peer, h), o) in got.into_iter().zip(occl) {
             // The one-triangle t are exact in every formulation (powers of two), so compare exactly.
             if h != want || o != want.is_hit() {
@@ -387,7 +496,10 @@ fn check_tiny_meshes() -> bool {
         }
     }
     if ok {
+        #[cfg(not(feature = "embree"))]
         println!("  obvhs, bvh and brute force: all cases ok");
+        #[cfg(feature = "embree")]
+        println!("  obvhs, bvh, embree and brute force: all cases ok");
     }
     ok
 }

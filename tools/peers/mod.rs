@@ -1,5 +1,6 @@
-//! Peer tracers: the `obvhs` and `bvh` crates wrapped behind oavm's own [`Ray`] and [`Hit`], so
-//! tools can compare oavm with them ray by ray, in one process. Included by tools with
+//! Peer tracers: the `obvhs` and `bvh` crates (and, with the `embree` feature, Embree 4: see
+//! `embree.rs`) wrapped behind oavm's own [`Ray`] and [`Hit`], so tools can compare oavm with
+//! them ray by ray, in one process. Included by tools with
 //! `#[path = "peers/mod.rs"] mod peers;` (tools are cargo examples, so they can use the
 //! dev-dependencies).
 //!
@@ -19,11 +20,18 @@
 // Each tool uses a part of this module.
 #![allow(dead_code)]
 
+#[cfg(feature = "embree")]
+pub mod embree;
+#[cfg(feature = "embree")]
+pub use embree::EmbreeScene;
+
 // Scenes are shared by reference across rayon's threads.
 const _: () = {
     const fn shareable<T: Send + Sync>() {}
     shareable::<ObvhsScene>();
     shareable::<BvhCrateScene>();
+    #[cfg(feature = "embree")]
+    shareable::<EmbreeScene>();
 };
 
 use std::cell::Cell;
