@@ -23,7 +23,7 @@ use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
 use oavm::{BuildOptions, Hit, Mesh, Ray, Scene};
 #[cfg(feature = "embree")]
 use peers::EmbreeScene;
-use peers::{BvhCrateScene, ObvhsScene};
+use peers::{BvhCrateScene, ObvhsScene, Tracer};
 use rayon::prelude::*;
 use serde_json::json;
 
@@ -116,46 +116,19 @@ impl Peer<'_> {
     /// Traces every ray (in parallel on the current rayon pool): closest hits into `hits`, or
     /// any-hit answers into `occluded` when `any`.
     fn trace(self, rays: &[Ray], any: bool, hits: &mut [Hit], occluded: &mut [bool]) {
-        fn run(
-            rays: &[Ray],
-            any: bool,
-            hits: &mut [Hit],
-            occluded: &mut [bool],
-            closest: impl Fn(&Ray) -> Hit + Sync,
-            any_hit: impl Fn(&Ray) -> bool + Sync,
-        ) {
+        // Generic, so each peer's loop is compiled for it: no dynamic call per ray.
+        fn run(s: &impl Tracer, rays: &[Ray], any: bool, hits: &mut [Hit], occluded: &mut [bool]) {
             if any {
-                par_map(rays, occluded, any_hit);
+                par_map(rays, occluded, |r| s.occluded(r));
             } else {
-                par_map(rays, hits, closest);
+                par_map(rays, hits, |r| s.intersect(r));
             }
         }
         match self {
-            Peer::Obvhs(s) => run(
-                rays,
-                any,
-                hits,
-                occluded,
-                |r| s.intersect(r),
-                |r| s.occluded(r),
-            ),
-            Peer::Bvh(s) => run(
-                rays,
-                any,
-                hits,
-                occluded,
-                |r| s.intersect(r),
-                |r| s.occluded(r),
-            ),
+            Peer::Obvhs(s) => run(s, rays, any, hits, occluded),
+            Peer::Bvh(s) => run(s, rays, any, hits, occluded),
             #[cfg(feature = "embree")]
-            Peer::Embree(s) => run(
-                rays,
-                any,
-                hits,
-                occluded,
-                |r| s.intersect(r),
-                |r| s.occluded(r),
-            ),
+            Peer::Embree(s) => run(s, rays, any, hits, occluded),
         }
     }
 }

@@ -36,6 +36,41 @@ const _: () = {
 
 use std::cell::Cell;
 
+/// What every peer answers, as `RAYS.md` asks: the closest hit and whether anything is hit.
+/// Tools that run several peers the same way are generic over it.
+pub trait Tracer: Sync {
+    fn intersect(&self, ray: &Ray) -> Hit;
+    fn occluded(&self, ray: &Ray) -> bool;
+}
+
+impl Tracer for ObvhsScene {
+    fn intersect(&self, ray: &Ray) -> Hit {
+        ObvhsScene::intersect(self, ray)
+    }
+    fn occluded(&self, ray: &Ray) -> bool {
+        ObvhsScene::occluded(self, ray)
+    }
+}
+
+impl Tracer for BvhCrateScene {
+    fn intersect(&self, ray: &Ray) -> Hit {
+        BvhCrateScene::intersect(self, ray)
+    }
+    fn occluded(&self, ray: &Ray) -> bool {
+        BvhCrateScene::occluded(self, ray)
+    }
+}
+
+#[cfg(feature = "embree")]
+impl Tracer for EmbreeScene {
+    fn intersect(&self, ray: &Ray) -> Hit {
+        EmbreeScene::intersect(self, ray)
+    }
+    fn occluded(&self, ray: &Ray) -> bool {
+        EmbreeScene::occluded(self, ray)
+    }
+}
+
 use glam::{UVec2, Vec3A, Vec4};
 use oavm::{Hit, Ray};
 
