@@ -514,6 +514,100 @@ pub struct TriRecord {
 }
 const _: () = assert!(std::mem::size_of::<TriRecord>() == 40);
 
+/// Spec §7.2: lanes of a triangle group.
+pub const GROUP_LANES: usize = 8;
+/// Spec §7.2: distinct corners a group may have (its corner table's slots).
+pub const GROUP_CORNERS: usize = 8;
+/// Spec §7.1: children of a cluster node.
+pub const CLUSTER_WIDTH: usize = 8;
+/// Spec §7.1: the deepest a cluster's tree may go (its root at depth 0). The builder's trees
+/// are far shallower (a cluster holds a few hundred triangles); the cap bounds the tracer's
+/// stack whatever the bytes.
+pub const MAX_CLUSTER_DEPTH: usize = 16;
+/// Spec §7.1: the range of a cluster node's grid exponents. `2^exp` and every box face
+/// `origin + q * 2^exp` (`q <= 255`) are then normal, finite f32 values for any origin the
+/// builder writes.
+pub const CLUSTER_EXP_RANGE: std::ops::RangeInclusive<i8> = -100..=100;
+
+/// Spec §7.1: one node of a cluster's wide BVH (80 bytes): up to eight children, each an inner
+/// node or a leaf (one triangle group), with boxes quantised to 8 bits per face on a per-axis
+/// grid `origin + q * 2^exp`, rounded outward.
+///
+/// Slots `0..inner_count` are inner children, nodes `node_base + i`; slots
+/// `inner_count..child_count` are leaves, groups `group_base + (i - inner_count)`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct ClusterNode {
+    /// The grid's origin per axis: a multiple of `2^exp` with `|origin / 2^exp| + 255 < 2^24`,
+    /// so that every face `origin + q * 2^exp` is exact in f32.
+    pub origin: [f32; 3],
+    /// The grid step per axis is `2^exp`; within [`CLUSTER_EXP_RANGE`].
+    pub exp: [i8; 3],
+    /// Children in use, `1..=8`.
+    pub child_count: u8,
+    /// Index (in the block's cluster nodes) of the first inner child; the others follow.
+    pub node_base: u32,
+    /// Index (in the block's groups) of the first leaf child's group; the others follow.
+    pub group_base: u32,
+    /// Inner children (slots `0..inner_count`), `<= child_count`.
+    pub inner_count: u8,
+    pub reserved: [u8; 7],
+    /// Lowest face of child `i` along axis `k`: `origin[k] + lo[k][i] * 2^exp[k]`.
+    pub lo: [[u8; CLUSTER_WIDTH]; 3],
+    /// Highest face: `origin[k] + hi[k][i] * 2^exp[k]`; `lo <= hi` for children in use, 0 for
+    /// unused slots.
+    pub hi: [[u8; CLUSTER_WIDTH]; 3],
+}
+const _: () = assert!(std::mem::size_of::<ClusterNode>() == 80);
+
+impl ClusterNode {
+    /// The box of child slot `i` (`< 8`) in world units: exact f32 faces for a node whose
+    /// grid follows spec §7.1 (for any other bytes, some box; never a panic).
+    pub fn child_box(&self, i: usize) -> ([f32; 3], [f32; 3]) {
+        let i = i & (CLUSTER_WIDTH - 1);
+        let face = |k: usize, q: u8| {
+            let step = 2f32.powi(self.exp[k] as i32);
+            self.origin[k] + q as f32 * step
+        };
+        (
+            std::array::from_fn(|k| face(k, self.lo[k][i])),
+            std::array::from_fn(|k| face(k, self.hi[k][i])),
+        )
+    }
+}
+
+/// Spec §7.2: up to eight triangles that share at most eight distinct corners, laid out for
+/// SIMD (160 bytes): the corners' coordinates as three rows of eight, each lane's three corners
+/// as indices into them, and the lanes' primitive ids. Lanes `count..8` never hit (their
+/// indices and ids are 0).
+#[repr(C, align(32))]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct TriGroup {
+    /// `corner[k][j]`: coordinate `k` of distinct corner `j` (world units). Unused slots 0.
+    pub corner: [[f32; GROUP_CORNERS]; 3],
+    /// `tri[c][l]`: the slot (`< 8`) of corner `c` of lane `l`'s triangle, in the input
+    /// triangle's corner order.
+    pub tri: [[u8; GROUP_LANES]; 3],
+    /// Lanes in use, `1..=8`.
+    pub count: u32,
+    pub reserved: u32,
+    /// Primitive id of each lane's triangle (spec §7).
+    pub prim: [u32; GROUP_LANES],
+}
+const _: () = assert!(std::mem::size_of::<TriGroup>() == 160);
+
+impl TriGroup {
+    /// The corners of lane `l`'s triangle (`l < 8`; slots are masked to `< 8`, so any bytes
+    /// give coordinates of the group).
+    #[inline(always)]
+    pub fn triangle(&self, l: usize) -> [[f32; 3]; 3] {
+        std::array::from_fn(|c| {
+            let j = (self.tri[c][l & 7] & 7) as usize;
+            [self.corner[0][j], self.corner[1][j], self.corner[2][j]]
+        })
+    }
+}
+
 /// Spec §8.2: how a block's bytes are stored.
 pub const CODEC_RAW: u32 = 0;
 /// Spec §8.2: one zstd frame whose content is the block's raw bytes.
