@@ -9,7 +9,7 @@ use clap::Parser;
 use oavm::build::{self, BuildOptions};
 mod cli;
 
-use cli::main_with;
+use cli::{LeafArg, main_with};
 use oavm::compare::bench::{self, Options, Report, SceneResult};
 use oavm::{Error, rays};
 
@@ -38,9 +38,13 @@ struct Args {
     /// Thread counts to measure with.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     threads: Vec<usize>,
-    /// OAVM's and the classic octree's leaf size K.
-    #[arg(long, default_value_t = build::DEFAULT_LEAF_SIZE)]
-    leaf_size: u32,
+    /// What OAVM's solid leaves hold: `cluster` (the default structure) or `list` (the OAVM
+    /// paper's structure).
+    #[arg(long, value_enum, default_value_t = LeafArg::Cluster)]
+    leaf: LeafArg,
+    /// OAVM's and the classic octree's leaf size K [default: 512 for clusters, 32 for lists].
+    #[arg(long)]
+    leaf_size: Option<u32>,
     /// OAVM's and the classic octree's maximum depth D.
     #[arg(long, default_value_t = build::DEFAULT_MAX_DEPTH)]
     max_depth: u32,
@@ -72,7 +76,8 @@ fn run(args: &Args) -> Result<(), Error> {
     let names = bench::parse_structures(&args.structure)?;
     let opts = Options {
         build: BuildOptions {
-            leaf_size: args.leaf_size,
+            leaf_size: args.leaf_size.unwrap_or(args.leaf.kind().default_leaf_size()),
+            leaf: args.leaf.kind(),
             max_depth: args.max_depth,
             merge: true,
         },

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
+use cli::LeafArg;
 use oavm::build::{self, BuildOptions, PackOptions, PackReport};
 use oavm::physical::BlockOptions;
 
@@ -24,9 +25,14 @@ struct Args {
     /// Deepest level of the octree (the root is level 0); at most 21.
     #[arg(long, default_value_t = build::DEFAULT_MAX_DEPTH)]
     max_depth: u32,
-    /// Subdivide leaves holding more than this many triangles.
-    #[arg(long, default_value_t = build::DEFAULT_LEAF_SIZE)]
-    leaf_size: u32,
+    /// What a solid leaf holds: `cluster`, a wide BVH over SIMD groups of triangles (the
+    /// fastest), or `list`, a list of triangle references (the OAVM paper's structure).
+    #[arg(long, value_enum, default_value_t = LeafArg::Cluster)]
+    leaf: LeafArg,
+    /// Subdivide leaves holding more than this many triangles [default: 512 for clusters, 32
+    /// for lists].
+    #[arg(long)]
+    leaf_size: Option<u32>,
     /// Do not merge empty leaves into larger volumes.
     #[arg(long)]
     no_merge: bool,
@@ -68,7 +74,8 @@ fn main() -> ExitCode {
         let opts = PackOptions {
             build: BuildOptions {
                 max_depth: args.max_depth,
-                leaf_size: args.leaf_size,
+                leaf_size: args.leaf_size.unwrap_or(args.leaf.kind().default_leaf_size()),
+                leaf: args.leaf.kind(),
                 merge: !args.no_merge,
             },
             blocks: BlockOptions {

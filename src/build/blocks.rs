@@ -28,6 +28,7 @@ use std::collections::HashMap;
 
 use rayon::prelude::*;
 
+use super::cluster::{ClusterTri, build_cluster};
 use crate::error::Error;
 use crate::mapping::{rank, rank_words};
 use crate::physical::format::*;
@@ -107,6 +108,7 @@ pub fn partition(
     base_codes: &[u64],
     target: u64,
     first_block: u32,
+    clusters: Option<&ClusterGeometry>,
 ) -> Result<Split, Error> {
     let nl = tree.levels.len();
     if nl == 0 {
@@ -268,7 +270,7 @@ pub fn partition(
         .par_iter()
         .enumerate()
         .map(|(g, (l, group))| {
-            let unit = extract(&tree, *l as usize, group, &codes)?;
+            let unit = extract(&tree, base_level, *l as usize, group, &codes, clusters)?;
             Ok(BlockParts {
                 id: first_block + g as u32,
                 root_level: base_level + l,
@@ -279,12 +281,39 @@ pub fn partition(
     Ok(Split { top, blocks })
 }
 
-/// The records of the subtrees rooted at nodes `group` of level `l0`, with local indices.
+/// Where the lattice lies in world units: what turning solid leaves into clusters needs (each
+/// cluster's boxes are clipped to its leaf's widened cell, spec §7.1).
+#[derive(Clone, Copy, Debug)]
+pub struct ClusterGeometry {
+    pub root_min: [f64; 3],
+    pub root_size: f64,
+}
+
+impl ClusterGeometry {
+    /// The cell of the node of absolute level `level` and Morton code `code`, widened by
+    /// [`CELL_MARGIN`] lattice units, in world units.
+    fn widened_cell(&self, level: u32, code: u64) -> ([f64; 3], [f64; 3]) {
+        let size = crate::mapping::morton::cell_size(level) as f64;
+        let lo = crate::mapping::morton::cell_origin(code, level);
+        let unit = self.root_size / LATTICE_SIZE as f64;
+        let world = |k: usize, lattice: f64| self.root_min[k] + lattice * unit;
+        (
+            std::array::from_fn(|k| world(k, lo[k] as f64 - CELL_MARGIN)),
+            std::array::from_fn(|k| world(k, lo[k] as f64 + size + CELL_MARGIN)),
+        )
+    }
+}
+
+/// The records of the subtrees rooted at nodes `group` of local level `l0` (absolute level
+/// `base_level + l0`), with local indices; with `clusters`, every solid leaf made a cluster
+/// (spec §7.1) instead of a list of references.
 fn extract(
     tree: &UnitRef<'_>,
+    base_level: u32,
     l0: usize,
     group: &[u32],
     codes: &[Vec<u64>],
+    clusters: Option<&ClusterGeometry>,
 ) -> Result<UnitParts, Error> {
     // Global indices of the block's nodes, by local level.
     let mut local: Vec<Vec<u32>> = vec![group.to_vec()];
@@ -307,7 +336,7 @@ fn extract(
     }
 
     // Leaves in leaf order: volumes, references and triangles renumbered.
-    let mut leaves: Vec<(u64, u32, u32)> = Vec::new();
+    let mut leaves: Vec<(u64, u32, u32, u64)> = Vec::new();
     let mut records: Vec<Vec<NodeRecord>> = Vec::with_capacity(local.len());
     for (d, idx) in local.iter().enumerate() {
         let l = l0 + d;
@@ -317,7 +346,8 @@ fn extract(
             let rec = nodes[i as usize];
             if rec.kind() != Some(NodeKind::Internal) {
                 let shift = 3 * (MAX_LEVEL as usize - l);
-                leaves.push((codes[l][i as usize] << shift, d as u32, j as u32));
+                let code = codes[l][i as usize];
+                leaves.push((code << shift, d as u32, j as u32, code));
             }
             recs.push(rec);
         }
@@ -329,7 +359,10 @@ fn extract(
     let mut refs: Vec<u32> = Vec::new();
     let mut triangles: Vec<TriRecord> = Vec::new();
     let mut tri_map: HashMap<u32, u32> = HashMap::new();
-    for &(_, d, j) in &leaves {
+    let mut cluster_nodes: Vec<ClusterNode> = Vec::new();
+    let mut groups: Vec<TriGroup> = Vec::new();
+    let mut cluster_tris: Vec<ClusterTri> = Vec::new();
+    for &(_, d, j, code) in &leaves {
         let rec = &mut records[d as usize][j as usize];
         match rec.kind() {
             Some(NodeKind::Empty { volume, shape }) => {
@@ -355,6 +388,36 @@ fn extract(
             }) => {
                 let (leaf, _) = leaf_refs(tree.refs, first, inline_count)
                     .ok_or_else(|| bad("a leaf's references are out of range"))?;
+                if let Some(geometry) = clusters {
+                    cluster_tris.clear();
+                    for &t in leaf {
+                        let r = tree
+                            .triangles
+                            .get(t as usize)
+                            .ok_or_else(|| bad("a reference is out of range"))?;
+                        cluster_tris.push(ClusterTri {
+                            v: r.v,
+                            prim: r.prim,
+                        });
+                    }
+                    let level = base_level + l0 as u32 + d;
+                    let (root, group_base) = (cluster_nodes.len(), groups.len());
+                    let (Ok(root), Ok(group_base)) = (u32::try_from(root), u32::try_from(group_base))
+                    else {
+                        return Err(bad("a block with more than 2^32 cluster nodes"));
+                    };
+                    let built = build_cluster(
+                        &cluster_tris,
+                        geometry.widened_cell(level, code),
+                        root,
+                        group_base,
+                    )
+                    .map_err(|e| bad(format!("building a cluster: {e}")))?;
+                    cluster_nodes.extend(built.nodes);
+                    groups.extend(built.groups);
+                    *rec = NodeRecord::cluster(root, bounds);
+                    continue;
+                }
                 let payload = refs.len() as u32;
                 if leaf.len() > MAX_INLINE_REFS as usize {
                     refs.push(leaf.len() as u32);
@@ -390,6 +453,8 @@ fn extract(
         volumes,
         refs,
         triangles,
+        cluster_nodes,
+        groups,
     })
 }
 
@@ -487,5 +552,7 @@ pub fn assemble_top(mut nodes: Vec<TopNode>) -> Result<UnitParts, Error> {
         volumes,
         refs: Vec::new(),
         triangles: Vec::new(),
+        cluster_nodes: Vec::new(),
+        groups: Vec::new(),
     })
 }

@@ -175,6 +175,8 @@ pub(super) fn layout_from(
             volumes,
             refs,
             triangles,
+            cluster_nodes: Vec::new(),
+            groups: Vec::new(),
         },
         empty_leaves,
         solid_leaves,

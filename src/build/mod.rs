@@ -10,6 +10,7 @@
 //! chunk by chunk, for meshes larger than memory; [`pack`] is what `oavm-pack` runs.
 
 pub(crate) mod blocks;
+mod cluster;
 mod layout;
 mod merge;
 mod pack;
@@ -28,7 +29,8 @@ use serde::Serialize;
 use crate::error::Error;
 use crate::mesh::Mesh;
 use crate::physical::format::MAX_LEVEL;
-use crate::physical::format::{FLAG_MERGED, Header};
+use crate::physical::format::{FLAG_CLUSTERS, FLAG_MERGED, Header};
+pub use blocks::ClusterGeometry;
 pub use pack::{PackOptions, PackReport, StreamingReport, pack};
 pub use prepare::{check_scale, is_degenerate};
 pub use stats::{BuildStats, PointerCounts};
@@ -47,22 +49,57 @@ pub struct BuildOptions {
     /// Merge empty leaves into larger empty volumes (paper §2.3); off: every empty leaf is its
     /// own volume.
     pub merge: bool,
+    /// What a solid leaf holds (spec §2 flag `CLUSTERS`).
+    pub leaf: LeafKind,
+}
+
+/// What a solid leaf holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LeafKind {
+    /// A cluster: a wide BVH over groups of triangles laid out for SIMD (spec §7.1, §7.2);
+    /// the default, and the fastest to trace.
+    Cluster,
+    /// A list of references to triangle records (spec §6, §7): the OAVM paper's leaves, kept
+    /// so that the paper's structure can still be measured.
+    List,
 }
 
 /// Default `D`: a cap for pathologically dense meshes. Real meshes stop earlier, by `K` (the
 /// dragon's tree is 11 levels deep at `K = 32`), so it does not change their trees.
 pub const DEFAULT_MAX_DEPTH: u32 = 16;
-/// Default `K`, chosen with `tools/tune.sh` (throughput relative to obvhs on the bunny and the
-/// dragon, primary, random and shadow rays): 8 gave 0.46-0.55x, 16 gave 0.53-0.59x, 24 to 48 a
-/// plateau at 0.51-0.63x; 32 is in the middle of the plateau and keeps files small.
+/// Default `K` of leaf lists, chosen with `tools/tune.sh` (throughput relative to obvhs on the
+/// bunny and the dragon, primary, random and shadow rays): 8 gave 0.46-0.55x, 16 gave
+/// 0.53-0.59x, 24 to 48 a plateau at 0.51-0.63x; 32 is in the middle of the plateau and keeps
+/// files small.
 pub const DEFAULT_LEAF_SIZE: u32 = 32;
+/// Default `K` of clusters: the triangles a cluster may hold before its cell is subdivided.
+pub const DEFAULT_CLUSTER_SIZE: u32 = 512;
+
+impl LeafKind {
+    /// The default `K` for leaves of this kind.
+    pub fn default_leaf_size(self) -> u32 {
+        match self {
+            LeafKind::Cluster => DEFAULT_CLUSTER_SIZE,
+            LeafKind::List => DEFAULT_LEAF_SIZE,
+        }
+    }
+}
 
 impl Default for BuildOptions {
     fn default() -> Self {
+        BuildOptions::with_leaf(LeafKind::Cluster)
+    }
+}
+
+impl BuildOptions {
+    /// The default options for leaves of kind `leaf`.
+    pub fn with_leaf(leaf: LeafKind) -> BuildOptions {
         BuildOptions {
             max_depth: DEFAULT_MAX_DEPTH,
-            leaf_size: DEFAULT_LEAF_SIZE,
+            leaf_size: leaf.default_leaf_size(),
             merge: true,
+            leaf,
         }
     }
 }
@@ -110,7 +147,12 @@ pub(crate) struct HeaderFields {
 impl HeaderFields {
     pub(crate) fn header(&self, opts: &BuildOptions) -> Header {
         Header {
-            flags: if opts.merge { FLAG_MERGED } else { 0 },
+            flags: if opts.merge { FLAG_MERGED } else { 0 }
+                | if opts.leaf == LeafKind::Cluster {
+                    FLAG_CLUSTERS
+                } else {
+                    0
+                },
             root_min: self.root.0,
             root_size: self.root.1,
             mesh_min: self.mesh.0,

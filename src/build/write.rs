@@ -4,11 +4,11 @@
 
 use rayon::prelude::*;
 
-use super::blocks::{self, BlockParts};
+use super::blocks::{self, BlockParts, ClusterGeometry};
 use crate::error::Error;
 use crate::output::Output;
 use crate::physical::AlignedBytes;
-use crate::physical::format::Header;
+use crate::physical::format::{FLAG_CLUSTERS, Header};
 use crate::physical::writer::{
     BlockOptions, FileSink, FileWriter, Sink, StoredBlock, UnitParts, UnitRef, store_block,
 };
@@ -26,6 +26,14 @@ impl TreeParts {
     /// The tree as one unit (its arrays, borrowed).
     pub fn unit(&self) -> UnitRef<'_> {
         self.tree.as_ref()
+    }
+
+    /// Where the lattice lies, if the header asks for clusters.
+    pub fn cluster_geometry(&self) -> Option<ClusterGeometry> {
+        (self.header.flags & FLAG_CLUSTERS != 0).then_some(ClusterGeometry {
+            root_min: self.header.root_min,
+            root_size: self.header.root_size,
+        })
     }
 }
 
@@ -59,7 +67,14 @@ fn write_tree<S: Sink>(
     w: &mut FileWriter<S>,
     io: &impl Fn(std::io::Error) -> Error,
 ) -> Result<UnitParts, Error> {
-    let split = blocks::partition(parts.unit(), 0, &[0], opts.block_size, w.block_count())?;
+    let split = blocks::partition(
+        parts.unit(),
+        0,
+        &[0],
+        opts.block_size,
+        w.block_count(),
+        parts.cluster_geometry().as_ref(),
+    )?;
     write_blocks(&split.blocks, opts, w, io)?;
     blocks::assemble_top(split.top)
 }

@@ -42,8 +42,8 @@ use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
 use crate::physical::BlockView;
 use crate::physical::format::{
-    BlockEntry, CELL_MARGIN, KIND_EMPTY, KIND_LINK, KIND_SOLID, LinkBounds, NodeRecord, TriRecord,
-    leaf_refs,
+    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, ClusterNode, KIND_EMPTY, KIND_LINK, KIND_SOLID,
+    LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, TriGroup, TriRecord, leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -61,8 +61,16 @@ pub struct Counters {
     /// Links whose bounds (spec §8.1) the ray missed: their blocks were passed without being
     /// asked of the pager.
     pub links_culled: u64,
-    /// Ray–triangle tests.
+    /// Ray–triangle tests (in a file of clusters: the lanes in use of the groups tested).
     pub triangles_tested: u64,
+    /// Clusters (spec §7.1) whose wide BVH a ray entered (its leaf's bounds were met).
+    pub clusters_entered: u64,
+    /// Cluster nodes whose children's boxes were tested.
+    pub cluster_nodes_visited: u64,
+    /// Child boxes tested (the children in use of the cluster nodes visited).
+    pub boxes_tested: u64,
+    /// Triangle groups (spec §7.2) tested.
+    pub groups_tested: u64,
     /// Blocks asked of the pager (each time a walk moves into another block), with its hits,
     /// misses and bytes.
     #[serde(flatten)]
@@ -78,6 +86,10 @@ impl std::ops::AddAssign for Counters {
         self.leaves_culled += o.leaves_culled;
         self.links_culled += o.links_culled;
         self.triangles_tested += o.triangles_tested;
+        self.clusters_entered += o.clusters_entered;
+        self.cluster_nodes_visited += o.cluster_nodes_visited;
+        self.boxes_tested += o.boxes_tested;
+        self.groups_tested += o.groups_tested;
         self.page += o.page;
     }
 }
@@ -151,6 +163,8 @@ pub struct Tree<'a> {
     root_min: [f64; 3],
     /// Lattice cells per world unit.
     scale: f64,
+    /// Solid leaves are clusters (spec §2 flag `CLUSTERS`), else lists of references.
+    clusters: bool,
 }
 
 /// A block being walked: its id and its records.
@@ -161,6 +175,8 @@ struct Held<'v> {
     map: TreeMap<'v>,
     refs: &'v [u32],
     tris: &'v [TriRecord],
+    cluster_nodes: &'v [ClusterNode],
+    groups: &'v [TriGroup],
 }
 
 impl<'v> Held<'v> {
@@ -172,6 +188,8 @@ impl<'v> Held<'v> {
             map: TreeMap::with_base(v.levels, v.nodes, v.ranks, v.header.root_level),
             refs: v.refs,
             tris: v.triangles,
+            cluster_nodes: v.cluster_nodes,
+            groups: v.groups,
         }
     }
 }
@@ -185,6 +203,8 @@ struct RayCtx {
     moves: [bool; 3],
     fwd: [bool; 3],
     shear: RayShear,
+    /// The ray in world units, for cluster boxes.
+    boxes: BoxRay,
     tmin: f32,
     t1: f64,
 }
@@ -221,6 +241,7 @@ impl<'a> Tree<'a> {
         blocks: &'a dyn BlockFetch,
         root_min: [f64; 3],
         root_size: f64,
+        clusters: bool,
     ) -> Tree<'a> {
         Tree {
             top,
@@ -229,6 +250,7 @@ impl<'a> Tree<'a> {
             blocks,
             root_min,
             scale: LATTICE_SIZE as f64 / root_size,
+            clusters,
         }
     }
 
@@ -365,6 +387,7 @@ impl<'a> Tree<'a> {
             moves,
             fwd,
             shear: RayShear::new(ray),
+            boxes: BoxRay::new(ray),
             tmin: ray.tmin,
             t1,
         };
@@ -480,7 +503,18 @@ impl<'a> Tree<'a> {
                     let bhi: [f64; 3] = std::array::from_fn(|a| {
                         cell_lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN
                     });
-                    if box_may_hit(r, w.t_best, blo, bhi) {
+                    if box_may_hit(r, w.t_best, blo, bhi) && self.clusters {
+                        let Some(h) = held else {
+                            return Err(bad("cluster outside a block", level, rec.payload as u64));
+                        };
+                        k.clusters_entered += 1;
+                        let found = trace_cluster::<ANY>(r, w, h, rec.payload, k)
+                            .map_err(|what| bad(what, level, rec.payload as u64))?;
+                        if ANY && found {
+                            return Ok(Step::Done(w.best));
+                        }
+                        w.t_stop = r.t1.min(w.t_best as f64);
+                    } else if box_may_hit(r, w.t_best, blo, bhi) {
                         let Some((leaf, _)) = leaf_refs(refs, rec.payload, inline_count) else {
                             return Err(bad(
                                 "triangle references out of range",
@@ -672,4 +706,141 @@ fn box_may_hit(r: &RayCtx, t_best: f32, blo: [f64; 3], bhi: [f64; 3]) -> bool {
 #[inline(always)]
 fn clamp_floor(p: f64, lo: u32, hi: u32) -> u32 {
     p.max(lo as f64).min(hi as f64) as u32
+}
+
+/// The ray in world units as the cluster box test wants it (pbrt-v4's robust slab test).
+#[derive(Clone, Copy, Debug)]
+struct BoxRay {
+    o: [f64; 3],
+    inv: [f64; 3],
+}
+
+impl BoxRay {
+    fn new(ray: &Ray) -> BoxRay {
+        BoxRay {
+            o: ray.origin.map(f64::from),
+            inv: ray.dir.map(|d| 1.0 / d as f64),
+        }
+    }
+
+    /// Children of `n` whose boxes the ray meets over `[tmin, tmax]`, and their entry `t`.
+    /// TEMPORARY scalar f64 version.
+    fn node_hits(&self, n: &ClusterNode, tmin: f32, tmax: f32) -> (u32, [f32; CLUSTER_WIDTH]) {
+        let mut mask = 0;
+        let mut near = [0f32; CLUSTER_WIDTH];
+        for i in 0..(n.child_count as usize).min(CLUSTER_WIDTH) {
+            let (lo, hi) = n.child_box(i);
+            let (mut t0, mut t1) = (tmin as f64, tmax as f64);
+            let mut ok = true;
+            for k in 0..3 {
+                if self.inv[k].is_infinite() {
+                    ok &= self.o[k] >= lo[k] as f64 && self.o[k] <= hi[k] as f64;
+                    continue;
+                }
+                let a = (lo[k] as f64 - self.o[k]) * self.inv[k];
+                let b = (hi[k] as f64 - self.o[k]) * self.inv[k];
+                t0 = t0.max(a.min(b));
+                t1 = t1.min(a.max(b) * (1.0 + 1e-9));
+            }
+            if ok && t0 <= t1 {
+                mask |= 1 << i;
+                near[i] = t0 as f32;
+            }
+        }
+        (mask, near)
+    }
+}
+
+/// Traverses the cluster whose root is node `root` of the held block (spec §7.1), updating the
+/// walk's closest hit (ties to the smallest primitive id); with `ANY`, stops at the first hit
+/// and returns true. Bounded whatever the bytes: a tree visits each node at most once, so a
+/// walk that visits more nodes than the block has, or goes deeper than
+/// [`MAX_CLUSTER_DEPTH`], is reading something that is not a tree.
+#[inline(always)]
+fn trace_cluster<const ANY: bool>(
+    r: &RayCtx,
+    w: &mut WalkState,
+    h: &Held<'_>,
+    root: u32,
+    k: &mut Counters,
+) -> Result<bool, &'static str> {
+    const STACK: usize = (CLUSTER_WIDTH - 1) * MAX_CLUSTER_DEPTH + 1;
+    let mut stack = [(0u32, 0f32, 0u8); STACK];
+    stack[0] = (root, r.tmin, 0);
+    let mut top = 1usize;
+    let mut visits = 0usize;
+    while top > 0 {
+        top -= 1;
+        let (ni, tnear, depth) = stack[top];
+        if tnear > w.t_best {
+            continue;
+        }
+        let Some(n) = h.cluster_nodes.get(ni as usize) else {
+            return Err("cluster node index out of range");
+        };
+        visits += 1;
+        if visits > h.cluster_nodes.len() {
+            return Err("cluster nodes do not form a tree");
+        }
+        k.cluster_nodes_visited += 1;
+        let count = (n.child_count as usize).min(CLUSTER_WIDTH);
+        k.boxes_tested += count as u64;
+        let (mut mask, near) = r.boxes.node_hits(n, r.tmin, w.t_best);
+        let inner = n.inner_count as u32;
+        // Leaves first, nearest-first is not needed for them: all are tested now.
+        let mut leaf_mask = mask & !((1u32 << inner.min(8)) - 1);
+        mask &= (1u32 << inner.min(8)) - 1;
+        while leaf_mask != 0 {
+            let i = leaf_mask.trailing_zeros();
+            leaf_mask &= leaf_mask - 1;
+            let gi = n.group_base as u64 + (i - inner) as u64;
+            let Some(g) = h.groups.get(gi as usize) else {
+                return Err("triangle group index out of range");
+            };
+            k.groups_tested += 1;
+            let lanes = (g.count as usize).min(8);
+            k.triangles_tested += lanes as u64;
+            for l in 0..lanes {
+                if let Some(t) = r.shear.intersect(&g.triangle(l), r.tmin, w.t_best) {
+                    let prim = g.prim[l];
+                    if ANY {
+                        w.best = Some(HitInfo { t, prim, v: g.triangle(l) });
+                        return Ok(true);
+                    }
+                    let better = match &w.best {
+                        None => true,
+                        Some(b) => (t, prim) < (b.t, b.prim),
+                    };
+                    if better {
+                        w.t_best = t;
+                        w.best = Some(HitInfo { t, prim, v: g.triangle(l) });
+                    }
+                }
+            }
+        }
+        if mask == 0 {
+            continue;
+        }
+        if depth as usize + 1 >= MAX_CLUSTER_DEPTH {
+            return Err("cluster deeper than the format allows");
+        }
+        // Inner children, nearest popped first.
+        let mut kids: [(f32, u32); CLUSTER_WIDTH] = [(0.0, 0); CLUSTER_WIDTH];
+        let mut nk = 0;
+        while mask != 0 {
+            let i = mask.trailing_zeros();
+            mask &= mask - 1;
+            kids[nk] = (near[i as usize], n.node_base.wrapping_add(i));
+            nk += 1;
+        }
+        kids[..nk].sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+        for &(t, c) in &kids[..nk] {
+            if top >= STACK {
+                return Err("cluster deeper than the format allows");
+            }
+            stack[top] = (c, t, depth + 1);
+            top += 1;
+        }
+    }
+    Ok(false)
 }

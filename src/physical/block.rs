@@ -234,6 +234,8 @@ pub struct BlockView<'a> {
     pub volumes: &'a [VolumeRecord],
     pub refs: &'a [u32],
     pub triangles: &'a [TriRecord],
+    pub cluster_nodes: &'a [ClusterNode],
+    pub groups: &'a [TriGroup],
 }
 
 impl<'a> BlockView<'a> {
@@ -257,9 +259,11 @@ impl<'a> BlockView<'a> {
         if header.block_id != id as u64 {
             return Err("block holds another block's id");
         }
+        // A block of clusters counts its groups' lanes in the directory, which only a walk
+        // over the groups can check (`verify` does).
         if header.root_level != entry.root_level
             || header.root_count != entry.root_count
-            || header.triangle_count != entry.triangles as u64
+            || (header.group_count == 0 && header.triangle_count != entry.triangles as u64)
         {
             return Err("block header differs from its directory entry");
         }
@@ -276,14 +280,26 @@ impl<'a> BlockView<'a> {
             return Err("block counts do not match its length");
         }
         let cast = |i: usize| &raw[ranges[i].start as usize..ranges[i].end as usize];
-        let (Ok(levels), Ok(nodes), Ok(ranks), Ok(volumes), Ok(refs), Ok(triangles)) = (
+        let (
+            Ok(levels),
+            Ok(nodes),
+            Ok(ranks),
+            Ok(volumes),
+            Ok(refs),
+            Ok(triangles),
+            Ok(cluster_nodes),
+            Ok(groups),
+        ) = (
             bytemuck::try_cast_slice::<u8, LevelEntry>(cast(0)),
             bytemuck::try_cast_slice::<u8, NodeRecord>(cast(1)),
             bytemuck::try_cast_slice::<u8, RankWord>(cast(2)),
             bytemuck::try_cast_slice::<u8, VolumeRecord>(cast(3)),
             bytemuck::try_cast_slice::<u8, u32>(cast(4)),
             bytemuck::try_cast_slice::<u8, TriRecord>(cast(5)),
-        ) else {
+            bytemuck::try_cast_slice::<u8, ClusterNode>(cast(6)),
+            bytemuck::try_cast_slice::<u8, TriGroup>(cast(7)),
+        )
+        else {
             return Err("block bytes are not aligned");
         };
         let (mut node_start, mut rank_start) = (0u64, 0u64);
@@ -314,6 +330,8 @@ impl<'a> BlockView<'a> {
             volumes,
             refs,
             triangles,
+            cluster_nodes,
+            groups,
         })
     }
 }

@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 pub const MAGIC: [u8; 8] = *b"\x89OAVM\r\n\x1a";
 
 /// Spec §12: the format version this code reads and writes.
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
@@ -35,8 +35,12 @@ pub const CELL_MARGIN: f64 = 2.0;
 pub const FLAG_MERGED: u32 = 1;
 /// Spec §2, `flags` bit 1: at least one block is stored compressed.
 pub const FLAG_COMPRESSED: u32 = 2;
+/// Spec §2, `flags` bit 2: solid leaves are clusters (spec §7.1, a wide BVH over triangle
+/// groups); clear: solid leaves list references to triangle records (spec §6, §7), the paper's
+/// structure (`oavm-pack --leaf list`).
+pub const FLAG_CLUSTERS: u32 = 4;
 /// Every flag this version knows; any other bit set is an error at open.
-pub const KNOWN_FLAGS: u32 = FLAG_MERGED | FLAG_COMPRESSED;
+pub const KNOWN_FLAGS: u32 = FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS;
 
 /// Spec §2: the file header, at offset 0 (256 bytes).
 #[repr(C)]
@@ -390,6 +394,16 @@ impl NodeRecord {
         }
     }
 
+    /// A solid leaf of a file of clusters (spec §4.2, §7.1): its cluster's root is node `root`
+    /// of the block's cluster nodes.
+    pub fn cluster(root: u32, bounds: LeafBounds) -> NodeRecord {
+        debug_assert!(bounds.is_valid());
+        NodeRecord {
+            payload: root,
+            meta: KIND_SOLID << KIND_SHIFT | bounds.pack(),
+        }
+    }
+
     pub fn internal() -> NodeRecord {
         NodeRecord {
             payload: 0,
@@ -580,7 +594,7 @@ impl ClusterNode {
 /// SIMD (160 bytes): the corners' coordinates as three rows of eight, each lane's three corners
 /// as indices into them, and the lanes' primitive ids. Lanes `count..8` never hit (their
 /// indices and ids are 0).
-#[repr(C, align(32))]
+#[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct TriGroup {
     /// `corner[k][j]`: coordinate `k` of distinct corner `j` (world units). Unused slots 0.
@@ -665,17 +679,26 @@ pub struct BlockHeader {
     pub node_count: u64,
     pub rank_count: u64,
     pub volume_count: u64,
+    /// Reference words (leaf lists; 0 in a file of clusters).
     pub ref_count: u64,
+    /// Triangle records (leaf lists; 0 in a file of clusters).
     pub triangle_count: u64,
+    /// Cluster nodes (clusters; 0 in a file of leaf lists).
+    pub cluster_node_count: u64,
+    /// Triangle groups (clusters; 0 in a file of leaf lists).
+    pub group_count: u64,
     /// The block's own index in the directory (catches a block stored in another's place).
     pub block_id: u64,
 }
-const _: () = assert!(std::mem::size_of::<BlockHeader>() == 64);
+const _: () = assert!(std::mem::size_of::<BlockHeader>() == 80);
+
+/// Spec §8.3: the parts of a block, in the order they are stored.
+pub const BLOCK_PARTS: usize = 8;
 
 /// Spec §8.3: the byte ranges, from a block's start, of its level table, nodes, ranks, volumes,
-/// refs and triangles (each at the next multiple of [`SECTION_ALIGN`]), and the block's raw
-/// length; `None` if the counts overflow.
-pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; 6], u64)> {
+/// refs, triangles, cluster nodes and groups (each at the next multiple of [`SECTION_ALIGN`]),
+/// and the block's raw length; `None` if the counts overflow.
+pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; BLOCK_PARTS], u64)> {
     let sizes = [
         (h.level_count as u64, std::mem::size_of::<LevelEntry>()),
         (h.node_count, std::mem::size_of::<NodeRecord>()),
@@ -683,9 +706,11 @@ pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; 6], u64)>
         (h.volume_count, std::mem::size_of::<VolumeRecord>()),
         (h.ref_count, std::mem::size_of::<u32>()),
         (h.triangle_count, std::mem::size_of::<TriRecord>()),
+        (h.cluster_node_count, std::mem::size_of::<ClusterNode>()),
+        (h.group_count, std::mem::size_of::<TriGroup>()),
     ];
     let mut at = std::mem::size_of::<BlockHeader>() as u64;
-    let mut out: [std::ops::Range<u64>; 6] = Default::default();
+    let mut out: [std::ops::Range<u64>; BLOCK_PARTS] = Default::default();
     for (i, (count, size)) in sizes.into_iter().enumerate() {
         at = at.checked_next_multiple_of(SECTION_ALIGN)?;
         let end = at.checked_add(count.checked_mul(size as u64)?)?;

@@ -19,6 +19,9 @@ pub struct UnitParts {
     pub volumes: Vec<VolumeRecord>,
     pub refs: Vec<u32>,
     pub triangles: Vec<TriRecord>,
+    /// Clusters (spec §7.1, §7.2): empty in a unit of leaf lists and in the top tree.
+    pub cluster_nodes: Vec<ClusterNode>,
+    pub groups: Vec<TriGroup>,
 }
 
 impl UnitParts {
@@ -30,6 +33,8 @@ impl UnitParts {
             volumes: &self.volumes,
             refs: &self.refs,
             triangles: &self.triangles,
+            cluster_nodes: &self.cluster_nodes,
+            groups: &self.groups,
         }
     }
 }
@@ -43,6 +48,16 @@ pub struct UnitRef<'a> {
     pub volumes: &'a [VolumeRecord],
     pub refs: &'a [u32],
     pub triangles: &'a [TriRecord],
+    pub cluster_nodes: &'a [ClusterNode],
+    pub groups: &'a [TriGroup],
+}
+
+impl UnitRef<'_> {
+    /// Triangles stored in the unit (spec §8.2, the directory's `triangles`): its triangle
+    /// records, or its groups' lanes in use.
+    pub fn stored_triangles(&self) -> u64 {
+        self.triangles.len() as u64 + self.groups.iter().map(|g| g.count as u64).sum::<u64>()
+    }
 }
 
 /// How blocks are made and stored.
@@ -144,25 +159,29 @@ fn block_header(unit: UnitRef<'_>, root_level: u32, id: u32) -> BlockHeader {
         volume_count: unit.volumes.len() as u64,
         ref_count: unit.refs.len() as u64,
         triangle_count: unit.triangles.len() as u64,
+        cluster_node_count: unit.cluster_nodes.len() as u64,
+        group_count: unit.groups.len() as u64,
         block_id: id as u64,
     }
 }
 
 /// The raw bytes of a block (spec §8.3): header, level table, nodes, ranks, volumes, refs,
-/// triangles, each part at a multiple of 64 bytes from the start. The caller has checked its
+/// triangles, cluster nodes, groups, each part at a multiple of 64 bytes from the start. The caller has checked its
 /// size ([`store_block`]).
 pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
     let header = block_header(unit, root_level, id);
     let (ranges, len) = block_layout(&header).expect("block counts fit in memory");
     let mut out = vec![0u8; len as usize];
     out[..std::mem::size_of::<BlockHeader>()].copy_from_slice(bytemuck::bytes_of(&header));
-    let parts: [&[u8]; 6] = [
+    let parts: [&[u8]; BLOCK_PARTS] = [
         bytemuck::cast_slice(unit.levels),
         bytemuck::cast_slice(unit.nodes),
         bytemuck::cast_slice(unit.ranks),
         bytemuck::cast_slice(unit.volumes),
         bytemuck::cast_slice(unit.refs),
         bytemuck::cast_slice(unit.triangles),
+        bytemuck::cast_slice(unit.cluster_nodes),
+        bytemuck::cast_slice(unit.groups),
     ];
     for (r, bytes) in ranges.iter().zip(parts) {
         out[r.start as usize..r.end as usize].copy_from_slice(bytes);
@@ -226,7 +245,7 @@ fn store_block_within(
             codec,
             root_level,
             root_count: unit.levels.first().map_or(0, |l| l.node_count as u32),
-            triangles: unit.triangles.len() as u32,
+            triangles: unit.stored_triangles() as u32,
             checksum: checksum(&bytes),
         },
         bytes,
@@ -457,7 +476,7 @@ impl<S: Sink> FileWriter<S> {
             self.at += bytes.len() as u64;
         }
         let file_size = self.at;
-        let mut flags = meta.flags & FLAG_MERGED;
+        let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS);
         if self.compressed {
             flags |= FLAG_COMPRESSED;
         }

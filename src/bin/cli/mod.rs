@@ -283,3 +283,19 @@ mod tests {
         assert!(parse_vec3("1,2,inf").is_err());
     }
 }
+
+/// `--leaf`: what a solid leaf holds (`oavm::build::LeafKind`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LeafArg {
+    Cluster,
+    List,
+}
+
+impl LeafArg {
+    pub fn kind(self) -> oavm::build::LeafKind {
+        match self {
+            LeafArg::Cluster => oavm::build::LeafKind::Cluster,
+            LeafArg::List => oavm::build::LeafKind::List,
+        }
+    }
+}

@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use super::super::blocks::{TopKind, assemble_top, partition};
+use super::super::blocks::{ClusterGeometry, TopKind, assemble_top, partition};
 use super::super::layout::layout_from;
 use super::super::merge;
 use super::super::pack::PackOptions;
@@ -13,7 +13,7 @@ use super::super::spill::SpillBuckets;
 use super::super::stats::TreeCounts;
 use super::super::subdivide::{self, LatticeTri, SubdivideParams};
 use super::super::write::write_blocks;
-use super::super::{HeaderFields, Progress};
+use super::super::{HeaderFields, LeafKind, Progress};
 use super::plan::Plan;
 use super::{Bounds, Lattice, Written};
 use crate::error::Error;
@@ -41,6 +41,10 @@ pub(super) fn build_and_write(
     let mut top_nodes = plan.top.clone();
     let mut counts = TreeCounts::default();
     let mut level_count = top_nodes.iter().map(|n| n.level + 1).max().unwrap_or(1);
+    let clusters = (opts.build.leaf == LeafKind::Cluster).then_some(ClusterGeometry {
+        root_min: lattice.root_min,
+        root_size: lattice.root_size,
+    });
     progress.phase("building chunks", Some(plan.chunks.len() as u64), false);
     for (i, c) in plan.chunks.iter().enumerate() {
         let mut records = spill.read(i as u32)?;
@@ -63,6 +67,7 @@ pub(super) fn build_and_write(
             &[c.code],
             opts.blocks.block_size,
             w.block_count(),
+            clusters.as_ref(),
         )?;
         drop(laid);
         write_blocks(&split.blocks, &opts.blocks, &mut w, &io)?;
