@@ -76,7 +76,9 @@ fn run(args: &Args) -> Result<(), Error> {
     let names = bench::parse_structures(&args.structure)?;
     let opts = Options {
         build: BuildOptions {
-            leaf_size: args.leaf_size.unwrap_or(args.leaf.kind().default_leaf_size()),
+            leaf_size: args
+                .leaf_size
+                .unwrap_or(args.leaf.kind().default_leaf_size()),
             leaf: args.leaf.kind(),
             max_depth: args.max_depth,
             merge: true,

@@ -74,7 +74,9 @@ fn main() -> ExitCode {
         let opts = PackOptions {
             build: BuildOptions {
                 max_depth: args.max_depth,
-                leaf_size: args.leaf_size.unwrap_or(args.leaf.kind().default_leaf_size()),
+                leaf_size: args
+                    .leaf_size
+                    .unwrap_or(args.leaf.kind().default_leaf_size()),
                 leaf: args.leaf.kind(),
                 merge: !args.no_merge,
             },

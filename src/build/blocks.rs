@@ -402,7 +402,8 @@ fn extract(
                     }
                     let level = base_level + l0 as u32 + d;
                     let (root, group_base) = (cluster_nodes.len(), groups.len());
-                    let (Ok(root), Ok(group_base)) = (u32::try_from(root), u32::try_from(group_base))
+                    let (Ok(root), Ok(group_base)) =
+                        (u32::try_from(root), u32::try_from(group_base))
                     else {
                         return Err(bad("a block with more than 2^32 cluster nodes"));
                     };

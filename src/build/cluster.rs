@@ -23,9 +23,17 @@ fn bbox(t: &ClusterTri, clip: &([f64; 3], [f64; 3])) -> ([f32; 3], [f32; 3]) {
     }
     for k in 0..3 {
         let cl = clip.0[k] as f32;
-        let cl = if (cl as f64) > clip.0[k] { cl.next_down() } else { cl };
+        let cl = if (cl as f64) > clip.0[k] {
+            cl.next_down()
+        } else {
+            cl
+        };
         let ch = clip.1[k] as f32;
-        let ch = if (ch as f64) < clip.1[k] { ch.next_up() } else { ch };
+        let ch = if (ch as f64) < clip.1[k] {
+            ch.next_up()
+        } else {
+            ch
+        };
         lo[k] = lo[k].max(cl).min(hi[k]);
         hi[k] = hi[k].min(ch).max(lo[k]);
     }
@@ -51,8 +59,7 @@ fn quantise(boxes: &[([f32; 3], [f32; 3])]) -> ([f32; 3], [i8; 3], Vec<[[u8; 2];
         loop {
             let step = 2f64.powi(e);
             let o = (lo / step).floor() * step;
-            if ((hi - o) / step).ceil() <= 255.0 && (o / step).abs() + 256.0 < (1u64 << 24) as f64
-            {
+            if ((hi - o) / step).ceil() <= 255.0 && (o / step).abs() + 256.0 < (1u64 << 24) as f64 {
                 origin[k] = o as f32;
                 exp[k] = e as i8;
                 break;
@@ -145,8 +152,11 @@ pub fn build_cluster(
         Leaf(usize),
         Inner(usize),
     }
-    let mut level: Vec<(([f32; 3], [f32; 3]), Ch)> =
-        gboxes.iter().enumerate().map(|(i, &b)| (b, Ch::Leaf(i))).collect();
+    let mut level: Vec<(([f32; 3], [f32; 3]), Ch)> = gboxes
+        .iter()
+        .enumerate()
+        .map(|(i, &b)| (b, Ch::Leaf(i)))
+        .collect();
     // Each built node: list of children.
     let mut built: Vec<Vec<(([f32; 3], [f32; 3]), Ch)>> = Vec::new();
     loop {
@@ -177,8 +187,14 @@ pub fn build_cluster(
         qi += 1;
         out_order.push(b);
         let children = &built[b];
-        let inner: Vec<_> = children.iter().filter(|c| matches!(c.1, Ch::Inner(_))).collect();
-        let leaves: Vec<_> = children.iter().filter(|c| matches!(c.1, Ch::Leaf(_))).collect();
+        let inner: Vec<_> = children
+            .iter()
+            .filter(|c| matches!(c.1, Ch::Inner(_)))
+            .collect();
+        let leaves: Vec<_> = children
+            .iter()
+            .filter(|c| matches!(c.1, Ch::Leaf(_)))
+            .collect();
         let mut n = ClusterNode::zeroed();
         n.child_count = children.len() as u8;
         n.inner_count = inner.len() as u8;

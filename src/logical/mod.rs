@@ -6,6 +6,7 @@
 
 mod batch;
 mod frame;
+mod held;
 mod order;
 mod pager;
 mod report;

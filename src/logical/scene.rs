@@ -7,13 +7,14 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::batch::{CHUNK, in_order};
+use super::held::ReadyMap;
 use super::order::{Order, RayKeys};
 use super::pager::{BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions};
-use super::trace::{BlockFetch, Counters, TraceError, Tree};
+use super::trace::{BlockFetch, Counters, Direct, TraceError, Tree};
 use super::verify::VerifyReport;
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
-use crate::mapping::{Corruption, TreeMap};
+use crate::mapping::{Corruption, LevelInfos, TreeMap};
 use crate::os::MappedFile;
 use crate::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, SectionKind};
 use crate::physical::{BlockReader, OavmFile};
@@ -75,6 +76,8 @@ pub struct Scene<D = MappedFile> {
     file: OavmFile<D>,
     path: PathBuf,
     pager: Pager,
+    /// The top tree's per-level constants (made at open).
+    top_infos: LevelInfos,
     /// The memory budget (the user's, or the default).
     budget: u64,
     /// Threads that may trace at once (what the budget holds).
@@ -163,6 +166,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             },
         );
         Ok(Scene {
+            top_infos: LevelInfos::new(file.levels(), 0),
             file,
             path,
             pager,
@@ -266,6 +270,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     pub fn tree(&self) -> Tree<'_> {
         let h = self.file.header();
         let top = TreeMap::new(
+            &self.top_infos,
             self.file.levels(),
             self.file.records(SectionKind::Nodes),
             self.file.records(SectionKind::Ranks),
@@ -275,6 +280,10 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             self.file.records(SectionKind::LinkBounds),
             self.file.directory(),
             self,
+            self.pager.resident_forever().map(|ready| Direct {
+                file: self.file.data().as_ref(),
+                ready,
+            }),
             h.root_min,
             h.root_size,
             h.flags & FLAG_CLUSTERS != 0,
@@ -447,8 +456,19 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
 }
 
 impl<D: AsRef<[u8]> + BlockSource> BlockFetch for Scene<D> {
-    fn fetch(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError> {
-        self.pager
-            .get(self.file.data(), self.file.directory(), block, c)
+    fn fetch(
+        &self,
+        block: u32,
+        c: &mut PageCounters,
+    ) -> Result<(BlockBytes<'_>, &ReadyMap), PageError> {
+        let directory = self.file.directory();
+        let bytes = self.pager.get(self.file.data(), directory, block, c)?;
+        // `get` found the entry.
+        let entry = directory.get(block as usize).ok_or_else(|| PageError {
+            block,
+            what: "no such block".into(),
+        })?;
+        let ready = self.pager.ready(block, entry, &bytes)?;
+        Ok((bytes, ready))
     }
 }

@@ -35,15 +35,17 @@ use std::hint::select_unpredictable;
 
 use serde::Serialize;
 
+use std::sync::OnceLock;
+
+use super::held::{Held, ReadyMap};
 use super::pager::{BlockBytes, PageCounters, PageError};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
-use crate::physical::BlockView;
 use crate::physical::format::{
     BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, ClusterNode, KIND_EMPTY, KIND_LINK, KIND_SOLID,
-    LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, TriGroup, TriRecord, leaf_refs,
+    LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -147,8 +149,39 @@ impl From<TraceError> for crate::error::FormatError {
 
 /// Where a tree's blocks come from: the pager of an opened file.
 pub(crate) trait BlockFetch: Sync {
-    /// The raw bytes of block `block`, counting the request in `c`.
-    fn fetch(&self, block: u32, c: &mut PageCounters) -> Result<BlockBytes<'_>, PageError>;
+    /// The raw bytes of block `block` and its map, counting the request in `c`.
+    fn fetch(
+        &self,
+        block: u32,
+        c: &mut PageCounters,
+    ) -> Result<(BlockBytes<'_>, &ReadyMap), PageError>;
+}
+
+/// The blocks of a file whose pager never evicts (every block raw, the budget holding them
+/// all): an admitted block's bytes are read straight from the file, with no call to the pager.
+#[derive(Clone, Copy)]
+pub(crate) struct Direct<'a> {
+    /// The whole file.
+    pub file: &'a [u8],
+    /// Per block, its map once admitted.
+    pub ready: &'a [OnceLock<Box<ReadyMap>>],
+}
+
+/// A block's bytes, from the file or from the pager.
+enum Fetched<'a> {
+    Direct(&'a [u8]),
+    Paged(BlockBytes<'a>),
+}
+
+impl std::ops::Deref for Fetched<'_> {
+    type Target = [u8];
+    #[inline(always)]
+    fn deref(&self) -> &[u8] {
+        match self {
+            Fetched::Direct(b) => b,
+            Fetched::Paged(b) => b,
+        }
+    }
 }
 
 /// A read-only view of a file's tree, ready for tracing: the top tree (always resident) and the
@@ -160,38 +193,12 @@ pub struct Tree<'a> {
     link_bounds: &'a [LinkBounds],
     directory: &'a [BlockEntry],
     blocks: &'a dyn BlockFetch,
+    direct: Option<Direct<'a>>,
     root_min: [f64; 3],
     /// Lattice cells per world unit.
     scale: f64,
     /// Solid leaves are clusters (spec §2 flag `CLUSTERS`), else lists of references.
     clusters: bool,
-}
-
-/// A block being walked: its id and its records.
-struct Held<'v> {
-    id: u32,
-    root_level: u32,
-    root_count: u32,
-    map: TreeMap<'v>,
-    refs: &'v [u32],
-    tris: &'v [TriRecord],
-    cluster_nodes: &'v [ClusterNode],
-    groups: &'v [TriGroup],
-}
-
-impl<'v> Held<'v> {
-    fn new(id: u32, v: &BlockView<'v>) -> Held<'v> {
-        Held {
-            id,
-            root_level: v.header.root_level,
-            root_count: v.header.root_count,
-            map: TreeMap::with_base(v.levels, v.nodes, v.ranks, v.header.root_level),
-            refs: v.refs,
-            tris: v.triangles,
-            cluster_nodes: v.cluster_nodes,
-            groups: v.groups,
-        }
-    }
 }
 
 /// The ray in lattice space, and what the walk derives from it once.
@@ -239,6 +246,7 @@ impl<'a> Tree<'a> {
         link_bounds: &'a [LinkBounds],
         directory: &'a [BlockEntry],
         blocks: &'a dyn BlockFetch,
+        direct: Option<Direct<'a>>,
         root_min: [f64; 3],
         root_size: f64,
         clusters: bool,
@@ -248,6 +256,7 @@ impl<'a> Tree<'a> {
             link_bounds,
             directory,
             blocks,
+            direct,
             root_min,
             scale: LATTICE_SIZE as f64 / root_size,
             clusters,
@@ -299,34 +308,17 @@ impl<'a> Tree<'a> {
         // turn's are let go (so a thread never holds two blocks).
         let mut need: Option<u32> = None;
         let result = loop {
-            let bytes = match need {
+            let fetched = match need {
                 None => None,
-                Some(b) => match self.blocks.fetch(b, &mut k.page) {
-                    Ok(bytes) => Some((b, bytes)),
-                    Err(e) => break Err(e.into()),
+                Some(b) => match self.fetch(b, &mut k.page) {
+                    Ok(f) => Some(f),
+                    Err(e) => break Err(e),
                 },
             };
-            let view = match &bytes {
-                None => None,
-                Some((b, bytes)) => {
-                    let checked = match self.directory.get(*b as usize) {
-                        Some(e) => BlockView::parse(bytes, *b, e),
-                        None => Err("link to a block past the directory"),
-                    };
-                    match checked {
-                        Ok(v) => Some(Held::new(*b, &v)),
-                        Err(what) => {
-                            break Err(TraceError::Corrupt(Corruption {
-                                what,
-                                block: Some(*b),
-                                level: 0,
-                                index: 0,
-                            }));
-                        }
-                    }
-                }
-            };
-            match self.walk_in::<ANY>(&ctx, &mut w, view.as_ref(), &mut k) {
+            let held = fetched
+                .as_ref()
+                .map(|(b, bytes, ready)| Held::new(*b, ready, bytes));
+            match self.walk_in::<ANY>(&ctx, &mut w, held.as_ref(), &mut k) {
                 Ok(Step::Done(best)) => break Ok(best),
                 Ok(Step::Need(b)) => need = Some(b),
                 Err(e) => break Err(e.into()),
@@ -334,6 +326,29 @@ impl<'a> Tree<'a> {
         };
         *c += k;
         result
+    }
+
+    /// Block `b`'s bytes and map: straight from the file if it was admitted and the pager never
+    /// evicts, else from the pager (counted alike).
+    #[inline(always)]
+    fn fetch(
+        &self,
+        b: u32,
+        c: &mut PageCounters,
+    ) -> Result<(u32, Fetched<'a>, &'a ReadyMap), TraceError> {
+        if let Some(d) = &self.direct
+            && let Some(ready) = d.ready.get(b as usize).and_then(OnceLock::get)
+            && let Some(e) = self.directory.get(b as usize)
+            && let Some(bytes) = d
+                .file
+                .get(e.offset as usize..(e.offset as usize).saturating_add(e.raw_len as usize))
+        {
+            c.requested += 1;
+            c.hits += 1;
+            return Ok((b, Fetched::Direct(bytes), ready));
+        }
+        let (bytes, ready) = self.blocks.fetch(b, c)?;
+        Ok((b, Fetched::Paged(bytes), ready))
     }
 
     /// The ray in lattice space and the walk's start, clipped to the root cube; `None` for a
@@ -804,7 +819,11 @@ fn trace_cluster<const ANY: bool>(
                 if let Some(t) = r.shear.intersect(&g.triangle(l), r.tmin, w.t_best) {
                     let prim = g.prim[l];
                     if ANY {
-                        w.best = Some(HitInfo { t, prim, v: g.triangle(l) });
+                        w.best = Some(HitInfo {
+                            t,
+                            prim,
+                            v: g.triangle(l),
+                        });
                         return Ok(true);
                     }
                     let better = match &w.best {
@@ -813,7 +832,11 @@ fn trace_cluster<const ANY: bool>(
                     };
                     if better {
                         w.t_best = t;
-                        w.best = Some(HitInfo { t, prim, v: g.triangle(l) });
+                        w.best = Some(HitInfo {
+                            t,
+                            prim,
+                            v: g.triangle(l),
+                        });
                     }
                 }
             }

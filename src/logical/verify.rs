@@ -11,8 +11,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
-use crate::mapping::TreeMap;
 use crate::mapping::morton::{self, cell_origin, cell_size};
+use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::format::*;
 use crate::physical::verify::{
     Defects, check_block_padding, check_block_placement, check_sections,
@@ -82,9 +82,11 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
     }
 
     // The top tree.
+    let top_infos = LevelInfos::new(file.levels(), 0);
     let top = Unit {
         label: "top tree".into(),
         map: TreeMap::new(
+            &top_infos,
             file.levels(),
             file.records(SectionKind::Nodes),
             file.records(SectionKind::Ranks),
@@ -288,9 +290,10 @@ fn check_block(
         }
     }
     let root_codes = linked.iter().map(|&(code, _)| code).collect();
+    let infos = LevelInfos::new(view.levels, view.header.root_level);
     let unit = Unit {
         label: format!("block {b}"),
-        map: TreeMap::with_base(view.levels, view.nodes, view.ranks, view.header.root_level),
+        map: TreeMap::new(&infos, view.levels, view.nodes, view.ranks),
         root_codes,
         volumes: view.volumes,
         refs: view.refs,

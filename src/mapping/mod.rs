@@ -27,4 +27,4 @@ mod rank;
 mod tree_map;
 
 pub use rank::{rank, rank_words};
-pub use tree_map::{Corruption, TreeMap};
+pub use tree_map::{Corruption, LevelInfos, TreeMap};

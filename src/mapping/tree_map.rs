@@ -51,36 +51,23 @@ struct LevelInfo {
     next_count: u64,
 }
 
-/// The node records and rank directory of a tree, or of a block's subtrees, addressed by
-/// `(absolute level, index in level)`. A block's map has a *base*: the absolute level of its
-/// roots, which are its local level 0 (format-spec §8).
-#[derive(Clone, Copy)]
-pub struct TreeMap<'a> {
+/// The per-level constants of a unit (the top tree, or a block's subtrees), by absolute level:
+/// what a [`TreeMap`] reads on every step of a descent. Made once per unit (when a file is
+/// opened, when a block is admitted) and borrowed by every map of it, so that entering a block
+/// rebuilds nothing.
+#[derive(Clone, Copy, Debug)]
+pub struct LevelInfos {
     /// Indexed by absolute level; 32 entries (levels outside `base .. base + level_count` are
     /// zero) so that `level & 31` indexes it without a bounds check.
     info: [LevelInfo; 32],
     base: u32,
     level_count: u32,
-    levels: &'a [LevelEntry],
-    nodes: &'a [NodeRecord],
-    ranks: &'a [RankWord],
 }
 
-impl<'a> TreeMap<'a> {
-    /// A map over validated level, node and rank tables (levels beyond 22 are ignored; every
-    /// access is still bounds-checked against the slices).
-    pub fn new(levels: &'a [LevelEntry], nodes: &'a [NodeRecord], ranks: &'a [RankWord]) -> Self {
-        Self::with_base(levels, nodes, ranks, 0)
-    }
-
-    /// A map whose local level 0 is absolute level `base` (a block's roots). Levels past the
-    /// lattice's deepest are ignored.
-    pub fn with_base(
-        levels: &'a [LevelEntry],
-        nodes: &'a [NodeRecord],
-        ranks: &'a [RankWord],
-        base: u32,
-    ) -> Self {
+impl LevelInfos {
+    /// The constants of a level table whose local level 0 is absolute level `base` (a block's
+    /// roots; 0 for the top tree). Levels past the lattice's deepest are ignored.
+    pub fn new(levels: &[LevelEntry], base: u32) -> LevelInfos {
         let base = base.min(MAX_LEVEL);
         let levels = &levels[..levels.len().min((MAX_LEVEL + 1 - base) as usize)];
         let mut info = [LevelInfo::default(); 32];
@@ -91,10 +78,38 @@ impl<'a> TreeMap<'a> {
                 next_count: levels.get(l + 1).map_or(0, |n| n.node_count),
             };
         }
-        TreeMap {
+        LevelInfos {
             info,
             base,
             level_count: levels.len() as u32,
+        }
+    }
+}
+
+/// The node records and rank directory of a tree, or of a block's subtrees, addressed by
+/// `(absolute level, index in level)`. A block's map has a *base*: the absolute level of its
+/// roots, which are its local level 0 (format-spec §8).
+#[derive(Clone, Copy)]
+pub struct TreeMap<'a> {
+    infos: &'a LevelInfos,
+    levels: &'a [LevelEntry],
+    nodes: &'a [NodeRecord],
+    ranks: &'a [RankWord],
+}
+
+impl<'a> TreeMap<'a> {
+    /// A map over validated level, node and rank tables, with their constants `infos` (made by
+    /// [`LevelInfos::new`] from the same level table; every access is still bounds-checked
+    /// against the slices, so any other `infos` gives errors, never a panic).
+    pub fn new(
+        infos: &'a LevelInfos,
+        levels: &'a [LevelEntry],
+        nodes: &'a [NodeRecord],
+        ranks: &'a [RankWord],
+    ) -> Self {
+        let levels = &levels[..levels.len().min(infos.level_count as usize)];
+        TreeMap {
+            infos,
             levels,
             nodes,
             ranks,
@@ -122,7 +137,7 @@ impl<'a> TreeMap<'a> {
     ) -> Result<(u32, NodeRecord), Corruption> {
         loop {
             let idx = path[(level & 31) as usize];
-            let li = &self.info[(level & 31) as usize];
+            let li = &self.infos.info[(level & 31) as usize];
             *visits += 1;
             let bad = |what| Corruption {
                 block: None,
@@ -157,17 +172,17 @@ impl<'a> TreeMap<'a> {
     /// the map does not hold).
     #[inline(always)]
     pub fn node_start(&self, level: u32) -> u64 {
-        self.info[(level & 31) as usize].node_start
+        self.infos.info[(level & 31) as usize].node_start
     }
 
     /// Levels held (local levels, from the base).
     pub fn level_count(&self) -> u32 {
-        self.level_count
+        self.infos.level_count
     }
 
     /// Absolute level of local level 0.
     pub fn base(&self) -> u32 {
-        self.base
+        self.infos.base
     }
 
     /// The level table, by local level.
@@ -186,7 +201,8 @@ impl<'a> TreeMap<'a> {
 
     /// The level entry of absolute level `level`.
     fn level(&self, level: u32) -> Option<&'a LevelEntry> {
-        self.levels.get(level.checked_sub(self.base)? as usize)
+        self.levels
+            .get(level.checked_sub(self.infos.base)? as usize)
     }
 
     /// The record of node `idx` of `level`.

@@ -101,8 +101,11 @@
 use std::collections::{HashMap, VecDeque};
 use std::ops::Deref;
 use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, AtomicU64, Ordering};
-use std::sync::{Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard, TryLockError};
+use std::sync::{
+    Mutex, MutexGuard, OnceLock, RwLock, RwLockReadGuard, RwLockWriteGuard, TryLockError,
+};
 
+use super::held::ReadyMap;
 use crate::os::{Changed, MappedFile};
 use crate::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD};
 use crate::physical::{AlignedBytes, BlockError, BlockReader};
@@ -310,6 +313,10 @@ pub struct Pager {
     slot_referenced: Vec<AtomicBool>,
     /// Held to assign a slot to a block.
     hand: Mutex<Hand>,
+    /// Per block: its map, made when it is first admitted and kept (see [`ReadyMap`]).
+    ready: Vec<OnceLock<Box<ReadyMap>>>,
+    /// No block is ever evicted: every block is raw and the budget holds them all.
+    keeps_everything: bool,
 }
 
 /// The slots' CLOCK state.
@@ -379,7 +386,44 @@ impl Pager {
                 at: 0,
                 free: (0..slot_count as usize).rev().collect(),
             }),
+            ready: directory.iter().map(|_| OnceLock::new()).collect(),
+            keeps_everything: !reader.compressed()
+                && opts.budget >= (directory.len() as u64).saturating_mul(reader.max_raw_len()),
         }
+    }
+
+    /// The map of `block`, whose bytes `raw` a [`Self::get`] just gave: made (and the block's
+    /// layout checked) the first time, kept after. A block whose layout is wrong gives its
+    /// error every time.
+    pub fn ready(
+        &self,
+        block: u32,
+        entry: &BlockEntry,
+        raw: &[u8],
+    ) -> Result<&ReadyMap, PageError> {
+        let Some(cell) = self.ready.get(block as usize) else {
+            return Err(PageError {
+                block,
+                what: "no such block".into(),
+            });
+        };
+        if let Some(r) = cell.get() {
+            return Ok(r);
+        }
+        match ReadyMap::new(raw, block, entry) {
+            Ok(r) => Ok(cell.get_or_init(|| Box::new(r))),
+            Err(what) => Err(PageError {
+                block,
+                what: what.to_string(),
+            }),
+        }
+    }
+
+    /// The maps of blocks admitted so far, if no block is ever evicted (every block raw, and
+    /// the budget holding them all): then a walk may read an admitted block's bytes straight
+    /// from the file, without asking the pager.
+    pub fn resident_forever(&self) -> Option<&[OnceLock<Box<ReadyMap>>]> {
+        self.keeps_everything.then_some(&self.ready[..])
     }
 
     /// The decoded bytes of `block`, admitting it if it is not resident; adds to `c`.

@@ -1,0 +1,85 @@
+//! A block ready to be walked: what its bytes hold, found once when the pager first admits it
+//! ([`ReadyMap`]), and the view a walk takes of it each time it enters ([`Held`]), which only
+//! casts slices at known offsets.
+//!
+//! Format-spec §11 asks that a block's header, layout and level table be checked before it is
+//! read. Those checks and the per-level constants of its map are `O(levels)` but not free (a
+//! few hundred cycles with the 768-byte table of constants), and a ray enters a block or two:
+//! done on every entry they cost as much as the rest of a short ray. So they are done once, when
+//! the block is first admitted, and kept for the life of the file (the bytes of a block are the
+//! same each time it is paged in: its checksum says so).
+
+use crate::mapping::{LevelInfos, TreeMap};
+use crate::physical::BlockView;
+use crate::physical::format::{
+    BLOCK_PARTS, BlockEntry, ClusterNode, LevelEntry, NodeRecord, RankWord, TriGroup, TriRecord,
+    block_layout,
+};
+
+/// What a block's bytes hold, checked once ([`BlockView::parse`]): where its parts are and the
+/// constants of its map.
+#[derive(Debug)]
+pub struct ReadyMap {
+    parts: [(u32, u32); BLOCK_PARTS],
+    infos: LevelInfos,
+    pub(crate) root_level: u32,
+    pub(crate) root_count: u32,
+}
+
+impl ReadyMap {
+    /// Checks the raw bytes of block `id` as [`BlockView::parse`] does and keeps what it found.
+    pub fn new(raw: &[u8], id: u32, entry: &BlockEntry) -> Result<ReadyMap, &'static str> {
+        let v = BlockView::parse(raw, id, entry)?;
+        let (ranges, _) = block_layout(&v.header).ok_or("block counts overflow")?;
+        // Parse checked the block's length against its layout; raw_len <= 2^30.
+        let parts = ranges.map(|r| (r.start as u32, r.end as u32));
+        Ok(ReadyMap {
+            parts,
+            infos: LevelInfos::new(v.levels, v.header.root_level),
+            root_level: v.header.root_level,
+            root_count: v.header.root_count,
+        })
+    }
+
+    /// Part `i` of `raw` (the block's bytes), cast; empty if `raw` is not the block's.
+    #[inline(always)]
+    fn part<'v, T: bytemuck::Pod>(&self, raw: &'v [u8], i: usize) -> &'v [T] {
+        let (a, b) = self.parts[i];
+        raw.get(a as usize..b as usize)
+            .and_then(|p| bytemuck::try_cast_slice(p).ok())
+            .unwrap_or(&[])
+    }
+}
+
+/// A block being walked: its id and its records.
+pub(crate) struct Held<'v> {
+    pub id: u32,
+    pub root_level: u32,
+    pub root_count: u32,
+    pub map: TreeMap<'v>,
+    pub refs: &'v [u32],
+    pub tris: &'v [TriRecord],
+    pub cluster_nodes: &'v [ClusterNode],
+    pub groups: &'v [TriGroup],
+}
+
+impl<'v> Held<'v> {
+    /// The view of block `id`, whose bytes are `raw` and whose map is `ready`. Casting only: a
+    /// `ready` of another block gives empty or wrong slices, which every access bounds-checks.
+    #[inline(always)]
+    pub fn new(id: u32, ready: &'v ReadyMap, raw: &'v [u8]) -> Held<'v> {
+        let levels: &[LevelEntry] = ready.part(raw, 0);
+        let nodes: &[NodeRecord] = ready.part(raw, 1);
+        let ranks: &[RankWord] = ready.part(raw, 2);
+        Held {
+            id,
+            root_level: ready.root_level,
+            root_count: ready.root_count,
+            map: TreeMap::new(&ready.infos, levels, nodes, ranks),
+            refs: ready.part(raw, 4),
+            tris: ready.part(raw, 5),
+            cluster_nodes: ready.part(raw, 6),
+            groups: ready.part(raw, 7),
+        }
+    }
+}
