@@ -119,8 +119,15 @@ fn text(args: &Args, i: &Inspection) -> String {
     line(
         "triangles",
         format!(
-            "{} input, {} stored, {} records in blocks",
-            h.input_triangles, h.stored_triangles, h.block_triangles
+            "{} input, {} stored, {} {} in blocks",
+            h.input_triangles,
+            h.stored_triangles,
+            h.block_triangles,
+            if h.flags & oavm::physical::format::FLAG_CLUSTERS != 0 {
+                "group lanes"
+            } else {
+                "records"
+            }
         ),
     );
     line(

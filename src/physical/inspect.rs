@@ -84,7 +84,11 @@ pub struct InspectOptions {
 /// counted in no level (`--verify` says why).
 pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Inspection {
     let header = *file.header();
-    let names = [(FLAG_MERGED, "merged"), (FLAG_COMPRESSED, "compressed")];
+    let names = [
+        (FLAG_MERGED, "merged"),
+        (FLAG_COMPRESSED, "compressed"),
+        (FLAG_CLUSTERS, "clusters"),
+    ];
     let flags = names
         .iter()
         .filter(|(bit, _)| header.flags & bit != 0)
