@@ -156,6 +156,7 @@ fn octree_counts_equal_oavms_on_the_bunny() {
             leaf_size: 4,
             max_depth: 6,
             merge: false,
+            ..BuildOptions::default()
         },
     ] {
         let (_, s) = oavm::build::build(&mesh, &opts, &oavm::build::Quiet).expect("OAVM build");

@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use oavm::BuildOptions;
-use oavm::mapping::TreeMap;
+use oavm::mapping::{LevelInfos, TreeMap};
 use oavm::mapping::morton::{self, MAX_LEVEL, cell_origin, cell_size};
 use oavm::physical::format::{NodeKind, SectionKind};
 use oavm::rays::SplitMix64;
@@ -61,7 +61,9 @@ fn mapping_queries_on_a_real_tree() {
         },
     );
     let file = scene.file();
+    let infos = LevelInfos::new(file.levels(), 0);
     let map = TreeMap::new(
+        &infos,
         file.levels(),
         file.records(SectionKind::Nodes),
         file.records(SectionKind::Ranks),

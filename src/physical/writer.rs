@@ -549,6 +549,8 @@ mod tests {
             volumes: Vec::new(),
             refs,
             triangles: vec![tri; n as usize],
+            cluster_nodes: Vec::new(),
+            groups: Vec::new(),
         }
     }
 

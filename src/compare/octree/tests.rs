@@ -14,6 +14,7 @@ fn opts(leaf_size: u32, max_depth: u32) -> BuildOptions {
         max_depth,
         leaf_size,
         merge: true,
+        leaf: crate::build::LeafKind::List,
     }
 }
 
