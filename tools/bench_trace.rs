@@ -470,6 +470,8 @@ fn build_scene(spec: &SceneSpec, config: &Config) -> Result<Built, String> {
         (bytes, stats)
     };
     let mut build_s = vec![("oavm", seconds_since(t))];
+    // Progress: a big scene's builds take minutes.
+    eprintln!("{}: oavm built in {:.1} s", spec.name, build_s[0].1);
     let file_bytes = bytes.as_ref().len();
     let scene = Scene::from_bytes(bytes, spec.name.as_str())
         .map_err(|e| format!("{}: OAVM open: {e}", spec.name))?;
@@ -480,7 +482,9 @@ fn build_scene(spec: &SceneSpec, config: &Config) -> Result<Built, String> {
         // obvhs builds on one thread (its `parallel` feature is off).
         let t = Instant::now();
         let peer = PeerScene::build(kind, &mesh.positions, &mesh.triangles);
-        build_s.push((kind.name(), seconds_since(t)));
+        let seconds = seconds_since(t);
+        eprintln!("{}: {} built in {seconds:.1} s", spec.name, kind.name());
+        build_s.push((kind.name(), seconds));
         peers.push((kind, peer));
     }
 
