@@ -219,14 +219,14 @@ impl Config {
         }
 
         let built_in = PeerKind::built_in();
-        let mut peers: Vec<PeerKind> = Vec::new();
-        for p in if cli.peers.is_empty() {
+        let peers = if cli.peers.is_empty() {
             built_in.clone()
         } else {
             cli.peers
-        } {
-            if !peers.contains(&p) {
-                peers.push(p);
+        };
+        for (i, p) in peers.iter().enumerate() {
+            if peers[..i].contains(p) {
+                return Err(format!("--peers names {} twice", p.name()));
             }
         }
         if let Some(p) = peers.iter().find(|p| !built_in.contains(p)) {
@@ -444,14 +444,6 @@ fn seconds_since(t: Instant) -> f64 {
     t.elapsed().as_secs_f64()
 }
 
-/// The process's peak resident set so far (`VmHWM` of `/proc/self/status`, Linux), in bytes.
-fn peak_rss() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib * 1024)
-}
-
 /// Loads `spec` and builds OAVM (encoded in memory) and every peer. Only the structures are
 /// kept: the mesh and OAVM's build-time tree are dropped before tracing.
 fn build_scene(spec: &SceneSpec, config: &Config) -> Result<Built, String> {
@@ -488,7 +480,7 @@ fn build_scene(spec: &SceneSpec, config: &Config) -> Result<Built, String> {
         peers.push((kind, peer));
     }
 
-    let rss = peak_rss();
+    let rss = oavm::os::peak_rss_bytes();
     let info = json!({
         "scene": spec.name,
         "path": spec.path,
