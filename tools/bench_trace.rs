@@ -42,6 +42,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{Parser, ValueEnum};
+use oavm::compare::bench::RaySet;
 use oavm::physical::AlignedBytes;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
 use oavm::{BuildOptions, Counters, Hit, Ray, Scene};
@@ -531,13 +532,6 @@ fn build_scene(spec: &SceneSpec, config: &Config) -> Result<Built, String> {
 // ---------------------------------------------------------------------------------------------
 // Ray sets, cross-check, timing
 // ---------------------------------------------------------------------------------------------
-
-struct RaySet {
-    name: &'static str,
-    rays: Vec<Ray>,
-    /// Any-hit (shadow) rays; closest hit otherwise.
-    any: bool,
-}
 
 fn ray_sets(built: &Built, random: usize) -> Result<Vec<RaySet>, String> {
     let b = &built.bounds;
