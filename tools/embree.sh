@@ -9,7 +9,8 @@
 # Embree's own release binaries are not on a package registry; the `embreex` Python wheel (PyPI)
 # ships them: embreex.libs/libembree4-<hash>.so.4 (Embree 4.4.0, the official x86-64 Linux
 # release build) and the libtbb it needs (found through the library's own RPATH $ORIGIN). This
-# downloads the wheel with pip into target/embree/, unpacks the shared libraries there and adds a
+# downloads the wheel with pip into target/embree/ (under $CARGO_TARGET_DIR if set, or
+# $OAVM_EMBREE_CACHE), unpacks the shared libraries there and adds a
 # `libembree4.so` link so that `-lembree4` finds them. build.rs passes OAVM_EMBREE_DIR to the
 # linker as search path and rpath, so the binaries run without LD_LIBRARY_PATH (set anyway, for
 # binaries linked elsewhere). Nothing here is committed (target/ is ignored).
@@ -17,7 +18,7 @@ set -euo pipefail
 
 root="$(cd "$(dirname "$0")/.." && pwd)"
 version="${OAVM_EMBREEX_VERSION:-4.4.0.post1}"
-dir="${OAVM_EMBREE_CACHE:-$root/target/embree}/embreex-$version"
+dir="${OAVM_EMBREE_CACHE:-${CARGO_TARGET_DIR:-$root/target}/embree}/embreex-$version"
 
 if [ ! -e "$dir/libembree4.so" ]; then
     (
