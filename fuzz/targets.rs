@@ -117,6 +117,11 @@ pub fn pack(data: &[u8]) {
         },
         leaf_size: 1 << ((h >> 4) % 4),
         merge: h >> 6 & 1 == 0,
+        leaf: if h >> 8 & 1 == 0 {
+            oavm::build::LeafKind::Cluster
+        } else {
+            oavm::build::LeafKind::List
+        },
     };
     let blocks = BlockOptions {
         block_size: 4096,

@@ -506,7 +506,7 @@ fn duplicate_and_degenerate_triangles() {
         &BuildOptions {
             leaf_size: 1,
             max_depth: 21,
-            merge: true,
+            ..BuildOptions::default()
         },
         &oavm::build::Quiet,
     )
@@ -521,7 +521,7 @@ fn duplicate_and_degenerate_triangles() {
         &BuildOptions {
             leaf_size: 1,
             max_depth: 21,
-            merge: true,
+            ..BuildOptions::default()
         },
         300,
         "stacked quads",
