@@ -84,9 +84,23 @@ impl RayShear {
         self.group_kernel(isa, g, tmin, tmax)
     }
 
+    /// [`RayShear::intersect_group`] on any instruction set: for code that runs inside
+    /// [`Avx2::vectorize`] (a tracer's traversal), where it inlines whole.
+    #[inline(always)]
+    pub fn intersect_group_with<S: Simd8>(
+        &self,
+        isa: S,
+        g: TriGroupView<'_>,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; 8]) {
+        self.group_kernel(isa, g, tmin, tmax)
+    }
+
     /// [`RayShear::intersect_group`] with the eight lanes in one AVX2 register. A call from
-    /// code outside [`Avx2::vectorize`] goes through its trampoline (one call); from inside
-    /// one, it inlines.
+    /// ordinary code goes through the trampoline of [`Avx2::vectorize`] (one call, which LLVM
+    /// does not inline even from inside another `vectorize`: there, use
+    /// [`RayShear::intersect_group_with`]).
     #[inline(always)]
     pub fn intersect_group_avx2(
         &self,

@@ -57,13 +57,15 @@ use crate::os::{Avx2, Simd8, WithAvx2};
 use super::Ray;
 
 /// A cluster node's children as the box test reads them: the fields of format 4's
-/// `ClusterNode` record (`physical::format`, spec §7.1), the rows borrowed.
+/// `ClusterNode` record (`physical::format`, spec §7.1), borrowed. (All by reference: a view
+/// that copied `origin` and `exp` made an AVX2 call from ordinary code three times slower,
+/// reloading them from the call's stack frame with loads that store forwarding cannot serve.)
 #[derive(Clone, Copy, Debug)]
 pub struct ClusterNodeView<'a> {
     /// The grid's origin per axis.
-    pub origin: [f32; 3],
+    pub origin: &'a [f32; 3],
     /// The grid's step per axis is `2^exp` (see [`grid_step`] for bytes outside the spec).
-    pub exp: [i8; 3],
+    pub exp: &'a [i8; 3],
     /// `lo[k][i]`: the lowest face of child `i` along axis `k`, in steps from the origin.
     pub lo: &'a [[u8; 8]; 3],
     /// `hi[k][i]`: the highest face.
@@ -115,8 +117,10 @@ pub struct BoxRay {
     origin: [f32; 3],
     /// `1 / d` per axis (used where the ray moves along it).
     inv: [f32; 3],
-    /// Per axis: the direction is negative, so the ray enters a slab at its high face.
-    neg: [bool; 3],
+    /// Per axis, the face the ray enters a slab by: 0 for the low face (`d > 0`), 1 for the
+    /// high one (`d < 0`). An index rather than a flag, so that picking a row is a load, not a
+    /// branch.
+    near: [usize; 3],
     /// Per axis: `d != 0`.
     moves: [bool; 3],
     /// Some `1 / d` of a non-zero `d` is infinite or subnormal: the error bound does not hold,
@@ -133,7 +137,7 @@ impl BoxRay {
         BoxRay {
             origin: ray.origin,
             inv,
-            neg: d.map(|d| d < 0.0),
+            near: d.map(|d| (d < 0.0) as usize),
             moves: d.map(|d| d != 0.0),
             odd,
         }
@@ -155,7 +159,23 @@ impl BoxRay {
         self.node_kernel(isa, n, tmin, tmax)
     }
 
+    /// [`BoxRay::node_hits`] on any instruction set: for code that runs inside
+    /// [`Avx2::vectorize`] (a tracer's traversal), where it inlines whole.
+    #[inline(always)]
+    pub fn node_hits_with<S: Simd8>(
+        &self,
+        isa: S,
+        n: ClusterNodeView<'_>,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; 8]) {
+        self.node_kernel(isa, n, tmin, tmax)
+    }
+
     /// [`BoxRay::node_hits`] with the eight children in one AVX2 register: the same answers.
+    /// A call from ordinary code goes through the trampoline of [`Avx2::vectorize`] (one call,
+    /// which LLVM does not inline even from inside another `vectorize`: there, use
+    /// [`BoxRay::node_hits_with`]).
     #[inline(always)]
     pub fn node_hits_avx2(
         &self,
@@ -192,7 +212,7 @@ impl BoxRay {
         })
     }
 
-    /// The kernel, for any [`Simd8`].
+    /// The kernel.
     #[inline(always)]
     fn node_kernel<S: Simd8>(
         &self,
@@ -222,11 +242,9 @@ impl BoxRay {
                 slabs = s.and(slabs, inside);
                 continue;
             }
-            let (near, far) = if self.neg[k] {
-                (&n.hi[k], &n.lo[k])
-            } else {
-                (&n.lo[k], &n.hi[k])
-            };
+            let rows = [n.lo, n.hi];
+            let near = self.near[k] & 1;
+            let (near, far) = (&rows[near][k], &rows[near ^ 1][k]);
             let inv = s.splat(self.inv[k]);
             enter = s.max(s.mul(s.sub(face(near), o), inv), enter);
             leave = s.min(s.mul(s.sub(face(far), o), inv), leave);
@@ -278,8 +296,8 @@ mod tests {
     impl Node {
         fn view(&self) -> ClusterNodeView<'_> {
             ClusterNodeView {
-                origin: self.origin,
-                exp: self.exp,
+                origin: &self.origin,
+                exp: &self.exp,
                 lo: &self.lo,
                 hi: &self.hi,
                 child_count: self.child_count,
