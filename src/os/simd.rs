@@ -130,7 +130,10 @@ impl Avx2 {
             unsafe { trampoline(self, t) }
         }
         #[cfg(not(target_arch = "x86_64"))]
-        match self.never {}
+        {
+            let _ = t;
+            match self.never {}
+        }
     }
 }
 
