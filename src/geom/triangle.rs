@@ -26,15 +26,17 @@ use super::Ray;
 /// Per-ray constants of the watertight test (paper §3, "precalculations").
 #[derive(Clone, Copy, Debug)]
 pub struct RayShear {
-    origin: [f32; 3],
+    // The fields are the group kernel's too (`super::group`), which repeats this file's
+    // operations lane by lane.
+    pub(super) origin: [f32; 3],
     /// Axis indices: `kz` is the dominant axis of the direction, `kx`/`ky` the other two in an
     /// order that keeps the triangle winding.
-    kx: usize,
-    ky: usize,
-    kz: usize,
-    sx: f32,
-    sy: f32,
-    sz: f32,
+    pub(super) kx: usize,
+    pub(super) ky: usize,
+    pub(super) kz: usize,
+    pub(super) sx: f32,
+    pub(super) sy: f32,
+    pub(super) sz: f32,
 }
 
 impl RayShear {
@@ -128,7 +130,7 @@ impl RayShear {
 /// "on the edge" (a triangle a subnormal thick, seen by a ray along its plane, was then hit by
 /// rays missing it by 1e-4 of its size); it becomes the smallest subnormal of its sign instead.
 #[inline(always)]
-fn narrow(x: f64) -> f32 {
+pub(super) fn narrow(x: f64) -> f32 {
     let tiny = f32::from_bits(1);
     match x as f32 {
         0.0 if x > 0.0 => tiny,
@@ -143,7 +145,7 @@ fn narrow(x: f64) -> f32 {
 /// terms), not of the f32 coordinates: a point near the triangle is not on it (the f64
 /// reference agrees).
 #[cold]
-fn origin_on_triangle(v: &[[f32; 3]; 3], o: [f32; 3]) -> bool {
+pub(super) fn origin_on_triangle(v: &[[f32; 3]; 3], o: [f32; 3]) -> bool {
     type V = [f64; 3];
     let d = |a: [f32; 3], b: [f32; 3]| -> V { std::array::from_fn(|k| a[k] as f64 - b[k] as f64) };
     let cross = |a: V, b: V| {
