@@ -3,7 +3,7 @@
 //!
 //!     cargo bench --bench trace -- [--scene NAME=PATH]... [--big PATH] [--only NAME,...]
 //!         [--peers obvhs,bvh,embree] [--reps N] [--random N] [--json]
-//!         [--leaf-size K] [--max-depth D] [--no-merge]
+//!         [--leaf cluster|list] [--leaf-size K] [--max-depth D] [--no-merge]
 //!     tools/embree.sh cargo bench --bench trace --features embree -- ...
 //!     tools/bench_all.sh [ARGS...]    # the default scenes and a 10M-triangle one
 //!
@@ -42,6 +42,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{Parser, ValueEnum};
+use oavm::build::LeafKind;
 use oavm::compare::bench::RaySet;
 use oavm::physical::AlignedBytes;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
@@ -86,6 +87,9 @@ struct Cli {
     /// Number of random rays.
     #[arg(long, default_value_t = 1_000_000)]
     random: usize,
+    /// OAVM build: what a solid leaf holds, `cluster` (the default) or `list` (the paper's).
+    #[arg(long, value_name = "KIND", value_parser = parse_leaf)]
+    leaf: Option<LeafKind>,
     /// OAVM build: a leaf is subdivided while it holds more than K triangles.
     #[arg(long, value_name = "K")]
     leaf_size: Option<u32>,
@@ -238,7 +242,7 @@ impl Config {
             ));
         }
 
-        let mut opts = BuildOptions::default();
+        let mut opts = BuildOptions::with_leaf(cli.leaf.unwrap_or(LeafKind::Cluster));
         if let Some(k) = cli.leaf_size {
             opts.leaf_size = k;
         }
@@ -362,7 +366,8 @@ fn print_header(h: &Value, peers: &[PeerKind]) {
         THREADS.map(|t| t.to_string()).join(" and "),
     );
     println!(
-        "OAVM built in memory: leaf size {}, max depth {}, merge {}; {} interleaved reps, medians",
+        "OAVM built in memory: {} leaves of size {}, max depth {}, merge {}; {} interleaved reps, medians",
+        o["leaf"].as_str().unwrap_or_default(),
         o["leaf_size"],
         o["max_depth"],
         if o["merge"] == true { "on" } else { "off" },
@@ -885,5 +890,13 @@ fn main() -> ExitCode {
             eprintln!("bench_trace: error: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+fn parse_leaf(s: &str) -> Result<LeafKind, String> {
+    match s {
+        "cluster" => Ok(LeafKind::Cluster),
+        "list" => Ok(LeafKind::List),
+        _ => Err(format!("{s}: cluster or list")),
     }
 }
