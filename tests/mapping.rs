@@ -5,8 +5,8 @@ mod common;
 
 use common::*;
 use oavm::BuildOptions;
-use oavm::mapping::{LevelInfos, TreeMap};
 use oavm::mapping::morton::{self, MAX_LEVEL, cell_origin, cell_size};
+use oavm::mapping::{LevelInfos, TreeMap};
 use oavm::physical::format::{NodeKind, SectionKind};
 use oavm::rays::SplitMix64;
 

@@ -39,13 +39,14 @@ use std::sync::OnceLock;
 
 use super::held::{Held, ReadyMap};
 use super::pager::{BlockBytes, PageCounters, PageError};
-use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
+use crate::geom::{BoxRay, Ray};
 use crate::mapping::morton::{self, LATTICE_SIZE};
 use crate::mapping::{Corruption, TreeMap};
+use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
-    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, ClusterNode, KIND_EMPTY, KIND_LINK, KIND_SOLID,
-    LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
+    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, KIND_EMPTY, KIND_LINK, KIND_SOLID, LinkBounds,
+    MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -199,6 +200,8 @@ pub struct Tree<'a> {
     scale: f64,
     /// Solid leaves are clusters (spec §2 flag `CLUSTERS`), else lists of references.
     clusters: bool,
+    /// The CPU's AVX2, if it has it.
+    avx2: Option<Avx2>,
 }
 
 /// The ray in lattice space, and what the walk derives from it once.
@@ -260,6 +263,7 @@ impl<'a> Tree<'a> {
             root_min,
             scale: LATTICE_SIZE as f64 / root_size,
             clusters,
+            avx2: Avx2::detect(),
         }
     }
 
@@ -270,12 +274,38 @@ impl<'a> Tree<'a> {
 
     /// Closest hit of `ray` with `tmin <= t <= tmax`, or `None`.
     pub fn intersect(&self, ray: &Ray, c: &mut Counters) -> Result<Option<HitInfo>, TraceError> {
-        self.walk::<false>(ray, c)
+        self.dispatch::<false>(ray, c)
     }
 
     /// Whether any triangle is hit with `tmin <= t <= tmax`; stops at the first one found.
     pub fn occluded(&self, ray: &Ray, c: &mut Counters) -> Result<bool, TraceError> {
-        Ok(self.walk::<true>(ray, c)?.is_some())
+        Ok(self.dispatch::<true>(ray, c)?.is_some())
+    }
+
+    /// The walk compiled for the best instruction set the CPU has: AVX2 where it exists
+    /// (detected once per tree), else what the build targets (SSE4.1, or eight scalars).
+    #[inline(always)]
+    fn dispatch<const ANY: bool>(
+        &self,
+        ray: &Ray,
+        c: &mut Counters,
+    ) -> Result<Option<HitInfo>, TraceError> {
+        struct Job<'t, 'a, 'r, const ANY: bool> {
+            tree: &'t Tree<'a>,
+            ray: &'r Ray,
+            c: &'r mut Counters,
+        }
+        impl<const ANY: bool> WithAvx2 for Job<'_, '_, '_, ANY> {
+            type Output = Result<Option<HitInfo>, TraceError>;
+            #[inline(always)]
+            fn run(self, isa: Avx2) -> Self::Output {
+                self.tree.walk::<ANY, Avx2>(isa, self.ray, self.c)
+            }
+        }
+        match self.avx2 {
+            Some(isa) => isa.vectorize(Job::<ANY> { tree: self, ray, c }),
+            None => self.walk::<ANY, _>(baseline(), ray, c),
+        }
     }
 
     /// The first block `ray` needs (the block of the first link on its way whose bounds it
@@ -287,14 +317,18 @@ impl<'a> Tree<'a> {
             return Ok(None);
         };
         let mut k = Counters::default();
-        Ok(match self.walk_in::<false>(&ctx, &mut w, None, &mut k)? {
-            Step::Need(b) => Some(b),
-            Step::Done(_) => None,
-        })
+        Ok(
+            match self.walk_in::<false, _>(baseline(), &ctx, &mut w, None, &mut k)? {
+                Step::Need(b) => Some(b),
+                Step::Done(_) => None,
+            },
+        )
     }
 
-    fn walk<const ANY: bool>(
+    #[inline(always)]
+    fn walk<const ANY: bool, S: Simd8>(
         &self,
+        isa: S,
         ray: &Ray,
         c: &mut Counters,
     ) -> Result<Option<HitInfo>, TraceError> {
@@ -318,7 +352,7 @@ impl<'a> Tree<'a> {
             let held = fetched
                 .as_ref()
                 .map(|(b, bytes, ready)| Held::new(*b, ready, bytes));
-            match self.walk_in::<ANY>(&ctx, &mut w, held.as_ref(), &mut k) {
+            match self.walk_in::<ANY, S>(isa, &ctx, &mut w, held.as_ref(), &mut k) {
                 Ok(Step::Done(best)) => break Ok(best),
                 Ok(Step::Need(b)) => need = Some(b),
                 Err(e) => break Err(e.into()),
@@ -421,8 +455,10 @@ impl<'a> Tree<'a> {
 
     /// Walks on from `w` through the top tree and the block `held` (if any) until the ray is
     /// answered or needs another block.
-    fn walk_in<const ANY: bool>(
+    #[inline(always)]
+    fn walk_in<const ANY: bool, S: Simd8>(
         &self,
+        isa: S,
         r: &RayCtx,
         w: &mut WalkState,
         held: Option<&Held<'_>>,
@@ -523,7 +559,7 @@ impl<'a> Tree<'a> {
                             return Err(bad("cluster outside a block", level, rec.payload as u64));
                         };
                         k.clusters_entered += 1;
-                        let found = trace_cluster::<ANY>(r, w, h, rec.payload, k)
+                        let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k)
                             .map_err(|what| bad(what, level, rec.payload as u64))?;
                         if ANY && found {
                             return Ok(Step::Done(w.best));
@@ -723,56 +759,14 @@ fn clamp_floor(p: f64, lo: u32, hi: u32) -> u32 {
     p.max(lo as f64).min(hi as f64) as u32
 }
 
-/// The ray in world units as the cluster box test wants it (pbrt-v4's robust slab test).
-#[derive(Clone, Copy, Debug)]
-struct BoxRay {
-    o: [f64; 3],
-    inv: [f64; 3],
-}
-
-impl BoxRay {
-    fn new(ray: &Ray) -> BoxRay {
-        BoxRay {
-            o: ray.origin.map(f64::from),
-            inv: ray.dir.map(|d| 1.0 / d as f64),
-        }
-    }
-
-    /// Children of `n` whose boxes the ray meets over `[tmin, tmax]`, and their entry `t`.
-    /// TEMPORARY scalar f64 version.
-    fn node_hits(&self, n: &ClusterNode, tmin: f32, tmax: f32) -> (u32, [f32; CLUSTER_WIDTH]) {
-        let mut mask = 0;
-        let mut near = [0f32; CLUSTER_WIDTH];
-        for i in 0..(n.child_count as usize).min(CLUSTER_WIDTH) {
-            let (lo, hi) = n.child_box(i);
-            let (mut t0, mut t1) = (tmin as f64, tmax as f64);
-            let mut ok = true;
-            for k in 0..3 {
-                if self.inv[k].is_infinite() {
-                    ok &= self.o[k] >= lo[k] as f64 && self.o[k] <= hi[k] as f64;
-                    continue;
-                }
-                let a = (lo[k] as f64 - self.o[k]) * self.inv[k];
-                let b = (hi[k] as f64 - self.o[k]) * self.inv[k];
-                t0 = t0.max(a.min(b));
-                t1 = t1.min(a.max(b) * (1.0 + 1e-9));
-            }
-            if ok && t0 <= t1 {
-                mask |= 1 << i;
-                near[i] = t0 as f32;
-            }
-        }
-        (mask, near)
-    }
-}
-
 /// Traverses the cluster whose root is node `root` of the held block (spec §7.1), updating the
 /// walk's closest hit (ties to the smallest primitive id); with `ANY`, stops at the first hit
 /// and returns true. Bounded whatever the bytes: a tree visits each node at most once, so a
 /// walk that visits more nodes than the block has, or goes deeper than
 /// [`MAX_CLUSTER_DEPTH`], is reading something that is not a tree.
 #[inline(always)]
-fn trace_cluster<const ANY: bool>(
+fn trace_cluster<const ANY: bool, S: Simd8>(
+    isa: S,
     r: &RayCtx,
     w: &mut WalkState,
     h: &Held<'_>,
@@ -800,7 +794,7 @@ fn trace_cluster<const ANY: bool>(
         k.cluster_nodes_visited += 1;
         let count = (n.child_count as usize).min(CLUSTER_WIDTH);
         k.boxes_tested += count as u64;
-        let (mut mask, near) = r.boxes.node_hits(n, r.tmin, w.t_best);
+        let (mut mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
         let inner = n.inner_count as u32;
         // Leaves first, nearest-first is not needed for them: all are tested now.
         let mut leaf_mask = mask & !((1u32 << inner.min(8)) - 1);
@@ -813,31 +807,33 @@ fn trace_cluster<const ANY: bool>(
                 return Err("triangle group index out of range");
             };
             k.groups_tested += 1;
-            let lanes = (g.count as usize).min(8);
-            k.triangles_tested += lanes as u64;
-            for l in 0..lanes {
-                if let Some(t) = r.shear.intersect(&g.triangle(l), r.tmin, w.t_best) {
-                    let prim = g.prim[l];
-                    if ANY {
-                        w.best = Some(HitInfo {
-                            t,
-                            prim,
-                            v: g.triangle(l),
-                        });
-                        return Ok(true);
-                    }
-                    let better = match &w.best {
-                        None => true,
-                        Some(b) => (t, prim) < (b.t, b.prim),
-                    };
-                    if better {
-                        w.t_best = t;
-                        w.best = Some(HitInfo {
-                            t,
-                            prim,
-                            v: g.triangle(l),
-                        });
-                    }
+            k.triangles_tested += g.count.min(8) as u64;
+            let (mut hits, ts) = r
+                .shear
+                .intersect_group_with(isa, g.view(), r.tmin, w.t_best);
+            while hits != 0 {
+                let l = hits.trailing_zeros() as usize;
+                hits &= hits - 1;
+                let (t, prim) = (ts[l], g.prim[l]);
+                if ANY {
+                    w.best = Some(HitInfo {
+                        t,
+                        prim,
+                        v: g.triangle(l),
+                    });
+                    return Ok(true);
+                }
+                let better = match &w.best {
+                    None => true,
+                    Some(b) => (t, prim) < (b.t, b.prim),
+                };
+                if better {
+                    w.t_best = t;
+                    w.best = Some(HitInfo {
+                        t,
+                        prim,
+                        v: g.triangle(l),
+                    });
                 }
             }
         }
@@ -866,4 +862,14 @@ fn trace_cluster<const ANY: bool>(
         }
     }
     Ok(false)
+}
+
+/// The instruction set the build targets: SSE4.1 (the portable x86-64-v2 build), else eight
+/// scalars.
+#[inline(always)]
+fn baseline() -> impl Simd8 {
+    #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
+    return crate::os::Sse41::new();
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "sse4.1")))]
+    return crate::os::Portable;
 }

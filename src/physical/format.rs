@@ -575,6 +575,18 @@ pub struct ClusterNode {
 const _: () = assert!(std::mem::size_of::<ClusterNode>() == 80);
 
 impl ClusterNode {
+    /// The node as the box test reads it.
+    #[inline(always)]
+    pub fn view(&self) -> crate::geom::ClusterNodeView<'_> {
+        crate::geom::ClusterNodeView {
+            origin: &self.origin,
+            exp: &self.exp,
+            lo: &self.lo,
+            hi: &self.hi,
+            child_count: self.child_count,
+        }
+    }
+
     /// The box of child slot `i` (`< 8`) in world units: exact f32 faces for a node whose
     /// grid follows spec §7.1 (for any other bytes, some box; never a panic).
     pub fn child_box(&self, i: usize) -> ([f32; 3], [f32; 3]) {
@@ -611,6 +623,16 @@ pub struct TriGroup {
 const _: () = assert!(std::mem::size_of::<TriGroup>() == 160);
 
 impl TriGroup {
+    /// The group as the triangle test reads it.
+    #[inline(always)]
+    pub fn view(&self) -> crate::geom::TriGroupView<'_> {
+        crate::geom::TriGroupView {
+            corner: &self.corner,
+            tri: &self.tri,
+            count: self.count,
+        }
+    }
+
     /// The corners of lane `l`'s triangle (`l < 8`; slots are masked to `< 8`, so any bytes
     /// give coordinates of the group).
     #[inline(always)]
