@@ -292,7 +292,7 @@ pub struct ClusterGeometry {
 impl ClusterGeometry {
     /// The cell of the node of absolute level `level` and Morton code `code`, widened by
     /// [`CELL_MARGIN`] lattice units, in world units.
-    fn widened_cell(&self, level: u32, code: u64) -> ([f64; 3], [f64; 3]) {
+    pub fn widened_cell(&self, level: u32, code: u64) -> ([f64; 3], [f64; 3]) {
         let size = crate::mapping::morton::cell_size(level) as f64;
         let lo = crate::mapping::morton::cell_origin(code, level);
         let unit = self.root_size / LATTICE_SIZE as f64;

@@ -12,6 +12,8 @@ use serde::Serialize;
 
 use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
 use crate::mapping::morton::{self, cell_origin, cell_size};
+use crate::build::ClusterGeometry;
+use crate::build::cluster::check_cluster;
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::format::*;
 use crate::physical::verify::{
@@ -55,6 +57,10 @@ struct Unit<'a> {
     volumes: &'a [VolumeRecord],
     refs: &'a [u32],
     tris: &'a [TriRecord],
+    /// A file of clusters (spec §7.1): where the lattice lies, and the block's cluster parts.
+    clusters: Option<ClusterGeometry>,
+    cluster_nodes: &'a [ClusterNode],
+    groups: &'a [TriGroup],
     top: bool,
 }
 
@@ -95,6 +101,9 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
         volumes: file.records(SectionKind::Volumes),
         refs: &[],
         tris: &[],
+        clusters: None,
+        cluster_nodes: &[],
+        groups: &[],
         top: true,
     };
     let top_totals = check_unit(&top, header, d);
@@ -298,14 +307,39 @@ fn check_block(
         volumes: view.volumes,
         refs: view.refs,
         tris: view.triangles,
+        clusters: (header.flags & FLAG_CLUSTERS != 0).then_some(ClusterGeometry {
+            root_min: header.root_min,
+            root_size: header.root_size,
+        }),
+        cluster_nodes: view.cluster_nodes,
+        groups: view.groups,
         top: false,
     };
     let mut totals = check_unit(&unit, header, d);
-    totals.triangles = view.triangles.len() as u64;
-    for t in view.triangles {
-        if let Some(w) = prims_seen.get(t.prim as usize / 64) {
-            w.fetch_or(1 << (t.prim % 64), std::sync::atomic::Ordering::Relaxed);
+    let lanes = view
+        .groups
+        .iter()
+        .flat_map(|g| g.prim.iter().take(g.count.min(8) as usize));
+    for &prim in view.triangles.iter().map(|t| &t.prim).chain(lanes) {
+        if let Some(w) = prims_seen.get(prim as usize / 64) {
+            w.fetch_or(1 << (prim % 64), std::sync::atomic::Ordering::Relaxed);
         }
+    }
+    if unit.clusters.is_none() && !(view.cluster_nodes.is_empty() && view.groups.is_empty()) {
+        d.push(format!(
+            "block {b}: cluster nodes or groups in a file of leaf lists"
+        ));
+    }
+    if unit.clusters.is_some() && !(view.refs.is_empty() && view.triangles.is_empty()) {
+        d.push(format!(
+            "block {b}: references or triangle records in a file of clusters"
+        ));
+    }
+    if unit.clusters.is_some() && totals.triangles != e.triangles as u64 {
+        d.push(format!(
+            "block {b}: its groups hold {} triangles, the directory says {}",
+            totals.triangles, e.triangles
+        ));
     }
     totals
 }
@@ -401,11 +435,78 @@ fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
     // (Triangles are marked used from the leaves' ranges: a count word is not a reference.)
     let mut tri_used = vec![false; tris.len()];
     let mut next_ref = 0u64;
+    let (mut next_node, mut next_group) = (0u64, 0u64);
     let mut volume_used = vec![false; volumes.len()];
     for &(key, l, i, kind) in &leaves {
         let lo = morton::decode(key);
         let size = cell_size(l);
         match kind {
+            NodeKind::Solid {
+                first,
+                inline_count,
+                bounds,
+            } if u.clusters.is_some() => {
+                let geometry = u.clusters.unwrap_or(ClusterGeometry {
+                    root_min: [0.0; 3],
+                    root_size: 1.0,
+                });
+                if inline_count != 0 {
+                    d.push(format!(
+                        "{label} level {l} node {i}: a cluster's leaf with a reference count"
+                    ));
+                }
+                if first as u64 != next_node {
+                    d.push(format!(
+                        "{label} level {l} node {i}: cluster root {first}, expected {next_node} (leaf order)"
+                    ));
+                }
+                let clip = geometry.widened_cell(l, key >> (3 * (MAX_LEVEL - l)));
+                match check_cluster(u.cluster_nodes, u.groups, first, clip) {
+                    Err(what) => {
+                        d.push(format!("{label} level {l} node {i}: cluster: {what}"));
+                        next_node = first as u64 + 1;
+                    }
+                    Ok(shape) => {
+                        if shape.groups.start as u64 != next_group {
+                            d.push(format!(
+                                "{label} level {l} node {i}: cluster groups start at {}, expected {next_group} (leaf order)",
+                                shape.groups.start
+                            ));
+                        }
+                        next_node = shape.nodes.end as u64;
+                        next_group = shape.groups.end as u64;
+                        let groups = u
+                            .groups
+                            .get(shape.groups.start as usize..shape.groups.end as usize)
+                            .unwrap_or(&[]);
+                        let lanes: Vec<TriRecord> = groups
+                            .iter()
+                            .flat_map(|g| {
+                                (0..g.count.min(8) as usize).map(|l| TriRecord {
+                                    v: g.triangle(l),
+                                    prim: g.prim[l],
+                                })
+                            })
+                            .collect();
+                        let all: Vec<u32> = (0..lanes.len() as u32).collect();
+                        if let Some(what) = bounds_defect(header, &lanes, &all, lo, size, bounds) {
+                            d.push(format!("{label} level {l} node {i}: {what}"));
+                        }
+                        for t in &lanes {
+                            if let Some(what) = triangle_defect(header, t) {
+                                d.push(format!("{label} level {l} node {i}: a lane's {what}"));
+                            }
+                            for p in &t.v {
+                                for (k, &c) in p.iter().enumerate() {
+                                    totals.lo[k] = totals.lo[k].min(c);
+                                    totals.hi[k] = totals.hi[k].max(c);
+                                }
+                            }
+                        }
+                        totals.triangles += lanes.len() as u64;
+                    }
+                }
+            }
             NodeKind::Solid {
                 first,
                 inline_count,
@@ -474,6 +575,13 @@ fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
             refs.len()
         ));
     }
+    if next_node != u.cluster_nodes.len() as u64 || next_group != u.groups.len() as u64 {
+        d.push(format!(
+            "{label}: clusters hold nodes 0..{next_node} and groups 0..{next_group} of {} and {}",
+            u.cluster_nodes.len(),
+            u.groups.len()
+        ));
+    }
 
     // Volumes: valid boxes in the lattice, used, and overlapping no solid leaf (nor, in the top
     // tree, any block's subtree).
@@ -494,14 +602,8 @@ fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
 
     // Triangles (each referenced by some leaf's references, marked above).
     for (i, t) in tris.iter().enumerate() {
-        if !t.v.iter().flatten().all(|c| c.is_finite()) {
-            d.push(format!("{label} triangle {i}: non-finite coordinates"));
-        }
-        if t.prim as u64 >= header.input_triangles {
-            d.push(format!(
-                "{label} triangle {i}: primitive id {} beyond the input's {} triangles",
-                t.prim, header.input_triangles
-            ));
+        if let Some(what) = triangle_defect(header, t) {
+            d.push(format!("{label} triangle {i}: {what}"));
         }
         if !tri_used[i] {
             d.push(format!("{label} triangle {i}: referenced by no leaf"));
@@ -587,6 +689,21 @@ fn bounds_defect(
                 ));
             }
         }
+    }
+    None
+}
+
+/// What is wrong with a stored triangle on its own: non-finite corners, a primitive id past
+/// the input's.
+fn triangle_defect(header: &Header, t: &TriRecord) -> Option<String> {
+    if !t.v.iter().flatten().all(|c| c.is_finite()) {
+        return Some("non-finite coordinates".into());
+    }
+    if t.prim as u64 >= header.input_triangles {
+        return Some(format!(
+            "primitive id {} beyond the input's {} triangles",
+            t.prim, header.input_triangles
+        ));
     }
     None
 }
