@@ -10,6 +10,7 @@
 //! chunk by chunk, for meshes larger than memory; [`pack`] is what `oavm-pack` runs.
 
 pub(crate) mod blocks;
+mod cluster;
 mod layout;
 mod merge;
 mod pack;
@@ -29,6 +30,10 @@ use crate::error::Error;
 use crate::mesh::Mesh;
 use crate::physical::format::MAX_LEVEL;
 use crate::physical::format::{FLAG_MERGED, Header};
+pub use cluster::{
+    ClusterBuild, ClusterBuilder, ClusterError, ClusterShape, ClusterTri, build_cluster,
+    check_cluster, triangle_box,
+};
 pub use pack::{PackOptions, PackReport, StreamingReport, pack};
 pub use prepare::{check_scale, is_degenerate};
 pub use stats::{BuildStats, PointerCounts};
