@@ -31,6 +31,10 @@ use crate::mesh::Mesh;
 use crate::physical::format::MAX_LEVEL;
 use crate::physical::format::{FLAG_CLUSTERS, FLAG_MERGED, Header};
 pub use blocks::ClusterGeometry;
+pub use cluster::{
+    ClusterBuild, ClusterBuilder, ClusterError, ClusterShape, ClusterTri, build_cluster,
+    check_cluster, triangle_box,
+};
 pub use pack::{PackOptions, PackReport, StreamingReport, pack};
 pub use prepare::{check_scale, is_degenerate};
 pub use stats::{BuildStats, PointerCounts};

@@ -13,7 +13,7 @@ use serde::Serialize;
 use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
 use crate::mapping::morton::{self, cell_origin, cell_size};
 use crate::build::ClusterGeometry;
-use crate::build::cluster::check_cluster;
+use crate::build::check_cluster;
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::format::*;
 use crate::physical::verify::{
@@ -316,6 +316,9 @@ fn check_block(
         top: false,
     };
     let mut totals = check_unit(&unit, header, d);
+    if unit.clusters.is_none() {
+        totals.triangles = view.triangles.len() as u64;
+    }
     let lanes = view
         .groups
         .iter()

@@ -1,0 +1,289 @@
+//! Steps 2 and 3 of the cluster build: the binary tree collapsed to 8-wide nodes, sibling leaves
+//! merged into fuller groups, and the nodes written breadth-first with quantised boxes. See the
+//! parent module.
+
+use super::binary::{BinNode, PrimRef, half_area};
+use super::{ClusterError, ClusterTri, Mode, Params, fits_group, make_group};
+use crate::physical::format::{
+    CLUSTER_EXP_RANGE, CLUSTER_WIDTH, ClusterNode, GROUP_LANES, TriGroup,
+};
+
+/// What the emission reads.
+pub(super) struct Input<'a> {
+    pub bin: &'a [BinNode],
+    pub refs: &'a [PrimRef],
+    pub tris: &'a [ClusterTri],
+    pub params: &'a Params,
+    pub mode: Mode,
+    pub node_base: u32,
+    pub group_base: u32,
+}
+
+/// A child of the wide node being assembled: a binary inner node (to become a wide node, or to
+/// be opened), or a leaf's triangles (ids into the input) with their box.
+#[derive(Clone, Copy)]
+enum Entry {
+    Inner(u32),
+    Leaf {
+        ids: [u32; GROUP_LANES],
+        n: u8,
+        lo: [f32; 3],
+        hi: [f32; 3],
+    },
+}
+
+impl Input<'_> {
+    fn entry(&self, b: u32) -> Entry {
+        let node = &self.bin[b as usize];
+        if !node.leaf {
+            return Entry::Inner(b);
+        }
+        let mut ids = [0; GROUP_LANES];
+        let r = &self.refs[node.a as usize..(node.a + node.b) as usize];
+        for (d, p) in ids.iter_mut().zip(r) {
+            *d = p.id;
+        }
+        Entry::Leaf {
+            ids,
+            n: r.len() as u8,
+            lo: node.lo,
+            hi: node.hi,
+        }
+    }
+
+    fn bounds(&self, e: &Entry) -> ([f32; 3], [f32; 3]) {
+        match *e {
+            Entry::Inner(b) => (self.bin[b as usize].lo, self.bin[b as usize].hi),
+            Entry::Leaf { lo, hi, .. } => (lo, hi),
+        }
+    }
+
+    /// The inner entry to open next: the largest, ties to the tallest (SAH mode: equal boxes,
+    /// as of identical triangles, would otherwise open a chain), or the tallest, ties to the
+    /// largest (shallow mode); the first of equals.
+    fn pick(&self, f: &[Entry]) -> Option<usize> {
+        let mut best: Option<(usize, (f64, u32))> = None;
+        for (i, e) in f.iter().enumerate() {
+            let Entry::Inner(b) = *e else { continue };
+            let node = &self.bin[b as usize];
+            let (a, h) = (node.area(), node.height);
+            let better = |(ba, bh): (f64, u32)| match self.mode {
+                Mode::Sah => a > ba || (a == ba && h > bh),
+                Mode::Shallow => h > bh || (h == bh && a > ba),
+            };
+            if best.is_none_or(|(_, b)| better(b)) {
+                best = Some((i, (a, h)));
+            }
+        }
+        best.map(|(i, _)| i)
+    }
+
+    /// Fills `f` (one entry to start with) up to 8 children: opens inner entries, merges leaves
+    /// that fit one group, and opens more into the slots merging freed.
+    fn assemble(&self, f: &mut Vec<Entry>) {
+        loop {
+            while f.len() < CLUSTER_WIDTH {
+                let Some(i) = self.pick(f) else { break };
+                let Entry::Inner(b) = f[i] else { break };
+                let node = &self.bin[b as usize];
+                f[i] = self.entry(node.a);
+                f.push(self.entry(node.b));
+            }
+            if !self.params.merge || !self.merge_one(f) {
+                break;
+            }
+        }
+    }
+
+    /// Merges the pair of leaf entries that fit one group with the smallest joint box, if any.
+    fn merge_one(&self, f: &mut Vec<Entry>) -> bool {
+        let mut best: Option<(usize, usize, f64)> = None;
+        for i in 0..f.len() {
+            let Entry::Leaf {
+                ids: ia,
+                n: na,
+                lo: la,
+                hi: ha,
+            } = f[i]
+            else {
+                continue;
+            };
+            for (j, e) in f.iter().enumerate().skip(i + 1) {
+                let Entry::Leaf {
+                    ids: ib,
+                    n: nb,
+                    lo: lb,
+                    hi: hb,
+                } = *e
+                else {
+                    continue;
+                };
+                if (na + nb) as usize > GROUP_LANES {
+                    continue;
+                }
+                let lo = min3(&la, &lb);
+                let hi = max3(&ha, &hb);
+                let a = half_area(&lo, &hi);
+                if best.is_some_and(|(_, _, ba)| a >= ba) {
+                    continue;
+                }
+                let both = ia[..na as usize].iter().chain(&ib[..nb as usize]).copied();
+                if fits_group(self.tris, both) {
+                    best = Some((i, j, a));
+                }
+            }
+        }
+        let Some((i, j, _)) = best else { return false };
+        let Entry::Leaf {
+            ids: ib,
+            n: nb,
+            lo: lb,
+            hi: hb,
+        } = f.remove(j)
+        else {
+            return false;
+        };
+        if let Entry::Leaf { ids, n, lo, hi } = &mut f[i] {
+            ids[*n as usize..(*n + nb) as usize].copy_from_slice(&ib[..nb as usize]);
+            *n += nb;
+            *lo = min3(lo, &lb);
+            *hi = max3(hi, &hb);
+        }
+        true
+    }
+}
+
+fn min3(a: &[f32; 3], b: &[f32; 3]) -> [f32; 3] {
+    std::array::from_fn(|k| a[k].min(b[k]))
+}
+
+fn max3(a: &[f32; 3], b: &[f32; 3]) -> [f32; 3] {
+    std::array::from_fn(|k| a[k].max(b[k]))
+}
+
+/// Collapses the binary tree of `inp` and appends its wide nodes and groups to `nodes` and
+/// `groups`. `queue` is scratch. [`ClusterError::TooDeep`] if a node would be deeper than
+/// `params.max_depth` (the caller then retries in shallow mode); on any error the caller
+/// truncates what was appended.
+pub(super) fn emit(
+    inp: &Input,
+    queue: &mut Vec<(u32, u32)>,
+    nodes: &mut Vec<ClusterNode>,
+    groups: &mut Vec<TriGroup>,
+) -> Result<(), ClusterError> {
+    let g0 = groups.len();
+    let index = |base: u32, local: usize| -> Result<u32, ClusterError> {
+        u32::try_from(local)
+            .ok()
+            .and_then(|l| base.checked_add(l))
+            .ok_or(ClusterError::IndexOverflow)
+    };
+    queue.clear();
+    queue.push((0, 0));
+    let mut f: Vec<Entry> = Vec::with_capacity(CLUSTER_WIDTH);
+    let mut i = 0;
+    while i < queue.len() {
+        let (b, depth) = queue[i];
+        i += 1;
+        f.clear();
+        f.push(inp.entry(b));
+        inp.assemble(&mut f);
+        // Inner children first (slots 0..inner_count), then leaves, each in assembly order.
+        f.sort_by_key(|e| matches!(e, Entry::Leaf { .. }));
+        let inner = f.iter().filter(|e| matches!(e, Entry::Inner(_))).count();
+        let mut node: ClusterNode = bytemuck::Zeroable::zeroed();
+        node.child_count = f.len() as u8;
+        node.inner_count = inner as u8;
+        if inner > 0 {
+            if depth as usize + 1 > inp.params.max_depth {
+                return Err(ClusterError::TooDeep {
+                    cap: inp.params.max_depth,
+                });
+            }
+            node.node_base = index(inp.node_base, queue.len())?;
+            index(inp.node_base, queue.len() + inner)?;
+        }
+        if inner < f.len() {
+            node.group_base = index(inp.group_base, groups.len() - g0)?;
+            index(inp.group_base, groups.len() - g0 + f.len() - inner)?;
+        }
+        for e in &f {
+            match e {
+                Entry::Inner(c) => queue.push((*c, depth + 1)),
+                Entry::Leaf { ids, n, .. } => {
+                    groups.push(make_group(inp.tris, &ids[..*n as usize]));
+                }
+            }
+        }
+        quantise(&mut node, f.iter().map(|e| inp.bounds(e)))?;
+        nodes.push(node);
+    }
+    Ok(())
+}
+
+/// Sets the grid and the child boxes of `node` from the children's f32 boxes (spec §7.1): per
+/// axis the smallest exponent whose grid spans the node in 255 steps from an origin that is a
+/// multiple of the step with `|origin / step| + 255 < 2^24`; faces rounded outward. All in
+/// f64, where scaling by a power of two, `floor` and `ceil` are exact.
+fn quantise(
+    node: &mut ClusterNode,
+    boxes: impl Iterator<Item = ([f32; 3], [f32; 3])> + Clone,
+) -> Result<(), ClusterError> {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for (a, b) in boxes.clone() {
+        lo = min3(&lo, &a);
+        hi = max3(&hi, &b);
+    }
+    for k in 0..3 {
+        let (e, origin) = grid(lo[k], hi[k]).ok_or(ClusterError::Range {
+            axis: k,
+            lo: lo[k],
+            hi: hi[k],
+        })?;
+        let s = pow2(-e);
+        node.exp[k] = e as i8;
+        node.origin[k] = (origin * pow2(e)) as f32;
+        for (i, (a, b)) in boxes.clone().enumerate() {
+            let ql = (a[k] as f64 * s).floor() - origin;
+            let qh = (b[k] as f64 * s).ceil() - origin;
+            debug_assert!((0.0..=255.0).contains(&ql) && (ql..=255.0).contains(&qh));
+            node.lo[k][i] = ql as u8;
+            node.hi[k][i] = qh as u8;
+        }
+    }
+    Ok(())
+}
+
+/// `2^e` for `|e| <= 1000`, exactly.
+fn pow2(e: i32) -> f64 {
+    f64::from_bits(((1023 + e) as u64) << 52)
+}
+
+/// The grid of one axis of a node spanning `lo..=hi`: the smallest exponent `e` in
+/// [`CLUSTER_EXP_RANGE`] with `ceil(hi / 2^e) - floor(lo / 2^e) <= 255` and
+/// `|floor(lo / 2^e)| + 255 < 2^24`, and the origin in steps, `floor(lo / 2^e)`.
+pub(super) fn grid(lo: f32, hi: f32) -> Option<(i32, f64)> {
+    let (min, max) = (
+        *CLUSTER_EXP_RANGE.start() as i32,
+        *CLUSTER_EXP_RANGE.end() as i32,
+    );
+    // Start below both lower bounds: steps must cover the span in 255, and the origin needs
+    // fewer than 24 bits, i.e. e > log2|lo| - 24 (and |lo| >= |hi| / 2, else the span bound is
+    // the larger).
+    let span = hi as f64 - lo as f64;
+    let mut start = min;
+    if span > 0.0 {
+        start = start.max((span / 255.0).log2().floor() as i32 - 1);
+    }
+    let m = (lo.abs().max(hi.abs())) as f64;
+    if m > 0.0 {
+        start = start.max(m.log2().floor() as i32 - 26);
+    }
+    (start..=max).find_map(|e| {
+        let s = pow2(-e);
+        let ol = (lo as f64 * s).floor();
+        let oh = (hi as f64 * s).ceil();
+        (oh - ol <= 255.0 && ol.abs() + 255.0 < (1u32 << 24) as f64).then_some((e, ol))
+    })
+}
