@@ -41,7 +41,7 @@ use super::held::{Held, ReadyMap};
 use super::pager::{BlockBytes, PageCounters, PageError};
 use crate::geom::triangle::RayShear;
 use crate::geom::{BoxRay, Ray};
-use crate::mapping::morton::{self, LATTICE_SIZE};
+use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
 use crate::mapping::{Corruption, TreeMap};
 use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
@@ -216,6 +216,8 @@ struct RayCtx {
     /// The ray in world units, for cluster boxes.
     boxes: BoxRay,
     tmin: f32,
+    /// Where the ray enters and leaves the root cube.
+    t0: f64,
     t1: f64,
 }
 
@@ -299,11 +301,16 @@ impl<'a> Tree<'a> {
             type Output = Result<Option<HitInfo>, TraceError>;
             #[inline(always)]
             fn run(self, isa: Avx2) -> Self::Output {
-                self.tree.walk::<ANY, Avx2>(isa, self.ray, self.c)
+                if self.tree.clusters {
+                    self.tree.descend_all::<ANY, Avx2>(isa, self.ray, self.c)
+                } else {
+                    self.tree.walk::<ANY, Avx2>(isa, self.ray, self.c)
+                }
             }
         }
         match self.avx2 {
             Some(isa) => isa.vectorize(Job::<ANY> { tree: self, ray, c }),
+            None if self.clusters => self.descend_all::<ANY, _>(baseline(), ray, c),
             None => self.walk::<ANY, _>(baseline(), ray, c),
         }
     }
@@ -438,6 +445,7 @@ impl<'a> Tree<'a> {
             shear: RayShear::new(ray),
             boxes: BoxRay::new(ray),
             tmin: ray.tmin,
+            t0,
             t1,
         };
         let w = WalkState {
@@ -668,6 +676,255 @@ impl<'a> Tree<'a> {
         }
     }
 
+    /// The top-down traversal of a file of clusters: the octree taken as a tree of 8-wide nodes
+    /// whose children's boxes are their cells (widened by the cell margin), visited nearest
+    /// first with a stack, as a BVH is; empty leaves are skipped by their kind, links and solid
+    /// leaves culled by their bounds, clusters traversed where the ray meets them. The walk of
+    /// the OAVM paper (neighbour steps through merged volumes, [`Self::walk`]) is what files of
+    /// leaf lists use.
+    ///
+    /// Bounded whatever the bytes: children are on the next level (at most 22 levels), and
+    /// distinct internal nodes have distinct children (their ranks differ), so the nodes
+    /// reached form a tree, each visited at most once. One block is held at a time: a block's
+    /// nodes are all above the top-tree nodes on the stack, and are done with before them.
+    #[inline(always)]
+    fn descend_all<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        ray: &Ray,
+        c: &mut Counters,
+    ) -> Result<Option<HitInfo>, TraceError> {
+        c.rays += 1;
+        let Some((r, mut w)) = self.start(ray) else {
+            return Ok(None);
+        };
+        let mut k = Counters::default();
+        let result = self.descend_in::<ANY, S>(isa, &r, &mut w, &mut k);
+        *c += k;
+        result.map(|()| w.best)
+    }
+
+    #[inline(always)]
+    fn descend_in<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        r: &RayCtx,
+        w: &mut WalkState,
+        k: &mut Counters,
+    ) -> Result<(), TraceError> {
+        const NONE: u32 = u32::MAX;
+        const STACK: usize = 7 * (MAX_LEVEL as usize + 1) + 1;
+        let mut stack = [Entry::default(); STACK];
+        stack[0] = Entry {
+            t: r.t0,
+            lo: [0; 3],
+            index: 0,
+            level: 0,
+            block: NONE,
+            kind: EntryKind::Internal,
+        };
+        let mut top = 1usize;
+        let mut fetched: Option<(u32, Fetched<'a>, &'a ReadyMap)> = None;
+        while top > 0 {
+            top -= 1;
+            let e = stack[top];
+            if e.t > w.t_stop {
+                continue;
+            }
+            // The unit the node is in: the top tree, or the block it names (fetched now if
+            // another is held: the one held is done with).
+            if e.block != NONE && fetched.as_ref().is_none_or(|f| f.0 != e.block) {
+                // The block held is let go before the next is asked for.
+                drop(fetched.take());
+                fetched = Some(self.fetch(e.block, &mut k.page)?);
+            }
+            let held = match (&fetched, e.block) {
+                (Some((b, bytes, ready)), blk) if blk != NONE => Some(Held::new(*b, ready, bytes)),
+                _ => None,
+            };
+            let bad = |what: &'static str| {
+                TraceError::Corrupt(Corruption {
+                    what,
+                    block: (e.block != NONE).then_some(e.block),
+                    level: e.level as u32,
+                    index: e.index as u64,
+                })
+            };
+            let level = e.level as u32;
+            let mut kind = e.kind;
+            if kind == EntryKind::Root {
+                // A block's root, at its link's place: internal, a cluster, or (never written)
+                // empty.
+                let h = held.as_ref().ok_or_else(|| bad("block not held"))?;
+                if h.root_level != level {
+                    return Err(bad("block roots are not at the level of their link"));
+                }
+                if e.index >= h.root_count {
+                    return Err(bad("link to a root the block does not have"));
+                }
+                let rec = h
+                    .map
+                    .node(level, e.index as u64)
+                    .map_err(|_| bad("block root out of range"))?;
+                kind = match rec.kind_bits() {
+                    _ if rec.is_internal() => EntryKind::Internal,
+                    KIND_SOLID => EntryKind::Solid,
+                    KIND_EMPTY => continue,
+                    _ => return Err(bad("invalid leaf record")),
+                };
+            }
+            if kind == EntryKind::Solid {
+                let h = held.as_ref().ok_or_else(|| bad("cluster outside a block"))?;
+                let rec = h
+                    .map
+                    .node(level, e.index as u64)
+                    .map_err(|_| bad("node record out of range"))?;
+                let (inline, _) = rec.solid_bits();
+                if rec.kind_bits() != KIND_SOLID || inline != 0 {
+                    return Err(bad("invalid leaf record"));
+                }
+                k.leaves_visited += 1;
+                k.clusters_entered += 1;
+                let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k).map_err(bad)?;
+                if ANY && found {
+                    return Ok(());
+                }
+                w.t_stop = r.t1.min(w.t_best as f64);
+                continue;
+            }
+            // An internal node: its children's cells, nearest first.
+            k.nodes_visited += 1;
+            let map = match &held {
+                Some(h) => &h.map,
+                None => &self.top,
+            };
+            if level >= MAX_LEVEL {
+                return Err(bad("internal node on the deepest level"));
+            }
+            let (first, internal, recs) = map
+                .children(level, e.index as u64)
+                .ok_or_else(|| bad("rank directory points past the next level"))?;
+            let size = morton::cell_size(level);
+            let half = size / 2;
+            let m = CELL_MARGIN;
+            // Per axis, the entry and exit of the low and the high half.
+            let mut span = [[(0f64, 0f64); 2]; 3];
+            let mut open = [[true; 2]; 3];
+            for a in 0..3 {
+                let lo = e.lo[a] as f64;
+                let (mid, hi) = (lo + half as f64, lo + size as f64);
+                if r.moves[a] {
+                    let t = |p: f64| p * r.inv[a] - r.oi[a];
+                    let (l0, l1) = (t(lo - m), t(mid + m));
+                    let (h0, h1) = (t(mid - m), t(hi + m));
+                    span[a] = [(l0.min(l1), l0.max(l1)), (h0.min(h1), h0.max(h1))];
+                } else {
+                    let o = r.o[a];
+                    open[a] = [o >= lo - m && o <= mid + m, o >= mid - m && o <= hi + m];
+                    span[a] = [(f64::NEG_INFINITY, f64::INFINITY); 2];
+                }
+            }
+            let mut hits: [(f64, u8); 8] = [(0.0, 0); 8];
+            let mut n = 0usize;
+            for o in 0..8usize {
+                let is_internal = (internal >> o) & 1 == 1;
+                if !is_internal && recs[o].kind_bits() == KIND_EMPTY {
+                    continue;
+                }
+                let (hx, hy, hz) = (o & 1, (o >> 1) & 1, (o >> 2) & 1);
+                if !(open[0][hx] && open[1][hy] && open[2][hz]) {
+                    continue;
+                }
+                let enter = (r.tmin as f64)
+                    .max(span[0][hx].0)
+                    .max(span[1][hy].0)
+                    .max(span[2][hz].0);
+                let exit = w
+                    .t_stop
+                    .min(span[0][hx].1)
+                    .min(span[1][hy].1)
+                    .min(span[2][hz].1);
+                // Negated on purpose: NaN must mean a miss.
+                #[allow(clippy::neg_cmp_op_on_partial_ord)]
+                if !(enter <= exit) {
+                    continue;
+                }
+                hits[n] = (enter, o as u8);
+                n += 1;
+            }
+            // Nearest popped first: pushed farthest first.
+            hits[..n].sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+            for &(t, o) in &hits[..n] {
+                let o = o as usize;
+                let rec = recs[o];
+                let child = first + o as u64;
+                let lo = [
+                    e.lo[0] + half * (o as u32 & 1),
+                    e.lo[1] + half * ((o as u32 >> 1) & 1),
+                    e.lo[2] + half * ((o as u32 >> 2) & 1),
+                ];
+                let is_internal = (internal >> o) & 1 == 1;
+                let (kind, block, index) = if is_internal {
+                    (EntryKind::Internal, e.block, child)
+                } else {
+                    match rec.kind_bits() {
+                        KIND_SOLID if e.block != NONE => {
+                            let (_, b) = rec.solid_bits();
+                            if !leaf_may_hit(r, w.t_best, lo, half, b) {
+                                k.leaves_culled += 1;
+                                continue;
+                            }
+                            (EntryKind::Solid, e.block, child)
+                        }
+                        KIND_LINK if e.block == NONE => {
+                            let at = self.top.node_start(level + 1) + child;
+                            if !self.link_bounds_hit(r, w.t_best, at, lo, half) {
+                                k.links_culled += 1;
+                                continue;
+                            }
+                            let (b, root) = rec.link_bits();
+                            (EntryKind::Root, b, root as u64)
+                        }
+                        _ => return Err(bad("invalid leaf record")),
+                    }
+                };
+                if top >= STACK {
+                    return Err(bad("traversal deeper than the lattice"));
+                }
+                stack[top] = Entry {
+                    t,
+                    lo,
+                    index: index as u32,
+                    level: (level + 1) as u8,
+                    block,
+                    kind,
+                };
+                top += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// Link bounds record `at` (spec §8.1) of the link whose cell is `lo` (edge `size`),
+    /// widened by the margin, met over `[tmin, t_best]`; records past the section let the ray
+    /// in.
+    #[inline(always)]
+    fn link_bounds_hit(&self, r: &RayCtx, t_best: f32, at: u64, lo: [u32; 3], size: u32) -> bool {
+        let Some(lb) = usize::try_from(at)
+            .ok()
+            .and_then(|i| self.link_bounds.get(i))
+        else {
+            return true;
+        };
+        let s256 = size as f64 / 256.0;
+        let blo: [f64; 3] =
+            std::array::from_fn(|a| lo[a] as f64 + lb.lo[a] as f64 * s256 - CELL_MARGIN);
+        let bhi: [f64; 3] = std::array::from_fn(|a| {
+            lo[a] as f64 + (lb.hi[a] as f64 + 1.0) * s256 + CELL_MARGIN
+        });
+        box_may_hit(r, t_best, blo, bhi)
+    }
+
     /// Whether the ray may hit anything below the link at `level` on the walk's path: its
     /// bounds (spec §8.1), widened by the cell margin, met over `[tmin, closest hit so far]`.
     /// A ray that misses them would cull every solid leaf below the link by the same test (each
@@ -730,6 +987,44 @@ impl<'a> Tree<'a> {
                 e
             })
     }
+}
+
+/// What a stack entry of [`Tree::descend_in`] is.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+enum EntryKind {
+    #[default]
+    Internal,
+    /// A solid leaf whose bounds the ray meets.
+    Solid,
+    /// A block's root, at the place of its link (index: the root's).
+    Root,
+}
+
+/// A node waiting on the stack of [`Tree::descend_in`]: where the ray enters its cell, the
+/// cell, and the node's place.
+#[derive(Clone, Copy, Debug, Default)]
+struct Entry {
+    t: f64,
+    lo: [u32; 3],
+    index: u32,
+    level: u8,
+    /// The block it is in (`u32::MAX`: the top tree).
+    block: u32,
+    kind: EntryKind,
+}
+
+/// Whether the ray may hit the solid leaf with cell `lo` (edge `size`) and tight bounds `b`
+/// (spec §4.2, widened by the margin) over `[tmin, t_best]`.
+#[inline(always)]
+fn leaf_may_hit(r: &RayCtx, t_best: f32, lo: [u32; 3], size: u32, b: u32) -> bool {
+    let s16 = size as f64 / 16.0;
+    let q4 = |shift: u32| ((b >> shift) & 15) as f64;
+    let blo: [f64; 3] =
+        std::array::from_fn(|a| lo[a] as f64 + q4(4 * a as u32) * s16 - CELL_MARGIN);
+    let bhi: [f64; 3] = std::array::from_fn(|a| {
+        lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN
+    });
+    box_may_hit(r, t_best, blo, bhi)
 }
 
 /// Slab test of the ray over `[tmin, t_best]` against the box `[blo, bhi]` (lattice units). An

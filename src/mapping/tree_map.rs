@@ -168,6 +168,31 @@ impl<'a> TreeMap<'a> {
         }
     }
 
+    /// The eight children of internal node `idx` of absolute level `level`: the index (in the
+    /// next level) of the first, which children are internal (bit `o` for octant `o`, from the
+    /// next level's rank word), and their records. `None` if `idx` is not an internal node of
+    /// this map or its children run past the next level (bytes that break the format).
+    #[inline(always)]
+    pub fn children(&self, level: u32, idx: u64) -> Option<(u64, u8, &'a [NodeRecord; 8])> {
+        let li = &self.infos.info[(level & 31) as usize];
+        let word = self.ranks.get((li.rank_start + idx / 64) as usize)?;
+        let bit = idx % 64;
+        if (word.internal >> bit) & 1 == 0 {
+            return None;
+        }
+        let first = child_index(word, bit, 0)?;
+        if first.checked_add(8)? > li.next_count {
+            return None;
+        }
+        let next = &self.infos.info[((level + 1) & 31) as usize];
+        // Children start at a multiple of 8: their eight bits are one byte of one word.
+        let cw = self.ranks.get((next.rank_start + first / 64) as usize)?;
+        let internal = (cw.internal >> (first % 64)) as u8;
+        let at = (next.node_start + first) as usize;
+        let recs = self.nodes.get(at..at + 8)?.try_into().ok()?;
+        Some((first, internal, recs))
+    }
+
     /// Index in the node records of the first node of absolute level `level` (0 for a level
     /// the map does not hold).
     #[inline(always)]
