@@ -390,10 +390,11 @@ pub fn build_cluster(
 
 /// The box every box on the way to triangle `v` must contain, in f32: the bounds of the part of
 /// the triangle inside the closed box `clip`, rounded outward to f32 and cut to the triangle's
-/// own bounds. The part is found by Sutherland–Hodgman clipping in f64 ([`clip`], which gives
-/// what the octree's leaf bounds use, `geom::tribox::clipped_bounds`, faster). A triangle that only touches
-/// `clip` (clipping leaves nothing, or rounding leaves an empty box) gets its bounds cut to
-/// `clip`, possibly flat; `None` if even those miss `clip` (nothing of it is inside).
+/// own bounds. The part is found by Sutherland–Hodgman clipping in f64 (the module's `clip`,
+/// which gives what the octree's leaf bounds use, `geom::tribox::clipped_bounds`, faster). A
+/// triangle that only touches `clip` (clipping leaves nothing, or rounding leaves an empty box)
+/// gets its bounds cut to `clip`, possibly flat; `None` if even those miss `clip` (nothing of it
+/// is inside).
 ///
 /// The builder and [`check_cluster`] both call this, so the checker sees exactly the builder's
 /// boxes; `clip` must be bit for bit the builder's.

@@ -678,6 +678,54 @@ fn the_depth_cap_holds() {
     );
 }
 
+/// A hundred thousand triangles in one cluster (a pathological leaf): built and checked in
+/// a moment, no step is quadratic.
+#[test]
+fn a_hundred_thousand_triangles() {
+    let mut rng = Rng(0xdead_beef_1234_5678);
+    let clip: Clip = ([0.0; 3], [1.0; 3]);
+    let tris: Vec<ClusterTri> = (0..100_000)
+        .map(|i| {
+            let c = rng.point([-0.05; 3], [1.05; 3]);
+            let v =
+                std::array::from_fn(|_| std::array::from_fn(|k| c[k] + rng.f(-0.01, 0.01) as f32));
+            ClusterTri { v, prim: i }
+        })
+        .filter(|t| !crate::build::is_degenerate(&t.v))
+        .collect();
+    let b = build_cluster(&tris, clip, 0, 0).unwrap();
+    let shape = check_cluster(&b.nodes, &b.groups, 0, clip).unwrap();
+    assert_eq!(shape.triangles, tris.len() as u64);
+    assert!(shape.depth <= 8, "depth {}", shape.depth);
+}
+
+/// Random bytes in a valid cluster's records: the checker answers, it never panics.
+#[test]
+fn the_checker_never_panics_on_bytes() {
+    let (_, clip, b) = corruptible();
+    let mut rng = Rng(0x0123_4567_89ab_cdef);
+    let mut refused = 0;
+    for round in 0..3000 {
+        let (mut n, mut g) = (b.nodes.clone(), b.groups.clone());
+        for _ in 0..1 + round % 4 {
+            let bytes: &mut [u8] = if rng.next().is_multiple_of(2) {
+                bytemuck::cast_slice_mut(&mut n)
+            } else {
+                bytemuck::cast_slice_mut(&mut g)
+            };
+            let at = rng.next() as usize % bytes.len();
+            bytes[at] = rng.next() as u8;
+        }
+        let root = if round % 50 == 0 {
+            rng.next() as u32 % 8
+        } else {
+            0
+        };
+        refused += check_cluster(&n, &g, root, clip).is_err() as u32;
+    }
+    assert!(refused > 1000, "only {refused} of 3000 corruptions refused");
+}
+
 /// A built cluster with enough structure to corrupt: the largest bunny grid cluster, without
 /// the triangles that have nothing inside the clip box (so every box is tight to what the
 /// checker requires).
