@@ -153,9 +153,9 @@ pub(super) fn emit(
         inp.assemble(&mut f);
         // Inner children first (slots 0..inner_count), then leaves, each in assembly order.
         let mut inner = 0;
-        for i in 0..f.len() {
-            if let Entry::Inner(_) = f[i] {
-                f[inner..=i].rotate_right(1);
+        for j in 0..f.len() {
+            if let Entry::Inner(_) = f[j] {
+                f[inner..=j].rotate_right(1);
                 inner += 1;
             }
         }
