@@ -859,7 +859,12 @@ fn the_checker_refuses_corruption() {
 
 /// The figures that choose the cluster size: the octree of a scene built as the pack builds
 /// it, at several leaf sizes `K`, every solid leaf clustered (one thread, one reused builder).
-/// Run with `cargo test --release --lib stats_ -- --ignored --nocapture`.
+/// Run with `cargo test --release --lib stats_ -- --ignored --nocapture` (`stats_bunny`,
+/// `stats_dragon`); `CLUSTER_K=256,512` picks leaf sizes, `CLUSTER_VARIANTS=default,window 32`
+/// builder variants (see `variants`), `CLUSTER_PASSES=3` times the fastest of 3 passes. Times
+/// are this thread's CPU seconds, so other processes on the machine inflate them less than
+/// wall time, but do not leave them alone (shared caches and cores): take the least of several
+/// runs.
 mod stats {
     use std::time::Instant;
 
