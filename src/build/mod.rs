@@ -8,6 +8,9 @@
 //! ([`crate::physical::format::NodeRecord`]) are different types: a convenient tree while
 //! building, flat records for traversal. [`streaming`] does the same within a memory budget,
 //! chunk by chunk, for meshes larger than memory; [`pack`] is what `oavm-pack` runs.
+//!
+//! Format 4: [`build_cluster`] builds the compact wide BVH of one solid leaf (a cluster) and
+//! [`check_cluster`] re-derives from its records that it is well-formed and complete.
 
 pub(crate) mod blocks;
 mod cluster;

@@ -1,21 +1,39 @@
-//! Step 1 of the cluster build: a binary tree over the triangles' clipped boxes, by binned SAH
-//! (Wald 2007) or, in [`Mode::Shallow`], by median splits. See the parent module.
+//! Steps 1 and 3 of the cluster build: a binary tree over boxes (the triangles' clipped boxes,
+//! down to windows; then the groups' boxes, down to single groups) by binned SAH (Wald 2007)
+//! or by median splits. See the parent module.
 
-use super::{BINS, ClusterTri, GROUP_LANES, Mode, Params, fits_group};
+use super::BINS;
 
-/// A triangle while building: its (clipped, f32) box and its index in the cluster's input.
-/// Nodes own contiguous ranges of these, which the build partitions in place.
+/// A primitive while building (a triangle, or a group): its f32 box and its index. Nodes own
+/// contiguous ranges of these, which the build partitions in place. The boxes have a fourth
+/// lane (0) so that the loops over them compile to 4-wide min and max.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct PrimRef {
-    pub lo: [f32; 3],
-    pub hi: [f32; 3],
+    lo: [f32; 4],
+    hi: [f32; 4],
     pub id: u32,
 }
 
 impl PrimRef {
+    pub fn new(lo: [f32; 3], hi: [f32; 3], id: u32) -> PrimRef {
+        PrimRef {
+            lo: [lo[0], lo[1], lo[2], 0.0],
+            hi: [hi[0], hi[1], hi[2], 0.0],
+            id,
+        }
+    }
+
+    pub fn lo(&self) -> [f32; 3] {
+        [self.lo[0], self.lo[1], self.lo[2]]
+    }
+
+    pub fn hi(&self) -> [f32; 3] {
+        [self.hi[0], self.hi[1], self.hi[2]]
+    }
+
     /// Twice the centroid (the scale does not matter to binning, and it saves a multiply).
     #[inline(always)]
-    fn c(&self, k: usize) -> f32 {
+    pub fn c(&self, k: usize) -> f32 {
         self.lo[k] + self.hi[k]
     }
 }
@@ -28,7 +46,7 @@ pub(super) struct BinNode {
     pub hi: [f32; 3],
     /// Inner: the left child. Leaf: the first `PrimRef`.
     pub a: u32,
-    /// Inner: the right child. Leaf: the number of `PrimRef`s (`1..=8`).
+    /// Inner: the right child. Leaf: the number of `PrimRef`s.
     pub b: u32,
     pub leaf: bool,
     /// Binary levels below this node (0 for a leaf).
@@ -51,21 +69,45 @@ pub(super) struct Task {
     depth: u32,
 }
 
+/// `min` and `max` for values known not to be NaN (every box coordinate is finite): one
+/// instruction each, where `f32::min` must also handle NaN.
+#[inline(always)]
+pub(super) fn fmin(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
+}
+
+#[inline(always)]
+pub(super) fn fmax(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
 #[inline]
 pub(super) fn half_area(lo: &[f32; 3], hi: &[f32; 3]) -> f64 {
     let d: [f64; 3] = std::array::from_fn(|k| (hi[k] as f64 - lo[k] as f64).max(0.0));
     d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 }
 
-/// Builds the binary tree over `refs` (reordered: each leaf's triangles become contiguous) into
-/// `nodes` (cleared by the caller), root at 0, children after their parent.
+/// How nodes too large for a leaf are split.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Split {
+    /// Binned SAH down to binary depth `max_depth`, median splits below it and where binning
+    /// separates nothing.
+    Sah { max_depth: u32 },
+    /// Median splits only: a tree over `n` primitives is at most `ceil(log2(n / leaf_max)) + 1`
+    /// levels deep.
+    Median,
+}
+
+/// Builds the binary tree over `refs` (reordered: each leaf's primitives become contiguous)
+/// into `nodes` (cleared by the caller), root at 0, children after their parent; a node is a
+/// leaf when it holds at most `leaf_max` primitives.
 pub(super) fn build(
     refs: &mut [PrimRef],
-    tris: &[ClusterTri],
-    mode: Mode,
-    params: &Params,
+    leaf_max: usize,
+    split: Split,
     nodes: &mut Vec<BinNode>,
     tasks: &mut Vec<Task>,
+    also_leaf: impl Fn(&[PrimRef]) -> bool,
 ) {
     tasks.clear();
     nodes.push(empty_node());
@@ -81,17 +123,17 @@ pub(super) fn build(
         let node = &mut nodes[t.node as usize];
         node.lo = blo;
         node.hi = bhi;
-        if fits_group(tris, r.iter().map(|p| p.id)) {
+        if r.len() <= leaf_max || also_leaf(r) {
             node.leaf = true;
             node.a = t.start;
             node.b = r.len() as u32;
             continue;
         }
-        let sah = mode == Mode::Sah && t.depth < params.sah_max_depth;
+        let sah = matches!(split, Split::Sah { max_depth } if t.depth < max_depth);
         let mid = sah
-            .then(|| sah_split(r, &clo, &chi, params.sah_block))
+            .then(|| sah_split(r, &clo, &chi))
             .flatten()
-            .unwrap_or_else(|| median_split(r, &clo, &chi));
+            .unwrap_or_else(|| median_split(r, &clo, &chi, leaf_max));
         let left = nodes.len() as u32;
         nodes.push(empty_node());
         nodes.push(empty_node());
@@ -135,41 +177,31 @@ fn empty_node() -> BinNode {
 
 /// The box of `r` and the bounds of its (doubled) centroids.
 fn bounds(r: &[PrimRef]) -> ([f32; 3], [f32; 3], [f32; 3], [f32; 3]) {
-    let mut blo = [f32::INFINITY; 3];
-    let mut bhi = [f32::NEG_INFINITY; 3];
-    let mut clo = [f32::INFINITY; 3];
-    let mut chi = [f32::NEG_INFINITY; 3];
+    let mut blo = [f32::INFINITY; 4];
+    let mut bhi = [f32::NEG_INFINITY; 4];
+    let mut clo = [f32::INFINITY; 4];
+    let mut chi = [f32::NEG_INFINITY; 4];
     for p in r {
-        for k in 0..3 {
-            blo[k] = blo[k].min(p.lo[k]);
-            bhi[k] = bhi[k].max(p.hi[k]);
-            let c = p.c(k);
-            clo[k] = clo[k].min(c);
-            chi[k] = chi[k].max(c);
+        for k in 0..4 {
+            blo[k] = fmin(blo[k], p.lo[k]);
+            bhi[k] = fmax(bhi[k], p.hi[k]);
+            let c = p.lo[k] + p.hi[k];
+            clo[k] = fmin(clo[k], c);
+            chi[k] = fmax(chi[k], c);
         }
     }
-    (blo, bhi, clo, chi)
+    let three = |a: [f32; 4]| [a[0], a[1], a[2]];
+    (three(blo), three(bhi), three(clo), three(chi))
 }
 
-/// Where a split that cannot use the SAH cuts `n` triangles: after whole groups' worth (8
-/// triangles) for half the groups, so that leaves end up full; a node of at most 8 triangles
-/// (with too many corners) in half.
-fn median_count(n: usize) -> usize {
-    if n > GROUP_LANES {
-        let groups = n.div_ceil(GROUP_LANES);
-        groups.div_ceil(2) * GROUP_LANES
-    } else {
-        n.div_ceil(2)
-    }
-}
-
-/// Splits `r` (more than one triangle) at [`median_count`] along the axis of the largest
-/// centroid extent, ties by input order: with equal centroids, by count in input order.
-/// Returns the number of triangles on the left.
-fn median_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3]) -> usize {
+/// Splits `r` (more than `leaf_max` primitives) along the axis of the largest centroid
+/// extent, ties in input order (so with equal centroids, by count in input order), after half
+/// its leaves' worth: leaves end up full, and the tree is balanced.
+/// Returns the number of primitives on the left.
+fn median_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3], leaf_max: usize) -> usize {
     let ext = |k: usize| chi[k] as f64 - clo[k] as f64;
     let axis = (0..3).fold(0, |a, k| if ext(k) > ext(a) { k } else { a });
-    let m = median_count(r.len());
+    let m = r.len().div_ceil(leaf_max).div_ceil(2) * leaf_max;
     r.select_nth_unstable_by(m, |p, q| {
         p.c(axis).total_cmp(&q.c(axis)).then(p.id.cmp(&q.id))
     });
@@ -178,49 +210,60 @@ fn median_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3]) -> usize {
 
 #[derive(Clone, Copy)]
 struct Bin {
-    lo: [f32; 3],
-    hi: [f32; 3],
+    lo: [f32; 4],
+    hi: [f32; 4],
     n: u32,
 }
 
 const EMPTY_BIN: Bin = Bin {
-    lo: [f32::INFINITY; 3],
-    hi: [f32::NEG_INFINITY; 3],
+    lo: [f32::INFINITY; 4],
+    hi: [f32::NEG_INFINITY; 4],
     n: 0,
 };
 
 impl Bin {
     #[inline(always)]
-    fn grow(&mut self, lo: &[f32; 3], hi: &[f32; 3], n: u32) {
-        for k in 0..3 {
-            self.lo[k] = self.lo[k].min(lo[k]);
-            self.hi[k] = self.hi[k].max(hi[k]);
+    fn grow(&mut self, lo: &[f32; 4], hi: &[f32; 4], n: u32) {
+        for k in 0..4 {
+            self.lo[k] = fmin(self.lo[k], lo[k]);
+            self.hi[k] = fmax(self.hi[k], hi[k]);
         }
         self.n += n;
     }
+
+    fn area(&self) -> f64 {
+        half_area(
+            &[self.lo[0], self.lo[1], self.lo[2]],
+            &[self.hi[0], self.hi[1], self.hi[2]],
+        )
+    }
 }
 
-/// The bin of a (doubled) centroid `c` on an axis starting at `lo` with `scale` bins per unit.
+/// The bin (of `nb`) of a (doubled) centroid `c` on an axis starting at `lo` with `scale` bins
+/// per unit.
 #[inline(always)]
-fn bin_of(c: f32, lo: f32, scale: f32) -> usize {
+fn bin_of(c: f32, lo: f32, scale: f32, nb: usize) -> usize {
     // c >= lo, so the product is >= 0 (or NaN for a zero extent, which is never binned); the
-    // cast saturates.
-    (((c - lo) * scale) as usize).min(BINS - 1)
+    // cast saturates. (To i32, not usize: the saturating conversion is a few instructions
+    // shorter, and this is the build's innermost loop.)
+    (((c - lo) * scale) as i32).min(nb as i32 - 1) as usize
 }
 
 /// The binned-SAH split of `r` (Wald 2007 §3): each axis with a centroid extent is cut into
-/// [`BINS`] equal bins, and every boundary between bins is priced `A_l * blocks(n_l) +
-/// A_r * blocks(n_r)` (the parent's area and the traversal cost are the same for every
-/// candidate, so they are left out); ties go to the more even split, then to the lower axis and
-/// bin. Partitions `r` and returns the left count, or `None` if no boundary separates anything.
-fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3], block: u32) -> Option<usize> {
+/// [`BINS`] equal bins (fewer for a node of few primitives: `2n`, at least 4), and every
+/// boundary between bins is priced `A_l * n_l + A_r * n_r`
+/// (the parent's area and the traversal cost are the same for every candidate, so they are
+/// left out); ties go to the more even split, then to the lower axis and bin. Partitions `r`
+/// and returns the left count, or `None` if no boundary separates anything.
+fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3]) -> Option<usize> {
+    let nb = (2 * r.len()).clamp(4, BINS);
     let mut scale = [0f32; 3];
     let mut live = [false; 3];
     for k in 0..3 {
         let ext = chi[k] - clo[k];
         if ext > 0.0 && ext.is_finite() {
-            // Slightly under BINS / ext, so the largest centroid falls in the last bin, not past.
-            scale[k] = BINS as f32 * 0.999_99 / ext;
+            // Slightly under nb / ext, so the largest centroid falls in the last bin, not past.
+            scale[k] = nb as f32 * 0.999_99 / ext;
             live[k] = scale[k].is_finite() && scale[k] > 0.0;
         }
     }
@@ -231,11 +274,10 @@ fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3], block: u32) -> O
     for p in r.iter() {
         for k in 0..3 {
             if live[k] {
-                bins[k][bin_of(p.c(k), clo[k], scale[k])].grow(&p.lo, &p.hi, 1);
+                bins[k][bin_of(p.c(k), clo[k], scale[k], nb)].grow(&p.lo, &p.hi, 1);
             }
         }
     }
-    let blocks = |n: u32| n.div_ceil(block) as f64;
     let total = r.len() as u32;
     // (cost, imbalance, axis, last bin of the left side)
     let mut best: Option<(f64, u32, usize, usize)> = None;
@@ -243,28 +285,33 @@ fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3], block: u32) -> O
         if !live[k] {
             continue;
         }
-        // Right sides: area and count of bins i.. .
+        // Right sides: area of bins i.. . A boundary after an empty bin prices the same as the
+        // one before it (which is found first and kept), so empty bins are skipped: the same
+        // split, for fewer area evaluations.
         let mut right_area = [0f64; BINS];
         let mut acc = EMPTY_BIN;
-        for i in (1..BINS).rev() {
+        let mut last = 0.0;
+        for i in (1..nb).rev() {
             let b = &bins[k][i];
-            acc.grow(&b.lo, &b.hi, b.n);
-            right_area[i] = if acc.n > 0 {
-                half_area(&acc.lo, &acc.hi)
-            } else {
-                0.0
-            };
+            if b.n > 0 {
+                acc.grow(&b.lo, &b.hi, b.n);
+                last = acc.area();
+            }
+            right_area[i] = last;
         }
         let mut left = EMPTY_BIN;
-        for i in 0..BINS - 1 {
+        for i in 0..nb - 1 {
             let b = &bins[k][i];
+            if b.n == 0 {
+                continue;
+            }
             left.grow(&b.lo, &b.hi, b.n);
             let nl = left.n;
             let nr = total - nl;
             if nl == 0 || nr == 0 {
                 continue;
             }
-            let cost = half_area(&left.lo, &left.hi) * blocks(nl) + right_area[i + 1] * blocks(nr);
+            let cost = left.area() * nl as f64 + right_area[i + 1] * nr as f64;
             let imbalance = nl.abs_diff(nr);
             let better = match best {
                 None => true,
@@ -281,7 +328,7 @@ fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3], block: u32) -> O
     let mut i = 0;
     let mut j = r.len();
     while i < j {
-        if bin_of(r[i].c(k), lo, s) <= split {
+        if bin_of(r[i].c(k), lo, s, nb) <= split {
             i += 1;
         } else {
             j -= 1;

@@ -167,8 +167,9 @@ pub(super) fn check_with_depth(
 fn contiguous(ids: &mut [u32]) -> Option<std::ops::Range<u32>> {
     ids.sort_unstable();
     let first = *ids.first()?;
-    let ok = ids.windows(2).all(|w| w[1] == w[0] + 1);
-    ok.then(|| first..first + ids.len() as u32)
+    let ok = ids.windows(2).all(|w| w[1] == w[0].wrapping_add(1));
+    let end = first.checked_add(u32::try_from(ids.len()).ok()?)?;
+    ok.then_some(first..end)
 }
 
 fn check_node(n: &ClusterNode) -> Result<(), String> {

@@ -1,8 +1,9 @@
-//! Steps 2 and 3 of the cluster build: the binary tree collapsed to 8-wide nodes, sibling leaves
-//! merged into fuller groups, and the nodes written breadth-first with quantised boxes. See the
-//! parent module.
+//! Steps 4 and 5 of the cluster build: the groups' binary tree collapsed to 8-wide nodes,
+//! sibling groups merged where they fit one, and the nodes written breadth-first with
+//! quantised boxes. See the parent module.
 
-use super::binary::{BinNode, PrimRef, half_area};
+use super::binary::{BinNode, PrimRef};
+use super::group::Draft;
 use super::{ClusterError, ClusterTri, Mode, Params, fits_group, make_group};
 use crate::physical::format::{
     CLUSTER_EXP_RANGE, CLUSTER_WIDTH, ClusterNode, GROUP_LANES, TriGroup,
@@ -10,9 +11,13 @@ use crate::physical::format::{
 
 /// What the emission reads.
 pub(super) struct Input<'a> {
+    /// The groups' binary tree: each leaf holds one of `refs`, whose `id` is a draft.
     pub bin: &'a [BinNode],
     pub refs: &'a [PrimRef],
+    pub drafts: &'a [Draft],
     pub tris: &'a [ClusterTri],
+    /// The triangles' corner numbers.
+    pub vid: &'a [[u32; 3]],
     pub params: &'a Params,
     pub mode: Mode,
     pub node_base: u32,
@@ -20,16 +25,11 @@ pub(super) struct Input<'a> {
 }
 
 /// A child of the wide node being assembled: a binary inner node (to become a wide node, or to
-/// be opened), or a leaf's triangles (ids into the input) with their box.
+/// be opened), or a group.
 #[derive(Clone, Copy)]
 enum Entry {
     Inner(u32),
-    Leaf {
-        ids: [u32; GROUP_LANES],
-        n: u8,
-        lo: [f32; 3],
-        hi: [f32; 3],
-    },
+    Leaf(Draft),
 }
 
 impl Input<'_> {
@@ -38,23 +38,14 @@ impl Input<'_> {
         if !node.leaf {
             return Entry::Inner(b);
         }
-        let mut ids = [0; GROUP_LANES];
-        let r = &self.refs[node.a as usize..(node.a + node.b) as usize];
-        for (d, p) in ids.iter_mut().zip(r) {
-            *d = p.id;
-        }
-        Entry::Leaf {
-            ids,
-            n: r.len() as u8,
-            lo: node.lo,
-            hi: node.hi,
-        }
+        debug_assert_eq!(node.b, 1);
+        Entry::Leaf(self.drafts[self.refs[node.a as usize].id as usize])
     }
 
     fn bounds(&self, e: &Entry) -> ([f32; 3], [f32; 3]) {
-        match *e {
-            Entry::Inner(b) => (self.bin[b as usize].lo, self.bin[b as usize].hi),
-            Entry::Leaf { lo, hi, .. } => (lo, hi),
+        match e {
+            Entry::Inner(b) => (self.bin[*b as usize].lo, self.bin[*b as usize].hi),
+            Entry::Leaf(d) => (d.lo, d.hi),
         }
     }
 
@@ -78,8 +69,8 @@ impl Input<'_> {
         best.map(|(i, _)| i)
     }
 
-    /// Fills `f` (one entry to start with) up to 8 children: opens inner entries, merges leaves
-    /// that fit one group, and opens more into the slots merging freed.
+    /// Fills `f` (one entry to start with) up to 8 children: opens inner entries, merges groups
+    /// that fit one, and opens more into the slots merging freed.
     fn assemble(&self, f: &mut Vec<Entry>) {
         loop {
             while f.len() < CLUSTER_WIDTH {
@@ -95,59 +86,31 @@ impl Input<'_> {
         }
     }
 
-    /// Merges the pair of leaf entries that fit one group with the smallest joint box, if any.
+    /// Merges the pair of groups that fit one with the smallest joint box, if any.
     fn merge_one(&self, f: &mut Vec<Entry>) -> bool {
         let mut best: Option<(usize, usize, f64)> = None;
-        for i in 0..f.len() {
-            let Entry::Leaf {
-                ids: ia,
-                n: na,
-                lo: la,
-                hi: ha,
-            } = f[i]
-            else {
-                continue;
-            };
-            for (j, e) in f.iter().enumerate().skip(i + 1) {
-                let Entry::Leaf {
-                    ids: ib,
-                    n: nb,
-                    lo: lb,
-                    hi: hb,
-                } = *e
-                else {
-                    continue;
-                };
-                if (na + nb) as usize > GROUP_LANES {
+        for (i, a) in f.iter().enumerate() {
+            let Entry::Leaf(a) = a else { continue };
+            for (j, b) in f.iter().enumerate().skip(i + 1) {
+                let Entry::Leaf(b) = b else { continue };
+                if (a.n + b.n) as usize > GROUP_LANES {
                     continue;
                 }
-                let lo = min3(&la, &lb);
-                let hi = max3(&ha, &hb);
-                let a = half_area(&lo, &hi);
-                if best.is_some_and(|(_, _, ba)| a >= ba) {
+                let area = super::binary::half_area(&min3(&a.lo, &b.lo), &max3(&a.hi, &b.hi));
+                if best.is_some_and(|(_, _, ba)| area >= ba) {
                     continue;
                 }
-                let both = ia[..na as usize].iter().chain(&ib[..nb as usize]).copied();
-                if fits_group(self.tris, both) {
-                    best = Some((i, j, a));
+                if fits_group(self.vid, a.ids().iter().chain(b.ids()).copied()) {
+                    best = Some((i, j, area));
                 }
             }
         }
         let Some((i, j, _)) = best else { return false };
-        let Entry::Leaf {
-            ids: ib,
-            n: nb,
-            lo: lb,
-            hi: hb,
-        } = f.remove(j)
-        else {
+        let Entry::Leaf(b) = f.remove(j) else {
             return false;
         };
-        if let Entry::Leaf { ids, n, lo, hi } = &mut f[i] {
-            ids[*n as usize..(*n + nb) as usize].copy_from_slice(&ib[..nb as usize]);
-            *n += nb;
-            *lo = min3(lo, &lb);
-            *hi = max3(hi, &hb);
+        if let Entry::Leaf(a) = &mut f[i] {
+            a.absorb(b.ids(), &b.lo, &b.hi);
         }
         true
     }
@@ -189,8 +152,13 @@ pub(super) fn emit(
         f.push(inp.entry(b));
         inp.assemble(&mut f);
         // Inner children first (slots 0..inner_count), then leaves, each in assembly order.
-        f.sort_by_key(|e| matches!(e, Entry::Leaf { .. }));
-        let inner = f.iter().filter(|e| matches!(e, Entry::Inner(_))).count();
+        let mut inner = 0;
+        for j in 0..f.len() {
+            if let Entry::Inner(_) = f[j] {
+                f[inner..=j].rotate_right(1);
+                inner += 1;
+            }
+        }
         let mut node: ClusterNode = bytemuck::Zeroable::zeroed();
         node.child_count = f.len() as u8;
         node.inner_count = inner as u8;
@@ -210,9 +178,7 @@ pub(super) fn emit(
         for e in &f {
             match e {
                 Entry::Inner(c) => queue.push((*c, depth + 1)),
-                Entry::Leaf { ids, n, .. } => {
-                    groups.push(make_group(inp.tris, &ids[..*n as usize]));
-                }
+                Entry::Leaf(d) => groups.push(make_group(inp.tris, inp.vid, d.ids())),
             }
         }
         quantise(&mut node, f.iter().map(|e| inp.bounds(e)))?;
@@ -274,11 +240,11 @@ pub(super) fn grid(lo: f32, hi: f32) -> Option<(i32, f64)> {
     let span = hi as f64 - lo as f64;
     let mut start = min;
     if span > 0.0 {
-        start = start.max((span / 255.0).log2().floor() as i32 - 1);
+        start = start.max(floor_log2(span / 255.0) - 1);
     }
     let m = (lo.abs().max(hi.abs())) as f64;
     if m > 0.0 {
-        start = start.max(m.log2().floor() as i32 - 26);
+        start = start.max(floor_log2(m) - 26);
     }
     (start..=max).find_map(|e| {
         let s = pow2(-e);
@@ -286,4 +252,9 @@ pub(super) fn grid(lo: f32, hi: f32) -> Option<(i32, f64)> {
         let oh = (hi as f64 * s).ceil();
         (oh - ol <= 255.0 && ol.abs() + 255.0 < (1u32 << 24) as f64).then_some((e, ol))
     })
+}
+
+/// `floor(log2(x))` for a positive normal `x`: its exponent field.
+fn floor_log2(x: f64) -> i32 {
+    ((x.to_bits() >> 52) & 0x7ff) as i32 - 1023
 }
