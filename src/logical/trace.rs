@@ -232,8 +232,14 @@ struct WalkState {
     bpath: [u64; 32],
     /// The block of the current leaf and its roots' level, if it is in a block.
     cur: Option<(u32, u32)>,
+    s: Best,
+}
+
+/// A walk's closest hit so far, and where it stops looking.
+struct Best {
     best: Option<HitInfo>,
     t_best: f32,
+    /// `min(t1, t_best)`: no cell entered at or past it can hold a closer hit.
     t_stop: f64,
 }
 
@@ -395,6 +401,28 @@ impl<'a> Tree<'a> {
     /// The ray in lattice space and the walk's start, clipped to the root cube; `None` for a
     /// ray that cannot hit anything (invalid, or missing the root cube).
     fn start(&self, ray: &Ray) -> Option<(RayCtx, WalkState)> {
+        let ctx = self.ray_ctx(ray)?;
+        let w = WalkState {
+            q: std::array::from_fn(|k| {
+                clamp_floor(ctx.o[k] + ctx.t0 * ctx.d[k], 0, LATTICE_SIZE - 1)
+            }),
+            level: 0,
+            tpath: [0; 32],
+            bpath: [0; 32],
+            cur: None,
+            s: Best {
+                best: None,
+                t_best: ray.tmax,
+                t_stop: ctx.t1,
+            },
+        };
+        Some((ctx, w))
+    }
+
+    /// The ray in lattice space, clipped to the root cube; `None` for a ray that cannot hit
+    /// anything (invalid, or missing the root cube).
+    #[inline(always)]
+    fn ray_ctx(&self, ray: &Ray) -> Option<RayCtx> {
         if !ray.is_valid() {
             return None;
         }
@@ -448,17 +476,7 @@ impl<'a> Tree<'a> {
             t0,
             t1,
         };
-        let w = WalkState {
-            q: std::array::from_fn(|k| clamp_floor(o[k] + t0 * d[k], 0, LATTICE_SIZE - 1)),
-            level: 0,
-            tpath: [0; 32],
-            bpath: [0; 32],
-            cur: None,
-            best: None,
-            t_best: ray.tmax,
-            t_stop: t1,
-        };
-        Some((ctx, w))
+        Some(ctx)
     }
 
     /// Walks on from `w` through the top tree and the block `held` (if any) until the ray is
@@ -562,18 +580,26 @@ impl<'a> Tree<'a> {
                     let bhi: [f64; 3] = std::array::from_fn(|a| {
                         cell_lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN
                     });
-                    if box_may_hit(r, w.t_best, blo, bhi) && self.clusters {
+                    if box_may_hit(r, w.s.t_best, blo, bhi) && self.clusters {
                         let Some(h) = held else {
                             return Err(bad("cluster outside a block", level, rec.payload as u64));
                         };
                         k.clusters_entered += 1;
-                        let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k)
-                            .map_err(|what| bad(what, level, rec.payload as u64))?;
+                        let found = trace_cluster::<ANY, S>(
+                            isa,
+                            r,
+                            &mut w.s,
+                            h,
+                            rec.payload,
+                            k,
+                            &mut Vec::new(),
+                        )
+                        .map_err(|what| bad(what, level, rec.payload as u64))?;
                         if ANY && found {
-                            return Ok(Step::Done(w.best));
+                            return Ok(Step::Done(w.s.best));
                         }
-                        w.t_stop = r.t1.min(w.t_best as f64);
-                    } else if box_may_hit(r, w.t_best, blo, bhi) {
+                        w.s.t_stop = r.t1.min(w.s.t_best as f64);
+                    } else if box_may_hit(r, w.s.t_best, blo, bhi) {
                         let Some((leaf, _)) = leaf_refs(refs, rec.payload, inline_count) else {
                             return Err(bad(
                                 "triangle references out of range",
@@ -595,9 +621,11 @@ impl<'a> Tree<'a> {
                                     rec.payload as u64,
                                 ));
                             };
-                            let (mut mask, ts) =
-                                r.shear
-                                    .intersect4([&r0.v, &r1.v, &r2.v, &r3.v], r.tmin, w.t_best);
+                            let (mut mask, ts) = r.shear.intersect4(
+                                [&r0.v, &r1.v, &r2.v, &r3.v],
+                                r.tmin,
+                                w.s.t_best,
+                            );
                             while mask != 0 {
                                 let l = mask.trailing_zeros() as usize;
                                 mask &= mask - 1;
@@ -610,13 +638,13 @@ impl<'a> Tree<'a> {
                                 if ANY {
                                     return Ok(Step::Done(Some(hit)));
                                 }
-                                if w.best.is_none() || t < w.t_best {
-                                    w.t_best = t;
-                                    w.best = Some(hit);
+                                if w.s.best.is_none() || t < w.s.t_best {
+                                    w.s.t_best = t;
+                                    w.s.best = Some(hit);
                                 }
                             }
                         }
-                        w.t_stop = r.t1.min(w.t_best as f64);
+                        w.s.t_stop = r.t1.min(w.s.t_best as f64);
                     } else {
                         k.leaves_culled += 1;
                     }
@@ -647,8 +675,8 @@ impl<'a> Tree<'a> {
             let t_exit = t01.min(te[2]);
             // Negated on purpose: a NaN bound must stop the walk.
             #[allow(clippy::neg_cmp_op_on_partial_ord)]
-            if !(t_exit < w.t_stop) {
-                return Ok(Step::Done(w.best));
+            if !(t_exit < w.s.t_stop) {
+                return Ok(Step::Done(w.s.best));
             }
 
             // 4. Step into the neighbour across the exit face: along the exit axis to `hi` or
@@ -669,7 +697,7 @@ impl<'a> Tree<'a> {
             }
             // Leaving the root: `hi` at the lattice's end, or `lo - 1` wrapping below 0.
             if next[axis] >= LATTICE_SIZE {
-                return Ok(Step::Done(w.best));
+                return Ok(Step::Done(w.s.best));
             }
             w.q = next;
             w.level = level.min(morton::common_level(old, next));
@@ -695,12 +723,15 @@ impl<'a> Tree<'a> {
         c: &mut Counters,
     ) -> Result<Option<HitInfo>, TraceError> {
         c.rays += 1;
-        let Some((r, mut w)) = self.start(ray) else {
+        let Some(r) = self.ray_ctx(ray) else {
             return Ok(None);
         };
-        let mut k = Counters::default();
-        let result = self.descend_in::<ANY, S>(isa, &r, &mut w, &mut k);
-        *c += k;
+        let mut w = Best {
+            best: None,
+            t_best: ray.tmax,
+            t_stop: r.t1,
+        };
+        let result = self.descend_in::<ANY, S>(isa, &r, &mut w, c);
         result.map(|()| w.best)
     }
 
@@ -709,25 +740,43 @@ impl<'a> Tree<'a> {
         &self,
         isa: S,
         r: &RayCtx,
-        w: &mut WalkState,
+        w: &mut Best,
         k: &mut Counters,
     ) -> Result<(), TraceError> {
         const NONE: u32 = u32::MAX;
-        const STACK: usize = 7 * (MAX_LEVEL as usize + 1) + 1;
-        let mut stack = [Entry::default(); STACK];
-        stack[0] = Entry {
+
+        let mut stacks = STACKS.take();
+        let stack = &mut stacks.octree;
+        stack.clear();
+        stack.push(Entry {
             t: r.t0,
             lo: [0; 3],
             index: 0,
             level: 0,
             block: NONE,
             kind: EntryKind::Internal,
-        };
-        let mut top = 1usize;
+        });
+        let result = self.descend_stack::<ANY, S>(isa, r, w, k, stack, &mut stacks.cluster);
+        STACKS.set(stacks);
+        result
+    }
+
+    /// [`Self::descend_in`] with its stacks (kept per thread, so that a ray costs no
+    /// allocation and no initialised array).
+    #[inline(always)]
+    fn descend_stack<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        r: &RayCtx,
+        w: &mut Best,
+        k: &mut Counters,
+        stack: &mut Vec<Entry>,
+        cluster_stack: &mut Vec<(u32, f32, u8)>,
+    ) -> Result<(), TraceError> {
+        const NONE: u32 = u32::MAX;
+        const STACK: usize = 7 * (MAX_LEVEL as usize + 1) + 1;
         let mut fetched: Option<(u32, Fetched<'a>, &'a ReadyMap)> = None;
-        while top > 0 {
-            top -= 1;
-            let e = stack[top];
+        while let Some(e) = stack.pop() {
             if e.t > w.t_stop {
                 continue;
             }
@@ -742,6 +791,7 @@ impl<'a> Tree<'a> {
                 (Some((b, bytes, ready)), blk) if blk != NONE => Some(Held::new(*b, ready, bytes)),
                 _ => None,
             };
+            let held = held.as_ref();
             let bad = |what: &'static str| {
                 TraceError::Corrupt(Corruption {
                     what,
@@ -755,7 +805,7 @@ impl<'a> Tree<'a> {
             if kind == EntryKind::Root {
                 // A block's root, at its link's place: internal, a cluster, or (never written)
                 // empty.
-                let h = held.as_ref().ok_or_else(|| bad("block not held"))?;
+                let h = held.ok_or_else(|| bad("block not held"))?;
                 if h.root_level != level {
                     return Err(bad("block roots are not at the level of their link"));
                 }
@@ -774,7 +824,9 @@ impl<'a> Tree<'a> {
                 };
             }
             if kind == EntryKind::Solid {
-                let h = held.as_ref().ok_or_else(|| bad("cluster outside a block"))?;
+                let h = held
+                    .as_ref()
+                    .ok_or_else(|| bad("cluster outside a block"))?;
                 let rec = h
                     .map
                     .node(level, e.index as u64)
@@ -785,7 +837,8 @@ impl<'a> Tree<'a> {
                 }
                 k.leaves_visited += 1;
                 k.clusters_entered += 1;
-                let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k).map_err(bad)?;
+                let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k, cluster_stack)
+                    .map_err(bad)?;
                 if ANY && found {
                     return Ok(());
                 }
@@ -794,7 +847,7 @@ impl<'a> Tree<'a> {
             }
             // An internal node: its children's cells, nearest first.
             k.nodes_visited += 1;
-            let map = match &held {
+            let map = match held {
                 Some(h) => &h.map,
                 None => &self.top,
             };
@@ -807,9 +860,10 @@ impl<'a> Tree<'a> {
             let size = morton::cell_size(level);
             let half = size / 2;
             let m = CELL_MARGIN;
-            // Per axis, the entry and exit of the low and the high half.
-            let mut span = [[(0f64, 0f64); 2]; 3];
-            let mut open = [[true; 2]; 3];
+            // Per axis, where the ray enters and leaves the low and the high half (a half an
+            // axis the ray does not move along does not hold the origin in: entered at +inf).
+            let mut enter_at = [[0f64; 2]; 3];
+            let mut leave_at = [[0f64; 2]; 3];
             for a in 0..3 {
                 let lo = e.lo[a] as f64;
                 let (mid, hi) = (lo + half as f64, lo + size as f64);
@@ -817,43 +871,60 @@ impl<'a> Tree<'a> {
                     let t = |p: f64| p * r.inv[a] - r.oi[a];
                     let (l0, l1) = (t(lo - m), t(mid + m));
                     let (h0, h1) = (t(mid - m), t(hi + m));
-                    span[a] = [(l0.min(l1), l0.max(l1)), (h0.min(h1), h0.max(h1))];
+                    let (l0, l1) = if r.fwd[a] { (l0, l1) } else { (l1, l0) };
+                    let (h0, h1) = if r.fwd[a] { (h0, h1) } else { (h1, h0) };
+                    enter_at[a] = [l0, h0];
+                    leave_at[a] = [l1, h1];
                 } else {
                     let o = r.o[a];
-                    open[a] = [o >= lo - m && o <= mid + m, o >= mid - m && o <= hi + m];
-                    span[a] = [(f64::NEG_INFINITY, f64::INFINITY); 2];
+                    let inside = |a: f64, b: f64| {
+                        if o >= a && o <= b {
+                            f64::NEG_INFINITY
+                        } else {
+                            f64::INFINITY
+                        }
+                    };
+                    enter_at[a] = [inside(lo - m, mid + m), inside(mid - m, hi + m)];
+                    leave_at[a] = [f64::INFINITY; 2];
                 }
+            }
+            // Branch-free over the eight children: which are not empty leaves, and which the
+            // ray meets (comparisons, not f64::max, which is NaN-aware and slow; a NaN makes
+            // `enter <= exit` false, a miss).
+            let fmax = |a: f64, b: f64| if a > b { a } else { b };
+            let fmin = |a: f64, b: f64| if a < b { a } else { b };
+            let mut enters = [0f64; 8];
+            let mut mask = 0u32;
+            for (o, rec) in recs.iter().enumerate() {
+                let (hx, hy, hz) = (o & 1, (o >> 1) & 1, (o >> 2) & 1);
+                let enter = fmax(
+                    fmax(r.tmin as f64, enter_at[0][hx]),
+                    fmax(enter_at[1][hy], enter_at[2][hz]),
+                );
+                let exit = fmin(
+                    fmin(w.t_stop, leave_at[0][hx]),
+                    fmin(leave_at[1][hy], leave_at[2][hz]),
+                );
+                let live = (internal >> o) & 1 == 1 || rec.kind_bits() != KIND_EMPTY;
+                enters[o] = enter;
+                mask |= ((live & (enter <= exit)) as u32) << o;
             }
             let mut hits: [(f64, u8); 8] = [(0.0, 0); 8];
             let mut n = 0usize;
-            for o in 0..8usize {
-                let is_internal = (internal >> o) & 1 == 1;
-                if !is_internal && recs[o].kind_bits() == KIND_EMPTY {
-                    continue;
-                }
-                let (hx, hy, hz) = (o & 1, (o >> 1) & 1, (o >> 2) & 1);
-                if !(open[0][hx] && open[1][hy] && open[2][hz]) {
-                    continue;
-                }
-                let enter = (r.tmin as f64)
-                    .max(span[0][hx].0)
-                    .max(span[1][hy].0)
-                    .max(span[2][hz].0);
-                let exit = w
-                    .t_stop
-                    .min(span[0][hx].1)
-                    .min(span[1][hy].1)
-                    .min(span[2][hz].1);
-                // Negated on purpose: NaN must mean a miss.
-                #[allow(clippy::neg_cmp_op_on_partial_ord)]
-                if !(enter <= exit) {
-                    continue;
-                }
-                hits[n] = (enter, o as u8);
+            while mask != 0 {
+                let o = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                hits[n] = (enters[o], o as u8);
                 n += 1;
             }
             // Nearest popped first: pushed farthest first.
-            hits[..n].sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+            for i in 1..n {
+                let mut j = i;
+                while j > 0 && hits[j - 1].0 < hits[j].0 {
+                    hits.swap(j - 1, j);
+                    j -= 1;
+                }
+            }
             for &(t, o) in &hits[..n] {
                 let o = o as usize;
                 let rec = recs[o];
@@ -888,18 +959,17 @@ impl<'a> Tree<'a> {
                         _ => return Err(bad("invalid leaf record")),
                     }
                 };
-                if top >= STACK {
+                if stack.len() >= STACK {
                     return Err(bad("traversal deeper than the lattice"));
                 }
-                stack[top] = Entry {
+                stack.push(Entry {
                     t,
                     lo,
                     index: index as u32,
                     level: (level + 1) as u8,
                     block,
                     kind,
-                };
-                top += 1;
+                });
             }
         }
         Ok(())
@@ -919,9 +989,8 @@ impl<'a> Tree<'a> {
         let s256 = size as f64 / 256.0;
         let blo: [f64; 3] =
             std::array::from_fn(|a| lo[a] as f64 + lb.lo[a] as f64 * s256 - CELL_MARGIN);
-        let bhi: [f64; 3] = std::array::from_fn(|a| {
-            lo[a] as f64 + (lb.hi[a] as f64 + 1.0) * s256 + CELL_MARGIN
-        });
+        let bhi: [f64; 3] =
+            std::array::from_fn(|a| lo[a] as f64 + (lb.hi[a] as f64 + 1.0) * s256 + CELL_MARGIN);
         box_may_hit(r, t_best, blo, bhi)
     }
 
@@ -946,7 +1015,7 @@ impl<'a> Tree<'a> {
             std::array::from_fn(|a| cell_lo[a] + lb.lo[a] as f64 * s256 - CELL_MARGIN);
         let bhi: [f64; 3] =
             std::array::from_fn(|a| cell_lo[a] + (lb.hi[a] as f64 + 1.0) * s256 + CELL_MARGIN);
-        box_may_hit(r, w.t_best, blo, bhi)
+        box_may_hit(r, w.s.t_best, blo, bhi)
     }
 
     /// Descends inside the held block from `w.level` to the leaf containing `w.q`; checks, when
@@ -989,6 +1058,22 @@ impl<'a> Tree<'a> {
     }
 }
 
+/// The stacks of a thread's walks, kept between rays.
+#[derive(Default)]
+struct Stacks {
+    octree: Vec<Entry>,
+    cluster: Vec<(u32, f32, u8)>,
+}
+
+thread_local! {
+    static STACKS: std::cell::Cell<Stacks> = const {
+        std::cell::Cell::new(Stacks {
+            octree: Vec::new(),
+            cluster: Vec::new(),
+        })
+    };
+}
+
 /// What a stack entry of [`Tree::descend_in`] is.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 enum EntryKind {
@@ -1021,9 +1106,8 @@ fn leaf_may_hit(r: &RayCtx, t_best: f32, lo: [u32; 3], size: u32, b: u32) -> boo
     let q4 = |shift: u32| ((b >> shift) & 15) as f64;
     let blo: [f64; 3] =
         std::array::from_fn(|a| lo[a] as f64 + q4(4 * a as u32) * s16 - CELL_MARGIN);
-    let bhi: [f64; 3] = std::array::from_fn(|a| {
-        lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN
-    });
+    let bhi: [f64; 3] =
+        std::array::from_fn(|a| lo[a] as f64 + (q4(12 + 4 * a as u32) + 1.0) * s16 + CELL_MARGIN);
     box_may_hit(r, t_best, blo, bhi)
 }
 
@@ -1063,19 +1147,17 @@ fn clamp_floor(p: f64, lo: u32, hi: u32) -> u32 {
 fn trace_cluster<const ANY: bool, S: Simd8>(
     isa: S,
     r: &RayCtx,
-    w: &mut WalkState,
+    w: &mut Best,
     h: &Held<'_>,
     root: u32,
     k: &mut Counters,
+    stack: &mut Vec<(u32, f32, u8)>,
 ) -> Result<bool, &'static str> {
     const STACK: usize = (CLUSTER_WIDTH - 1) * MAX_CLUSTER_DEPTH + 1;
-    let mut stack = [(0u32, 0f32, 0u8); STACK];
-    stack[0] = (root, r.tmin, 0);
-    let mut top = 1usize;
+    stack.clear();
+    stack.push((root, r.tmin, 0));
     let mut visits = 0usize;
-    while top > 0 {
-        top -= 1;
-        let (ni, tnear, depth) = stack[top];
+    while let Some((ni, tnear, depth)) = stack.pop() {
         if tnear > w.t_best {
             continue;
         }
@@ -1149,11 +1231,10 @@ fn trace_cluster<const ANY: bool, S: Simd8>(
         }
         kids[..nk].sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
         for &(t, c) in &kids[..nk] {
-            if top >= STACK {
+            if stack.len() >= STACK {
                 return Err("cluster deeper than the format allows");
             }
-            stack[top] = (c, t, depth + 1);
-            top += 1;
+            stack.push((c, t, depth + 1));
         }
     }
     Ok(false)

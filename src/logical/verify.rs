@@ -10,10 +10,10 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
-use crate::mapping::morton::{self, cell_origin, cell_size};
 use crate::build::ClusterGeometry;
 use crate::build::check_cluster;
+use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
+use crate::mapping::morton::{self, cell_origin, cell_size};
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::format::*;
 use crate::physical::verify::{
