@@ -28,7 +28,7 @@ use std::collections::HashMap;
 
 use rayon::prelude::*;
 
-use super::cluster::{ClusterTri, build_cluster};
+use super::cluster::{ClusterBuilder, ClusterTri};
 use crate::error::Error;
 use crate::mapping::{rank, rank_words};
 use crate::physical::format::*;
@@ -362,6 +362,8 @@ fn extract(
     let mut cluster_nodes: Vec<ClusterNode> = Vec::new();
     let mut groups: Vec<TriGroup> = Vec::new();
     let mut cluster_tris: Vec<ClusterTri> = Vec::new();
+    // One builder per block: its scratch buffers serve every cluster of the block.
+    let mut builder = ClusterBuilder::new();
     for &(_, d, j, code) in &leaves {
         let rec = &mut records[d as usize][j as usize];
         match rec.kind() {
@@ -401,21 +403,17 @@ fn extract(
                         });
                     }
                     let level = base_level + l0 as u32 + d;
-                    let (root, group_base) = (cluster_nodes.len(), groups.len());
-                    let (Ok(root), Ok(group_base)) =
-                        (u32::try_from(root), u32::try_from(group_base))
-                    else {
+                    let Ok(root) = u32::try_from(cluster_nodes.len()) else {
                         return Err(bad("a block with more than 2^32 cluster nodes"));
                     };
-                    let built = build_cluster(
-                        &cluster_tris,
-                        geometry.widened_cell(level, code),
-                        root,
-                        group_base,
-                    )
-                    .map_err(|e| bad(format!("building a cluster: {e}")))?;
-                    cluster_nodes.extend(built.nodes);
-                    groups.extend(built.groups);
+                    builder
+                        .build_into(
+                            &cluster_tris,
+                            geometry.widened_cell(level, code),
+                            &mut cluster_nodes,
+                            &mut groups,
+                        )
+                        .map_err(|e| bad(format!("building a cluster: {e}")))?;
                     *rec = NodeRecord::cluster(root, bounds);
                     continue;
                 }
