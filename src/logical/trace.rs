@@ -775,204 +775,219 @@ impl<'a> Tree<'a> {
     ) -> Result<(), TraceError> {
         const NONE: u32 = u32::MAX;
         const STACK: usize = 7 * (MAX_LEVEL as usize + 1) + 1;
-        let mut fetched: Option<(u32, Fetched<'a>, &'a ReadyMap)> = None;
-        while let Some(e) = stack.pop() {
-            if e.t > w.t_stop {
-                continue;
-            }
-            // The unit the node is in: the top tree, or the block it names (fetched now if
-            // another is held: the one held is done with).
-            if e.block != NONE && fetched.as_ref().is_none_or(|f| f.0 != e.block) {
-                // The block held is let go before the next is asked for.
-                drop(fetched.take());
-                fetched = Some(self.fetch(e.block, &mut k.page)?);
-            }
-            let held = match (&fetched, e.block) {
-                (Some((b, bytes, ready)), blk) if blk != NONE => Some(Held::new(*b, ready, bytes)),
-                _ => None,
+        // Each turn holds one block (none at first) and its view, made once: it pops nodes of
+        // the top tree and of that block until one needs another block, which the next turn
+        // fetches after this turn's is let go.
+        let mut need: Option<u32> = None;
+        loop {
+            let fetched = match need.take() {
+                None => None,
+                Some(b) => Some(self.fetch(b, &mut k.page)?),
             };
-            let held = held.as_ref();
-            let bad = |what: &'static str| {
-                TraceError::Corrupt(Corruption {
-                    what,
-                    block: (e.block != NONE).then_some(e.block),
-                    level: e.level as u32,
-                    index: e.index as u64,
-                })
-            };
-            let level = e.level as u32;
-            let mut kind = e.kind;
-            if kind == EntryKind::Root {
-                // A block's root, at its link's place: internal, a cluster, or (never written)
-                // empty.
-                let h = held.ok_or_else(|| bad("block not held"))?;
-                if h.root_level != level {
-                    return Err(bad("block roots are not at the level of their link"));
+            let view = fetched
+                .as_ref()
+                .map(|(b, bytes, ready)| Held::new(*b, ready, bytes));
+            while let Some(e) = stack.pop() {
+                if e.t > w.t_stop {
+                    continue;
                 }
-                if e.index >= h.root_count {
-                    return Err(bad("link to a root the block does not have"));
-                }
-                let rec = h
-                    .map
-                    .node(level, e.index as u64)
-                    .map_err(|_| bad("block root out of range"))?;
-                kind = match rec.kind_bits() {
-                    _ if rec.is_internal() => EntryKind::Internal,
-                    KIND_SOLID => EntryKind::Solid,
-                    KIND_EMPTY => continue,
-                    _ => return Err(bad("invalid leaf record")),
-                };
-            }
-            if kind == EntryKind::Solid {
-                let h = held
-                    .as_ref()
-                    .ok_or_else(|| bad("cluster outside a block"))?;
-                let rec = h
-                    .map
-                    .node(level, e.index as u64)
-                    .map_err(|_| bad("node record out of range"))?;
-                let (inline, _) = rec.solid_bits();
-                if rec.kind_bits() != KIND_SOLID || inline != 0 {
-                    return Err(bad("invalid leaf record"));
-                }
-                k.leaves_visited += 1;
-                k.clusters_entered += 1;
-                let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k, cluster_stack)
-                    .map_err(bad)?;
-                if ANY && found {
-                    return Ok(());
-                }
-                w.t_stop = r.t1.min(w.t_best as f64);
-                continue;
-            }
-            // An internal node: its children's cells, nearest first.
-            k.nodes_visited += 1;
-            let map = match held {
-                Some(h) => &h.map,
-                None => &self.top,
-            };
-            if level >= MAX_LEVEL {
-                return Err(bad("internal node on the deepest level"));
-            }
-            let (first, internal, recs) = map
-                .children(level, e.index as u64)
-                .ok_or_else(|| bad("rank directory points past the next level"))?;
-            let size = morton::cell_size(level);
-            let half = size / 2;
-            let m = CELL_MARGIN;
-            // Per axis, where the ray enters and leaves the low and the high half (a half an
-            // axis the ray does not move along does not hold the origin in: entered at +inf).
-            let mut enter_at = [[0f64; 2]; 3];
-            let mut leave_at = [[0f64; 2]; 3];
-            for a in 0..3 {
-                let lo = e.lo[a] as f64;
-                let (mid, hi) = (lo + half as f64, lo + size as f64);
-                if r.moves[a] {
-                    let t = |p: f64| p * r.inv[a] - r.oi[a];
-                    let (l0, l1) = (t(lo - m), t(mid + m));
-                    let (h0, h1) = (t(mid - m), t(hi + m));
-                    let (l0, l1) = if r.fwd[a] { (l0, l1) } else { (l1, l0) };
-                    let (h0, h1) = if r.fwd[a] { (h0, h1) } else { (h1, h0) };
-                    enter_at[a] = [l0, h0];
-                    leave_at[a] = [l1, h1];
+                let held = if e.block == NONE {
+                    None
                 } else {
-                    let o = r.o[a];
-                    let inside = |a: f64, b: f64| {
-                        if o >= a && o <= b {
-                            f64::NEG_INFINITY
-                        } else {
-                            f64::INFINITY
+                    match &view {
+                        Some(h) if h.id == e.block => Some(h),
+                        _ => {
+                            need = Some(e.block);
+                            stack.push(e);
+                            break;
                         }
-                    };
-                    enter_at[a] = [inside(lo - m, mid + m), inside(mid - m, hi + m)];
-                    leave_at[a] = [f64::INFINITY; 2];
-                }
-            }
-            // Branch-free over the eight children: which are not empty leaves, and which the
-            // ray meets (comparisons, not f64::max, which is NaN-aware and slow; a NaN makes
-            // `enter <= exit` false, a miss).
-            let fmax = |a: f64, b: f64| if a > b { a } else { b };
-            let fmin = |a: f64, b: f64| if a < b { a } else { b };
-            let mut enters = [0f64; 8];
-            let mut mask = 0u32;
-            for (o, rec) in recs.iter().enumerate() {
-                let (hx, hy, hz) = (o & 1, (o >> 1) & 1, (o >> 2) & 1);
-                let enter = fmax(
-                    fmax(r.tmin as f64, enter_at[0][hx]),
-                    fmax(enter_at[1][hy], enter_at[2][hz]),
-                );
-                let exit = fmin(
-                    fmin(w.t_stop, leave_at[0][hx]),
-                    fmin(leave_at[1][hy], leave_at[2][hz]),
-                );
-                let live = (internal >> o) & 1 == 1 || rec.kind_bits() != KIND_EMPTY;
-                enters[o] = enter;
-                mask |= ((live & (enter <= exit)) as u32) << o;
-            }
-            let mut hits: [(f64, u8); 8] = [(0.0, 0); 8];
-            let mut n = 0usize;
-            while mask != 0 {
-                let o = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                hits[n] = (enters[o], o as u8);
-                n += 1;
-            }
-            // Nearest popped first: pushed farthest first.
-            for i in 1..n {
-                let mut j = i;
-                while j > 0 && hits[j - 1].0 < hits[j].0 {
-                    hits.swap(j - 1, j);
-                    j -= 1;
-                }
-            }
-            for &(t, o) in &hits[..n] {
-                let o = o as usize;
-                let rec = recs[o];
-                let child = first + o as u64;
-                let lo = [
-                    e.lo[0] + half * (o as u32 & 1),
-                    e.lo[1] + half * ((o as u32 >> 1) & 1),
-                    e.lo[2] + half * ((o as u32 >> 2) & 1),
-                ];
-                let is_internal = (internal >> o) & 1 == 1;
-                let (kind, block, index) = if is_internal {
-                    (EntryKind::Internal, e.block, child)
-                } else {
-                    match rec.kind_bits() {
-                        KIND_SOLID if e.block != NONE => {
-                            let (_, b) = rec.solid_bits();
-                            if !leaf_may_hit(r, w.t_best, lo, half, b) {
-                                k.leaves_culled += 1;
-                                continue;
-                            }
-                            (EntryKind::Solid, e.block, child)
-                        }
-                        KIND_LINK if e.block == NONE => {
-                            let at = self.top.node_start(level + 1) + child;
-                            if !self.link_bounds_hit(r, w.t_best, at, lo, half) {
-                                k.links_culled += 1;
-                                continue;
-                            }
-                            let (b, root) = rec.link_bits();
-                            (EntryKind::Root, b, root as u64)
-                        }
-                        _ => return Err(bad("invalid leaf record")),
                     }
                 };
-                if stack.len() >= STACK {
-                    return Err(bad("traversal deeper than the lattice"));
+                let bad = |what: &'static str| {
+                    TraceError::Corrupt(Corruption {
+                        what,
+                        block: (e.block != NONE).then_some(e.block),
+                        level: e.level as u32,
+                        index: e.index as u64,
+                    })
+                };
+                let level = e.level as u32;
+                let mut kind = e.kind;
+                if kind == EntryKind::Root {
+                    // A block's root, at its link's place: internal, a cluster, or (never written)
+                    // empty.
+                    let h = held.ok_or_else(|| bad("block not held"))?;
+                    if h.root_level != level {
+                        return Err(bad("block roots are not at the level of their link"));
+                    }
+                    if e.index >= h.root_count {
+                        return Err(bad("link to a root the block does not have"));
+                    }
+                    let rec = h
+                        .map
+                        .node(level, e.index as u64)
+                        .map_err(|_| bad("block root out of range"))?;
+                    kind = match rec.kind_bits() {
+                        _ if rec.is_internal() => EntryKind::Internal,
+                        KIND_SOLID => EntryKind::Solid,
+                        KIND_EMPTY => continue,
+                        _ => return Err(bad("invalid leaf record")),
+                    };
                 }
-                stack.push(Entry {
-                    t,
-                    lo,
-                    index: index as u32,
-                    level: (level + 1) as u8,
-                    block,
-                    kind,
-                });
+                if kind == EntryKind::Solid {
+                    let h = held
+                        .as_ref()
+                        .ok_or_else(|| bad("cluster outside a block"))?;
+                    let rec = h
+                        .map
+                        .node(level, e.index as u64)
+                        .map_err(|_| bad("node record out of range"))?;
+                    let (inline, _) = rec.solid_bits();
+                    if rec.kind_bits() != KIND_SOLID || inline != 0 {
+                        return Err(bad("invalid leaf record"));
+                    }
+                    k.leaves_visited += 1;
+                    k.clusters_entered += 1;
+                    let found =
+                        trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k, cluster_stack)
+                            .map_err(bad)?;
+                    if ANY && found {
+                        return Ok(());
+                    }
+                    w.t_stop = r.t1.min(w.t_best as f64);
+                    continue;
+                }
+                // An internal node: its children's cells, nearest first.
+                k.nodes_visited += 1;
+                let map = match held {
+                    Some(h) => &h.map,
+                    None => &self.top,
+                };
+                if level >= MAX_LEVEL {
+                    return Err(bad("internal node on the deepest level"));
+                }
+                let (first, internal, recs) = map
+                    .children(level, e.index as u64)
+                    .ok_or_else(|| bad("rank directory points past the next level"))?;
+                let size = morton::cell_size(level);
+                let half = size / 2;
+                let m = CELL_MARGIN;
+                // Per axis, where the ray enters and leaves the low and the high half (a half an
+                // axis the ray does not move along does not hold the origin in: entered at +inf).
+                let mut enter_at = [[0f64; 2]; 3];
+                let mut leave_at = [[0f64; 2]; 3];
+                for a in 0..3 {
+                    let lo = e.lo[a] as f64;
+                    let (mid, hi) = (lo + half as f64, lo + size as f64);
+                    if r.moves[a] {
+                        let t = |p: f64| p * r.inv[a] - r.oi[a];
+                        let (l0, l1) = (t(lo - m), t(mid + m));
+                        let (h0, h1) = (t(mid - m), t(hi + m));
+                        let (l0, l1) = if r.fwd[a] { (l0, l1) } else { (l1, l0) };
+                        let (h0, h1) = if r.fwd[a] { (h0, h1) } else { (h1, h0) };
+                        enter_at[a] = [l0, h0];
+                        leave_at[a] = [l1, h1];
+                    } else {
+                        let o = r.o[a];
+                        let inside = |a: f64, b: f64| {
+                            if o >= a && o <= b {
+                                f64::NEG_INFINITY
+                            } else {
+                                f64::INFINITY
+                            }
+                        };
+                        enter_at[a] = [inside(lo - m, mid + m), inside(mid - m, hi + m)];
+                        leave_at[a] = [f64::INFINITY; 2];
+                    }
+                }
+                // Branch-free over the eight children: which are not empty leaves, and which the
+                // ray meets (comparisons, not f64::max, which is NaN-aware and slow; a NaN makes
+                // `enter <= exit` false, a miss).
+                let fmax = |a: f64, b: f64| if a > b { a } else { b };
+                let fmin = |a: f64, b: f64| if a < b { a } else { b };
+                let mut enters = [0f64; 8];
+                let mut mask = 0u32;
+                for (o, rec) in recs.iter().enumerate() {
+                    let (hx, hy, hz) = (o & 1, (o >> 1) & 1, (o >> 2) & 1);
+                    let enter = fmax(
+                        fmax(r.tmin as f64, enter_at[0][hx]),
+                        fmax(enter_at[1][hy], enter_at[2][hz]),
+                    );
+                    let exit = fmin(
+                        fmin(w.t_stop, leave_at[0][hx]),
+                        fmin(leave_at[1][hy], leave_at[2][hz]),
+                    );
+                    let live = (internal >> o) & 1 == 1 || rec.kind_bits() != KIND_EMPTY;
+                    enters[o] = enter;
+                    mask |= ((live & (enter <= exit)) as u32) << o;
+                }
+                let mut hits: [(f64, u8); 8] = [(0.0, 0); 8];
+                let mut n = 0usize;
+                while mask != 0 {
+                    let o = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    hits[n] = (enters[o], o as u8);
+                    n += 1;
+                }
+                // Nearest popped first: pushed farthest first.
+                for i in 1..n {
+                    let mut j = i;
+                    while j > 0 && hits[j - 1].0 < hits[j].0 {
+                        hits.swap(j - 1, j);
+                        j -= 1;
+                    }
+                }
+                for &(t, o) in &hits[..n] {
+                    let o = o as usize;
+                    let rec = recs[o];
+                    let child = first + o as u64;
+                    let lo = [
+                        e.lo[0] + half * (o as u32 & 1),
+                        e.lo[1] + half * ((o as u32 >> 1) & 1),
+                        e.lo[2] + half * ((o as u32 >> 2) & 1),
+                    ];
+                    let is_internal = (internal >> o) & 1 == 1;
+                    let (kind, block, index) = if is_internal {
+                        (EntryKind::Internal, e.block, child)
+                    } else {
+                        match rec.kind_bits() {
+                            KIND_SOLID if e.block != NONE => {
+                                let (_, b) = rec.solid_bits();
+                                if !leaf_may_hit(r, w.t_best, lo, half, b) {
+                                    k.leaves_culled += 1;
+                                    continue;
+                                }
+                                (EntryKind::Solid, e.block, child)
+                            }
+                            KIND_LINK if e.block == NONE => {
+                                let at = self.top.node_start(level + 1) + child;
+                                if !self.link_bounds_hit(r, w.t_best, at, lo, half) {
+                                    k.links_culled += 1;
+                                    continue;
+                                }
+                                let (b, root) = rec.link_bits();
+                                (EntryKind::Root, b, root as u64)
+                            }
+                            _ => return Err(bad("invalid leaf record")),
+                        }
+                    };
+                    if stack.len() >= STACK {
+                        return Err(bad("traversal deeper than the lattice"));
+                    }
+                    stack.push(Entry {
+                        t,
+                        lo,
+                        index: index as u32,
+                        level: (level + 1) as u8,
+                        block,
+                        kind,
+                    });
+                }
+            }
+            if need.is_none() {
+                return Ok(());
             }
         }
-        Ok(())
     }
 
     /// Link bounds record `at` (spec §8.1) of the link whose cell is `lo` (edge `size`),
