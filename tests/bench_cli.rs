@@ -10,6 +10,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
+use oavm::build::LeafKind;
 use oavm::compare::bench::{self, BenchScene};
 use oavm::compare::{self, OavmAccel, Triangles};
 use oavm::geom::reference;
@@ -51,10 +52,10 @@ const SMALL: [&str; 10] = [
     "1",
 ];
 
-/// `SMALL` as the library's options.
-fn small_options() -> bench::Options {
+/// `SMALL` as the library's options, OAVM's leaves of kind `leaf` (`--leaf`).
+fn small_options(leaf: LeafKind) -> bench::Options {
     bench::Options {
-        build: BuildOptions::default(),
+        build: BuildOptions::with_leaf(leaf),
         random: 3000,
         width: 48,
         height: 36,
@@ -94,16 +95,63 @@ fn brute_answers(mesh: &Mesh, rays: &[Ray], any: bool) -> (bench::Answers, usize
     (a, hits)
 }
 
+/// The paper's comparison (its tables count OAVM with leaf lists, `--leaf list`, K = 32): all
+/// five structures agree with OAVM, report their figures, and the classic octree, OAVM's
+/// subdivision with pointers, stores more pointers than OAVM.
 #[test]
 fn all_structures_agree_with_oavm_and_report_the_tables_figures() {
+    let scenes = structures_agree_with_oavm(LeafKind::List);
+    for sc in &scenes {
+        let structs = sc["structures"].as_array().expect("structures");
+        let by = |n: &str| structs.iter().find(|s| s["name"] == n).unwrap();
+        assert!(
+            by("octree")["pointers"].as_u64() > by("oavm")["pointers"].as_u64(),
+            "{}: {} {}",
+            sc["scene"],
+            by("octree"),
+            by("oavm")
+        );
+    }
+}
+
+/// The same with the default structure, OAVM of clusters (K = 512): all five structures agree
+/// with it and report their figures. The octree is still OAVM's subdivision (same nodes), but
+/// with leaves of 512 triangles the pointer comparison is not the paper's and does not go one
+/// way: the Cornell box's 36 triangles are one leaf, 1 pointer for the octree against OAVM's
+/// rank word and leaf offset.
+#[test]
+fn all_structures_agree_with_oavm_of_clusters() {
+    structures_agree_with_oavm(LeafKind::Cluster);
+}
+
+/// Runs `oavm-bench --leaf LEAF` on two scenes and checks what holds for either kind of leaf:
+/// every structure agrees with OAVM, reports its figures, and the octree has OAVM's nodes; and
+/// OAVM itself agrees with brute force on the same ray sets, and so does every structure's
+/// reported hit count. Returns the report's scenes.
+fn structures_agree_with_oavm(leaf: LeafKind) -> Vec<Value> {
     let cornell = shared("cornell_box/CornellBox-Original.obj");
     let museum = shared("bart/museum/museum5.aff");
-    let o = run(bench().args(SMALL).arg("--json").arg(&cornell).arg(&museum));
+    let kind = match leaf {
+        LeafKind::Cluster => "cluster",
+        LeafKind::List => "list",
+    };
+    let o = run(bench()
+        .args(SMALL)
+        .args(["--leaf", kind, "--json"])
+        .arg(&cornell)
+        .arg(&museum));
     assert!(o.status.success(), "{}", describe(&o));
     let v: Value = serde_json::from_slice(&o.stdout).expect("JSON on stdout");
-    let scenes = v["scenes"].as_array().expect("scenes");
+    assert_eq!(v["options"]["leaf"], kind, "{}", v["options"]);
+    assert_eq!(
+        v["options"]["leaf_size"],
+        leaf.default_leaf_size(),
+        "{}",
+        v["options"]
+    );
+    let scenes = v["scenes"].as_array().expect("scenes").clone();
     assert_eq!(scenes.len(), 2);
-    for sc in scenes {
+    for sc in &scenes {
         let structs = sc["structures"].as_array().expect("structures");
         let names: Vec<&str> = structs
             .iter()
@@ -111,9 +159,8 @@ fn all_structures_agree_with_oavm_and_report_the_tables_figures() {
             .collect();
         assert_eq!(names, compare::STRUCTURES, "{}", sc["scene"]);
         let by = |n: &str| structs.iter().find(|s| s["name"] == n).unwrap();
-        // The classic octree is OAVM's subdivision with pointers: same nodes, more pointers.
+        // The classic octree is OAVM's subdivision with pointers: same nodes.
         assert_eq!(by("octree")["nodes"], by("oavm")["nodes"]);
-        assert!(by("octree")["pointers"].as_u64() > by("oavm")["pointers"].as_u64());
         for s in structs {
             assert!(s["nodes"].as_u64().unwrap() > 0, "{s}");
             assert!(s["bytes"].as_u64().unwrap() > 0, "{s}");
@@ -141,8 +188,8 @@ fn all_structures_agree_with_oavm_and_report_the_tables_figures() {
     // made by the library as the binary makes them, through OAVM and brute force. Every
     // structure's reported hit count must be brute force's (within the 0.01 % a set may
     // disagree by), and brute force must find plenty of hits.
-    let opts = small_options();
-    for (path, sc) in [cornell, museum].iter().zip(scenes) {
+    let opts = small_options(leaf);
+    for (path, sc) in [cornell, museum].iter().zip(&scenes) {
         let scene = BenchScene::load(path).unwrap();
         let oavm = OavmAccel::build(&scene.mesh, &opts.build).unwrap();
         let sets = bench::ray_sets(&scene, &oavm, &opts);
@@ -173,6 +220,7 @@ fn all_structures_agree_with_oavm_and_report_the_tables_figures() {
             }
         }
     }
+    scenes
 }
 
 #[test]

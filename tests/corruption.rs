@@ -1,4 +1,4 @@
-//! Corrupted `.oavm` files, version 3 (format-spec.md §11; hostile input): truncated,
+//! Corrupted `.oavm` files, version 4 (format-spec.md §11; hostile input): truncated,
 //! extended, wrong magic or version (version 1 files included), a bit flipped anywhere, regions
 //! rewritten with their checksums recomputed (inside compressed blocks too: decoded, changed,
 //! recompressed), damaged block directory entries, links and frames, files held in misaligned
@@ -19,9 +19,12 @@
 //!   instead of stalling it. Files whose blocks matter are also traced under a memory budget of a
 //!   few blocks on 2 threads, and must give the same outcome.
 //!
-//! The files are built in memory from the dragon's smallest decimation: once with the default
-//! build options, once from its first triangles with leaf size 4 (a deep tree), each split into
-//! small blocks (so that a small mesh makes many) and written both raw and zstd-compressed. The
+//! The files are built in memory from the dragon's smallest decimation: with the default build
+//! options (solid leaves are clusters, §7.1–§7.2: wide BVHs over triangle groups), with the
+//! default options of leaf lists (`--leaf list`, §6–§7: format 3's leaves, in a version-4
+//! file), and from its first triangles with leaf size 4 (a deep tree, of small clusters), each
+//! split into small blocks (so that a small mesh makes many) and written both raw and
+//! zstd-compressed. The
 //! byte layout used to corrupt them, to recompute checksums and to re-lay a file out after a
 //! compressed block changed size, as a tool that rewrites a file would, is taken from
 //! format-spec.md §2–§8, not from the code; [`layout_matches_the_spec`] checks that the two
@@ -44,13 +47,14 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::{Mutex, Once, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 
+use oavm::build::LeafKind;
 use oavm::build::{TreeParts, encode_with};
 use oavm::logical::SceneOptions;
 use oavm::physical::AlignedBytes;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::{
-    BlockEntry, BlockHeader, Header, LevelEntry, NodeRecord, RankWord, SectionEntry, SectionKind,
-    TriRecord, VolumeRecord,
+    BlockEntry, BlockHeader, ClusterNode, Header, LevelEntry, NodeRecord, RankWord, SectionEntry,
+    SectionKind, TriGroup, TriRecord, VolumeRecord,
 };
 use oavm::rays::{Bounds, Camera, SplitMix64, random_rays};
 use oavm::{BuildOptions, Error, FormatError, Hit, Mesh, Ray, Scene};
@@ -73,6 +77,26 @@ const RANK_FIELDS: Fields = &[(0, "internal"), (8, "rank")];
 const VOLUME_FIELDS: Fields = &[(0, "lo"), (12, "hi")];
 /// §8.1: a link's bounds, in 256ths of its cell.
 const LINK_BOUNDS_FIELDS: Fields = &[(0, "lo"), (3, "hi"), (6, "reserved")];
+/// §7.1: a cluster node: its quantisation grid, its children, their boxes.
+const CLUSTER_NODE_FIELDS: Fields = &[
+    (CN_ORIGIN, "origin"),
+    (CN_EXP, "exp"),
+    (CN_CHILD_COUNT, "child_count"),
+    (CN_NODE_BASE, "node_base"),
+    (CN_GROUP_BASE, "group_base"),
+    (CN_INNER_COUNT, "inner_count"),
+    (25, "reserved"),
+    (CN_LO, "lo"),
+    (CN_HI, "hi"),
+];
+/// §7.2: a triangle group: distinct corners, each lane's corner slots, lanes in use, ids.
+const GROUP_FIELDS: Fields = &[
+    (TG_CORNER, "corner"),
+    (TG_TRI, "tri"),
+    (TG_COUNT, "count"),
+    (124, "reserved"),
+    (TG_PRIM, "prim"),
+];
 
 /// §8.2: the fields of a directory entry.
 const DIR_FIELDS: Fields = &[
@@ -98,14 +122,22 @@ const SECTIONS: [(&str, usize, Fields); 6] = [
 ];
 
 /// §8.3: the parts of a block after its header, in order, with their record sizes and fields.
-const BLOCK_PARTS: [(&str, usize, Fields); 6] = [
+/// A file of lists has no cluster nodes or groups, a file of clusters no refs or triangles.
+const BLOCK_PARTS: [(&str, usize, Fields); BLOCK_PART_COUNT] = [
     ("levels", 32, LEVEL_FIELDS),
     ("nodes", 8, NODE_FIELDS),
     ("ranks", 16, RANK_FIELDS),
     ("volumes", 24, VOLUME_FIELDS),
     ("refs", 4, &[(0, "reference")]),
     ("triangles", 40, &[(0, "v"), (36, "prim")]),
+    ("cluster nodes", CLUSTER_NODE_LEN, CLUSTER_NODE_FIELDS),
+    ("groups", TRI_GROUP_LEN, GROUP_FIELDS),
 ];
+/// Indices into [`BLOCK_PARTS`].
+const PART_REFS: usize = 4;
+const PART_TRIANGLES: usize = 5;
+const PART_CLUSTER_NODES: usize = 6;
+const PART_GROUPS: usize = 7;
 
 /// §8.3: the fields of a block's header.
 const BLOCK_HEADER_FIELDS: Fields = &[
@@ -118,7 +150,9 @@ const BLOCK_HEADER_FIELDS: Fields = &[
     (32, "volume_count"),
     (40, "ref_count"),
     (48, "triangle_count"),
-    (56, "block_id"),
+    (56, "cluster_node_count"),
+    (64, "group_count"),
+    (BH_BLOCK_ID, "block_id"),
 ];
 
 /// §2: the header's fields (offset, name).
@@ -224,16 +258,12 @@ fn dir_entry_at(b: &[u8], i: usize) -> usize {
     section(b, DIRECTORY).0 + i * DIR_LEN
 }
 
-/// §8.3: the byte ranges of a decoded block's six parts, from its header's counts.
-fn block_parts(raw: &[u8]) -> [Range<usize>; 6] {
-    let counts = [
-        read_u32(raw, BH_LEVEL_COUNT) as usize,
-        read_u64(raw, BH_NODE_COUNT) as usize,
-        read_u64(raw, BH_NODE_COUNT + 8) as usize,
-        read_u64(raw, BH_NODE_COUNT + 16) as usize,
-        read_u64(raw, BH_NODE_COUNT + 24) as usize,
-        read_u64(raw, BH_NODE_COUNT + 32) as usize,
-    ];
+/// §8.3: the byte ranges of a decoded block's eight parts, from its header's counts.
+fn block_parts(raw: &[u8]) -> [Range<usize>; BLOCK_PART_COUNT] {
+    let counts: [usize; BLOCK_PART_COUNT] = std::array::from_fn(|i| match i {
+        0 => read_u32(raw, BH_LEVEL_COUNT) as usize,
+        _ => read_u64(raw, BH_NODE_COUNT + 8 * (i - 1)) as usize,
+    });
     let mut at = BLOCK_HEADER_LEN;
     std::array::from_fn(|i| {
         at = at.next_multiple_of(ALIGN);
@@ -568,6 +598,8 @@ fn cell_point(b: &[u8], level: u32, code: u64, offset: [f64; 3]) -> [f32; 3] {
 struct Fixture {
     name: String,
     bytes: Vec<u8>,
+    /// The header's `CLUSTERS` flag (§2): solid leaves are clusters, not lists.
+    clusters: bool,
     dir: Vec<Entry>,
     /// Each block's decoded bytes.
     decoded: Vec<Vec<u8>>,
@@ -607,6 +639,32 @@ impl Fixture {
             assert!(
                 dir.iter().all(|e| e.codec == CODEC_ZSTD),
                 "{name}: every block compressed"
+            );
+        }
+        let clusters = read_u32(&bytes, FLAGS_AT) & FLAG_CLUSTERS != 0;
+        assert_eq!(
+            clusters,
+            opts.leaf == LeafKind::Cluster,
+            "{name}: the CLUSTERS flag"
+        );
+        // §8.3: a block of a file of clusters has cluster nodes and groups and no references
+        // or triangle records; a block of a file of lists the other way round.
+        for (b, raw) in decoded.iter().enumerate() {
+            let parts = block_parts(raw);
+            let (has, lacks) = match clusters {
+                true => (
+                    [PART_CLUSTER_NODES, PART_GROUPS],
+                    [PART_REFS, PART_TRIANGLES],
+                ),
+                false => (
+                    [PART_REFS, PART_TRIANGLES],
+                    [PART_CLUSTER_NODES, PART_GROUPS],
+                ),
+            };
+            assert!(
+                has.iter().all(|&i| !parts[i].is_empty())
+                    && lacks.iter().all(|&i| parts[i].is_empty()),
+                "{name}: block {b}'s parts {parts:?}"
             );
         }
         let links = top_links(&bytes);
@@ -655,6 +713,7 @@ impl Fixture {
                 bytes.len()
             ),
             bytes,
+            clusters,
             dir,
             decoded,
             links,
@@ -745,6 +804,10 @@ impl Fixture {
                 0..BLOCK_HEADER_LEN,
             ));
             let mut end = BLOCK_HEADER_LEN;
+            // An empty part (the refs and triangles of a file of clusters, the cluster nodes
+            // and groups of a file of lists) has no bytes but its place, at the next multiple
+            // of 64: the padding before it is there all the same (so a block of lists ends
+            // with the padding before its empty cluster nodes).
             for (i, r) in block_parts(raw).into_iter().enumerate() {
                 let part = BLOCK_PARTS[i].0;
                 if r.start > end {
@@ -754,8 +817,8 @@ impl Fixture {
                         end..r.start,
                     ));
                 }
+                end = r.end;
                 if !r.is_empty() {
-                    end = r.end;
                     out.push(in_block(
                         format!("block {blk} {part}"),
                         RegionKind::BlockPart(blk, i),
@@ -790,6 +853,15 @@ impl Fixture {
         }
         assert_eq!(end, b.len(), "the last section ends the file (§3)");
         out
+    }
+
+    /// The part of a block that holds the triangles themselves: its triangle records (lists)
+    /// or its groups (clusters).
+    fn mesh_part(&self) -> &'static str {
+        match self.clusters {
+            true => BLOCK_PARTS[PART_GROUPS].0,
+            false => BLOCK_PARTS[PART_TRIANGLES].0,
+        }
     }
 
     fn region(&self, name: &str) -> &Region {
@@ -906,7 +978,7 @@ fn blocks_4k(compress: bool) -> BlockOptions {
     }
 }
 
-/// The dragon's smallest decimation with the default build options, raw blocks.
+/// The dragon's smallest decimation with the default build options (clusters), raw blocks.
 fn default_file() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
@@ -932,8 +1004,35 @@ fn default_zstd_file() -> &'static Fixture {
     })
 }
 
+/// The dragon's smallest decimation with the default build options of leaf lists (format 3's
+/// leaves, `--leaf list`), raw blocks.
+fn list_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        Fixture::new(
+            "dragon res4, lists, raw",
+            dragon(),
+            BuildOptions::with_leaf(LeafKind::List),
+            blocks_16k(false),
+        )
+    })
+}
+
+/// The same, zstd-compressed blocks.
+fn list_zstd_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        Fixture::new(
+            "dragon res4, lists, zstd",
+            dragon(),
+            BuildOptions::with_leaf(LeafKind::List),
+            blocks_16k(true),
+        )
+    })
+}
+
 /// Part of the dragon with leaf size 4: a deep tree (many levels, a deep top tree, rank words,
-/// merged volumes), small blocks, raw.
+/// merged volumes) of small clusters, small blocks, raw.
 fn deep_file() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
@@ -1197,6 +1296,9 @@ fn layout_matches_the_spec() {
     assert_eq!(size_of::<Header>(), HEADER_LEN);
     assert_eq!(offset_of!(Header, checksum), HEADER_CHECKSUM);
     assert_eq!(offset_of!(Header, version), VERSION_AT);
+    assert_eq!(offset_of!(Header, flags), FLAGS_AT);
+    assert_eq!(oavm::physical::format::FLAG_COMPRESSED, FLAG_COMPRESSED);
+    assert_eq!(oavm::physical::format::FLAG_CLUSTERS, FLAG_CLUSTERS);
     assert_eq!(offset_of!(Header, file_size), FILE_SIZE_AT);
     assert_eq!(offset_of!(Header, root_min), ROOT_MIN_AT);
     assert_eq!(offset_of!(Header, root_size), ROOT_SIZE_AT);
@@ -1238,6 +1340,8 @@ fn layout_matches_the_spec() {
         offset_of!(BlockHeader, volume_count),
         offset_of!(BlockHeader, ref_count),
         offset_of!(BlockHeader, triangle_count),
+        offset_of!(BlockHeader, cluster_node_count),
+        offset_of!(BlockHeader, group_count),
         offset_of!(BlockHeader, block_id),
     ];
     assert_eq!(
@@ -1251,8 +1355,37 @@ fn layout_matches_the_spec() {
         size_of::<VolumeRecord>(),
         size_of::<u32>(),
         size_of::<TriRecord>(),
+        size_of::<ClusterNode>(),
+        size_of::<TriGroup>(),
     ];
     assert_eq!(part_sizes, BLOCK_PARTS.map(|p| p.1));
+    assert_eq!(oavm::physical::format::BLOCK_PARTS, BLOCK_PART_COUNT);
+    let node_fields = [
+        offset_of!(ClusterNode, origin),
+        offset_of!(ClusterNode, exp),
+        offset_of!(ClusterNode, child_count),
+        offset_of!(ClusterNode, node_base),
+        offset_of!(ClusterNode, group_base),
+        offset_of!(ClusterNode, inner_count),
+        offset_of!(ClusterNode, reserved),
+        offset_of!(ClusterNode, lo),
+        offset_of!(ClusterNode, hi),
+    ];
+    assert_eq!(
+        node_fields.to_vec(),
+        CLUSTER_NODE_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
+    let group_fields = [
+        offset_of!(TriGroup, corner),
+        offset_of!(TriGroup, tri),
+        offset_of!(TriGroup, count),
+        offset_of!(TriGroup, reserved),
+        offset_of!(TriGroup, prim),
+    ];
+    assert_eq!(
+        group_fields.to_vec(),
+        GROUP_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
     assert_eq!(SectionKind::ALL.len(), SECTION_COUNT);
     assert_eq!(SectionKind::ALL[BLOCKS].record_size(), None);
     for (kind, (name, size, _)) in SectionKind::ALL[1..].iter().zip(SECTIONS) {
@@ -1264,6 +1397,8 @@ fn layout_matches_the_spec() {
     for fix in [
         default_file(),
         default_zstd_file(),
+        list_file(),
+        list_zstd_file(),
         deep_file(),
         deep_zstd_file(),
     ] {
@@ -1296,12 +1431,22 @@ fn layout_matches_the_spec() {
         assert_eq!(fix.links.len(), roots, "{}: links", fix.name);
     }
     // After a change, recomputing the checksums leaves verify nothing to say about checksums,
-    // in a raw block and in a compressed one.
-    for fix in [default_file(), default_zstd_file()] {
+    // in a raw block and in a compressed one, of clusters and of lists.
+    for fix in [
+        default_file(),
+        default_zstd_file(),
+        list_file(),
+        list_zstd_file(),
+    ] {
         let blk = fix.detailed[0];
-        let r = fix.region(&format!("block {blk} triangles")).range.start;
+        let r = fix
+            .region(&format!("block {blk} {}", fix.mesh_part()))
+            .range
+            .start;
         let mut raw = fix.decoded[blk].clone();
-        raw[r] ^= 1; // lowest mantissa bit of the block's first triangle's first x
+        // The lowest mantissa bit of the block's first triangle's first x (§7), or of its
+        // first group's first corner's (§7.2).
+        raw[r] ^= 1;
         let stored = match fix.dir[blk].codec {
             CODEC_RAW => raw.clone(),
             _ => zstd_frame(&raw),
@@ -1352,7 +1497,7 @@ fn layout_matches_the_spec() {
 
 #[test]
 fn truncated_files_fail_at_open() {
-    for fix in [default_file(), default_zstd_file()] {
+    for fix in [default_file(), default_zstd_file(), list_file()] {
         truncated_file_fails_at_open(fix);
     }
 }
@@ -1438,7 +1583,7 @@ fn truncated_file_fails_at_open(fix: &Fixture) {
 
 #[test]
 fn extended_files_fail_at_open() {
-    for fix in [default_file(), deep_zstd_file()] {
+    for fix in [default_file(), list_zstd_file(), deep_zstd_file()] {
         let n = fix.bytes.len();
         for extra in [1usize, 7, 64, 4096] {
             let mut b = fix.bytes.clone();
@@ -1591,7 +1736,7 @@ fn assert_version_error(err: &FormatError, v: u32, what: &str) {
 #[test]
 fn wrong_version_fails_at_open_and_says_to_repack() {
     let fix = default_file();
-    for v in [0u32, 1, 2, 4, 0x100, u32::MAX] {
+    for v in [0u32, 1, 2, 3, 5, 0x100, u32::MAX] {
         for fix_checksum in [false, true] {
             let mut b = fix.bytes.clone();
             write_u32(&mut b, VERSION_AT, v);
@@ -1721,6 +1866,16 @@ struct FlipTally {
     trace_errors: usize,
 }
 
+/// Whether the pager checks a directory entry's `triangles` (§8.2) when it admits the block:
+/// in a file of lists it repeats the block header's `triangle_count`; in a file of clusters it
+/// is the sum of the block's groups' lanes in use, which the header does not hold, and which
+/// only a pass over every group could check. The pager does not make it (§11: admission is
+/// `O(levels)`, and without block checks only the pages a walk touches are read); the tracer
+/// never reads the field; `verify` sums the lanes and reports the difference.
+fn triangles_checked_by_pager(fix: &Fixture) -> bool {
+    !fix.clusters
+}
+
 /// Flips bits of `fix` and checks each is caught: open fails with an error naming the region,
 /// or verify reports a defect naming it; tracing the damaged file, unverified, does not panic;
 /// and a flip in a block's stored bytes or in the directory makes tracing fail with an error
@@ -1772,10 +1927,16 @@ fn check_bit_flips(
         }
         let tally = tallies.entry(region.name.clone()).or_default();
         let names = |text: &str, list: Vec<String>| list.iter().any(|n| text.contains(n.as_str()));
-        // The block a flip must make tracing fail on: the region's, or the directory entry's.
+        // The block a flip must make tracing fail on: the region's, or the directory entry's
+        // (but for the `triangles` of a block of clusters, see [`triangles_checked_by_pager`]).
         let dir_start = section(&fix.bytes, DIRECTORY).0;
         let block_of = |at: usize| match region.kind {
-            RegionKind::Section(0) => Some((at - dir_start) / DIR_LEN),
+            RegionKind::Section(0) => {
+                let field = (at - dir_start) % DIR_LEN;
+                let triangles = (DIR_TRIANGLES..DIR_TRIANGLES + 4).contains(&field);
+                (!triangles || triangles_checked_by_pager(fix))
+                    .then_some((at - dir_start) / DIR_LEN)
+            }
             _ => region.block(),
         };
         for (at, bit) in flips {
@@ -1899,6 +2060,20 @@ fn bit_flips_in_default_zstd_file_are_caught() {
 }
 
 #[test]
+fn bit_flips_in_list_file_are_caught() {
+    if let Err(e) = check_bit_flips(list_file(), 16, false, 21) {
+        panic!("{e}");
+    }
+}
+
+#[test]
+fn bit_flips_in_list_zstd_file_are_caught() {
+    if let Err(e) = check_bit_flips(list_zstd_file(), 16, false, 22) {
+        panic!("{e}");
+    }
+}
+
+#[test]
 fn bit_flips_in_deep_file_are_caught() {
     if let Err(e) = check_bit_flips(deep_file(), 16, false, 2) {
         panic!("{e}");
@@ -1987,7 +2162,9 @@ const F64_EDGES: [f64; 9] = [
 
 /// A random corruption of `region` of `fix`: a bit, a byte, a word (random, an edge value, off
 /// by one), a float (non-finite, huge, tiny), a whole record copied from another one, or (node
-/// records) a record turned into another kind of node, or a link sent to another block or root.
+/// records) a record turned into another kind of node, or a link sent to another block or root,
+/// or (cluster nodes) an inner child sent back to the node itself or to one before it (a cycle
+/// the walk must not follow forever, §11), or child counts and bases set to edge values.
 fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
     let bytes = fix.space(region.space);
     // The header's checksum is recomputed anyway: corrupt the fields it covers.
@@ -2006,7 +2183,8 @@ fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
         _ => record,
     };
     let is_nodes = fields == NODE_FIELDS && len >= 8;
-    let choice = rng.next_u64() % if is_nodes { 14 } else { 12 };
+    let is_cluster_nodes = fields == CLUSTER_NODE_FIELDS && len >= CLUSTER_NODE_LEN;
+    let choice = rng.next_u64() % if is_nodes || is_cluster_nodes { 14 } else { 12 };
     let (at, new, how): (usize, Vec<u8>, &'static str) = match choice {
         // A region too short for words (some padding) gets bit flips only.
         c if c == 0 || len < 8 => {
@@ -2063,6 +2241,50 @@ fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
             let to = pick(record, rng);
             let from = pick(record, rng);
             (to, bytes[from..from + record].to_vec(), "record copied")
+        }
+        12 if is_cluster_nodes => {
+            // §7.1: node `j`'s first inner child made node `j` itself or one of the two nodes
+            // before it (children must come after their parent): a cycle, or a node of two
+            // parents. Bytes `node_base..=inner_count`, the group base kept.
+            let at = pick(CLUSTER_NODE_LEN, rng);
+            let j = ((at - base) / CLUSTER_NODE_LEN) as u32;
+            let back = (rng.next_u64() % 3) as u32;
+            let mut new = bytes[at + CN_NODE_BASE..=at + CN_INNER_COUNT].to_vec();
+            new[..4].copy_from_slice(&j.saturating_sub(back).to_le_bytes());
+            let inner = &mut new[CN_INNER_COUNT - CN_NODE_BASE];
+            *inner = (*inner).max(1);
+            (at + CN_NODE_BASE, new, "cluster child sent back")
+        }
+        13 if is_cluster_nodes => {
+            // §7.1: `child_count`, `node_base`, `group_base`, `inner_count` (bytes 15..=24), one
+            // of them set to an edge value or moved by one.
+            let at = pick(CLUSTER_NODE_LEN, rng);
+            let mut new = bytes[at + CN_CHILD_COUNT..=at + CN_INNER_COUNT].to_vec();
+            let counts = [0u8, 1, 7, 8, 9, 255];
+            let r = rng.next_u64();
+            let base_at = |k: usize| CN_NODE_BASE + 4 * k - CN_CHILD_COUNT;
+            match r % 4 {
+                0 => new[0] = counts[(r >> 8) as usize % counts.len()],
+                1 => {
+                    new[CN_INNER_COUNT - CN_CHILD_COUNT] = counts[(r >> 8) as usize % counts.len()]
+                }
+                k => {
+                    let i = base_at(k as usize - 2);
+                    let old = u32::from_le_bytes(new[i..i + 4].try_into().expect("4 bytes"));
+                    let v = match (r >> 8) % 4 {
+                        0 => old.wrapping_add(1),
+                        1 => old.wrapping_sub(1),
+                        2 => old.wrapping_add(8),
+                        _ => u32::MAX,
+                    };
+                    new[i..i + 4].copy_from_slice(&v.to_le_bytes());
+                }
+            }
+            (
+                at + CN_CHILD_COUNT,
+                new,
+                "cluster child count or base changed",
+            )
         }
         12 => {
             // Another kind of node (§4.2), its other bits kept.
@@ -2134,7 +2356,8 @@ struct MutTally {
 /// Changes that open and verify cannot be expected to see, yet change answers; every other
 /// change they miss must leave the answers bit for bit as they were.
 ///
-/// - A triangle's corners or primitive id (spec §7): they are the mesh itself. A rewritten file
+/// - A triangle's corners or primitive id (spec §7), and in a group (§7.2) a lane's corners,
+///   the slots that pick them and its primitive id: they are the mesh itself. A rewritten file
 ///   is the file of another mesh, and nothing in the file says which mesh was meant.
 /// - A triangle reference (§6) replaced by another triangle that is referenced elsewhere, keeps
 ///   the leaf's references increasing and fits its tight bounds: which cells a triangle
@@ -2144,13 +2367,29 @@ struct MutTally {
 ///   tests over all triangles.
 ///
 /// Not among them: the root cube (`root_min`, `root_size`). §2 derives it from `mesh_min` and
-/// `mesh_max`, which bound the stored triangles, so a change to it alone is checkable.
+/// `mesh_max`, which bound the stored triangles, so a change to it alone is checkable. Nor
+/// anything in a cluster node (§7.1): its boxes must contain its triangles and its children
+/// must form the cluster's tree, which verify checks (a box grown, or children reordered, must
+/// leave the answers as they were); nor a group's lane count or reserved bytes.
 ///
-/// A change to a block's stored bytes (a zstd frame, or a raw block taken whole) is judged by
-/// what it does to the decoded block: allowed if it only changes its references and triangles.
-fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8]) -> bool {
+/// A change is judged by the bytes of the decoded block it changes (`m` for a change made in a
+/// block's parts; for one made to a block's stored bytes, a zstd frame or a raw block taken
+/// whole, the block decoded again): allowed if every byte it changes is one of those above.
+fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8], m: &Mutation) -> bool {
+    let is_mesh = |blk: usize, at: usize| {
+        let parts = block_parts(&fix.decoded[blk]);
+        let in_group = |at: usize| {
+            let field = (at - parts[PART_GROUPS].start) % TRI_GROUP_LEN;
+            field < TG_COUNT || field >= TG_PRIM
+        };
+        parts[PART_REFS].contains(&at)
+            || parts[PART_TRIANGLES].contains(&at)
+            || (parts[PART_GROUPS].contains(&at) && in_group(at))
+    };
     match region.kind {
-        RegionKind::BlockPart(_, 4 | 5) => true,
+        RegionKind::BlockPart(blk, _) => (0..m.new.len())
+            .filter(|&i| m.new[i] != m.old[i])
+            .all(|i| is_mesh(blk, m.at + i)),
         RegionKind::Stored(blk) => {
             let e = fix.dir[blk];
             let Some(stored) = bytes.get(e.stored()) else {
@@ -2164,10 +2403,8 @@ fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8]) -> bool {
                 },
             };
             let old = &fix.decoded[blk];
-            let parts = block_parts(old);
-            let mesh = parts[4].start..parts[5].end;
             decoded.len() == old.len()
-                && (0..old.len()).all(|i| decoded[i] == old[i] || mesh.contains(&i))
+                && (0..old.len()).all(|i| decoded[i] == old[i] || is_mesh(blk, i))
         }
         _ => false,
     }
@@ -2222,7 +2459,7 @@ fn check_rewritten(fix: &'static Fixture, per_region: usize, seed: u64) -> Resul
                 continue; // the same bytes, or a checksum field recomputed back
             }
             tally.tried += 1;
-            let change_allowed = unseen_change_allowed(fix, region, &b);
+            let change_allowed = unseen_change_allowed(fix, region, &b, &m);
             let what = format!(
                 "{}: {} at byte {} ({}): {} -> {} ({}), checksums recomputed",
                 fix.name,
@@ -2421,6 +2658,20 @@ fn rewritten_default_zstd_file_never_panics_or_hangs() {
 }
 
 #[test]
+fn rewritten_list_file_never_panics_or_hangs() {
+    if let Err(e) = check_rewritten(list_file(), 16, 23) {
+        panic!("{e}");
+    }
+}
+
+#[test]
+fn rewritten_list_zstd_file_never_panics_or_hangs() {
+    if let Err(e) = check_rewritten(list_zstd_file(), 10, 24) {
+        panic!("{e}");
+    }
+}
+
+#[test]
 fn rewritten_deep_file_never_panics_or_hangs() {
     if let Err(e) = check_rewritten(deep_file(), 16, 4) {
         panic!("{e}");
@@ -2468,6 +2719,8 @@ fn rewritten_files_long_run() {
     let results = [
         check_rewritten(default_file(), 400, 5),
         check_rewritten(default_zstd_file(), 400, 15),
+        check_rewritten(list_file(), 400, 25),
+        check_rewritten(list_zstd_file(), 400, 26),
         check_rewritten(deep_file(), 300, 6),
         check_rewritten(deep_zstd_file(), 300, 16),
         check_rewritten(big(), 100, 7),
@@ -2529,11 +2782,17 @@ fn expect_caught(
 /// Every field of a directory entry rewritten (checksums recomputed over whatever the entry
 /// now describes): the file opens (the directory is not read at open), verify names the block,
 /// and tracing, which needs the block, fails naming it: the pager checks the entry, the
-/// checksum and the decoding, and the block's header is checked against its entry.
+/// checksum and the decoding, and the block's header is checked against its entry (all but the
+/// `triangles` of a block of clusters, which only verify checks: [`triangles_checked_by_pager`]).
 #[test]
 fn directory_entries_rewritten_field_by_field_are_caught() {
     let mut problems = Vec::new();
-    for fix in [default_file(), default_zstd_file(), deep_zstd_file()] {
+    for fix in [
+        default_file(),
+        default_zstd_file(),
+        list_file(),
+        deep_zstd_file(),
+    ] {
         for &blk in &fix.detailed {
             let e = fix.dir[blk];
             let entry = dir_entry_at(&fix.bytes, blk);
@@ -2616,7 +2875,11 @@ fn directory_entries_rewritten_field_by_field_are_caught() {
                 }
                 let what = format!("{}: block {blk}'s entry: {change}", fix.name);
                 let defect = format!("block {blk}");
-                expect_caught(fix, what, b, &defect, &[blk], &mut problems);
+                let fails_on = match at {
+                    DIR_TRIANGLES if !triangles_checked_by_pager(fix) => vec![],
+                    _ => vec![blk],
+                };
+                expect_caught(fix, what, b, &defect, &fails_on, &mut problems);
             }
         }
     }
@@ -2628,7 +2891,7 @@ fn directory_entries_rewritten_field_by_field_are_caught() {
 #[test]
 fn a_block_in_another_blocks_place_is_caught() {
     let mut problems = Vec::new();
-    for fix in [default_file(), deep_zstd_file()] {
+    for fix in [default_file(), list_file(), deep_zstd_file()] {
         let n = fix.dir.len();
         // Two neighbours alike in their entries' other fields, if there are; else the first two.
         let pair = (0..n - 1)
@@ -2675,7 +2938,12 @@ fn a_block_in_another_blocks_place_is_caught() {
 #[test]
 fn links_rewritten_are_caught() {
     let mut problems = Vec::new();
-    for fix in [default_file(), deep_file(), deep_zstd_file()] {
+    for fix in [
+        default_file(),
+        list_zstd_file(),
+        deep_file(),
+        deep_zstd_file(),
+    ] {
         let nodes = section(&fix.bytes, NODES).0;
         let n = fix.dir.len() as u32;
         let link = |block: u32, root: u32| {
@@ -2683,12 +2951,19 @@ fn links_rewritten_are_caught() {
             v.extend_from_slice(&(KIND_LINK << 30 | root).to_le_bytes());
             v
         };
-        // A block's first root: the block's own ray starts in its cell, so it meets the link.
+        // A block's first root (the block's own ray starts in its cell, so it meets the link),
+        // at a level with other links.
         let first = *fix
             .links
             .iter()
-            .find(|l| l.root == 0)
-            .expect("a first root");
+            .find(|l| {
+                l.root == 0
+                    && fix
+                        .links
+                        .iter()
+                        .any(|m| m.level == l.level && (m.block, m.root) != (l.block, l.root))
+            })
+            .expect("a first root at a level of two links");
         let other_level = fix
             .links
             .iter()
@@ -2756,6 +3031,208 @@ fn links_rewritten_are_caught() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
+/// §4.2, §7.1: the cluster roots of a decoded block, the `payload` of each solid leaf, in the
+/// order of the block's node records.
+fn cluster_roots(raw: &[u8]) -> Vec<usize> {
+    let nodes = block_parts(raw)[1].clone();
+    nodes
+        .step_by(8)
+        .filter(|&at| read_u32(raw, at + 4) >> 30 == KIND_SOLID)
+        .map(|at| read_u32(raw, at) as usize)
+        .collect()
+}
+
+/// Cluster nodes and triangle groups (§7.1, §7.2) rewritten one field at a time, checksums
+/// recomputed, in the largest block of each file of clusters: children sent back to the node
+/// itself or to its parent (a cycle), past the block's nodes or groups, child counts out of
+/// range, a bad exponent, a box turned inside out or shrunk off its triangles, groups with no
+/// lanes, too many, a corner slot past the eight, a corner that is not finite. Verify names the
+/// block; tracing (unverified, and under a tight budget) returns, answers or an error, never a
+/// panic or an endless walk.
+#[test]
+fn cluster_nodes_and_groups_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    for fix in [default_file(), default_zstd_file(), deep_file()] {
+        let blk = fix.largest;
+        let raw = &fix.decoded[blk];
+        let parts = block_parts(raw);
+        let (nodes, groups) = (
+            parts[PART_CLUSTER_NODES].clone(),
+            parts[PART_GROUPS].clone(),
+        );
+        let (n_nodes, n_groups) = (nodes.len() / CLUSTER_NODE_LEN, groups.len() / TRI_GROUP_LEN);
+        let node_at = |i: usize| nodes.start + i * CLUSTER_NODE_LEN;
+        let group_at = |i: usize| groups.start + i * TRI_GROUP_LEN;
+        // The first cluster's root, and a node with an inner child and one with a group.
+        let root = cluster_roots(raw)[0];
+        let inner_count = |i: usize| raw[node_at(i) + CN_INNER_COUNT];
+        let child_count = |i: usize| raw[node_at(i) + CN_CHILD_COUNT];
+        let with_inner = (0..n_nodes).find(|&i| inner_count(i) > 0);
+        let with_group = (0..n_nodes)
+            .find(|&i| inner_count(i) < child_count(i))
+            .expect("a node with a group");
+        let u32le = |v: u32| v.to_le_bytes().to_vec();
+        // (what, offset in the block, new bytes)
+        let mut cases: Vec<(String, usize, Vec<u8>)> = vec![
+            (
+                format!("root {root}'s first child is the root itself"),
+                node_at(root) + CN_NODE_BASE,
+                [
+                    u32le(root as u32),
+                    raw[node_at(root) + 20..node_at(root) + 24].to_vec(),
+                    vec![1],
+                ]
+                .concat(),
+            ),
+            (
+                format!("node {with_group}'s groups start past the block's {n_groups}"),
+                node_at(with_group) + CN_GROUP_BASE,
+                u32le(n_groups as u32),
+            ),
+            (
+                format!("node {with_group}'s groups start at u32::MAX"),
+                node_at(with_group) + CN_GROUP_BASE,
+                u32le(u32::MAX),
+            ),
+            (
+                format!("node {root} has no children"),
+                node_at(root) + CN_CHILD_COUNT,
+                vec![0],
+            ),
+            (
+                format!("node {root} has 9 children"),
+                node_at(root) + CN_CHILD_COUNT,
+                vec![9],
+            ),
+            (
+                format!("node {root} has more inner children than children"),
+                node_at(root) + CN_INNER_COUNT,
+                vec![child_count(root) + 1],
+            ),
+            (
+                format!("node {root}'s x exponent is 101"),
+                node_at(root) + CN_EXP,
+                vec![101],
+            ),
+            (
+                format!("node {root}'s x origin is NaN"),
+                node_at(root) + CN_ORIGIN,
+                f32::NAN.to_le_bytes().to_vec(),
+            ),
+            (
+                format!("node {root}'s first child box has lo 1 > hi 0 along x"),
+                node_at(root) + CN_LO,
+                {
+                    let mut v = raw[node_at(root) + CN_LO..=node_at(root) + CN_HI].to_vec();
+                    (v[0], v[CN_HI - CN_LO]) = (1, 0);
+                    v
+                },
+            ),
+            (
+                format!("node {with_group}'s boxes shrunk to their lowest corner"),
+                node_at(with_group) + CN_HI,
+                vec![0; 24],
+            ),
+            (
+                "group 0 has no lanes".into(),
+                group_at(0) + TG_COUNT,
+                u32le(0),
+            ),
+            (
+                "group 0 has 9 lanes".into(),
+                group_at(0) + TG_COUNT,
+                u32le(9),
+            ),
+            (
+                "group 0's first lane's first corner is slot 8".into(),
+                group_at(0) + TG_TRI,
+                vec![8],
+            ),
+            (
+                "group 0's first lane's first corner is slot 255".into(),
+                group_at(0) + TG_TRI,
+                vec![255],
+            ),
+            (
+                "group 0's first corner's x is infinite".into(),
+                group_at(0) + TG_CORNER,
+                f32::INFINITY.to_le_bytes().to_vec(),
+            ),
+            (
+                format!("group {}'s reserved word is not zero", n_groups - 1),
+                group_at(n_groups - 1) + TG_COUNT + 4,
+                u32le(1),
+            ),
+        ];
+        if let Some(p) = with_inner {
+            let child = read_u32(raw, node_at(p) + CN_NODE_BASE);
+            cases.extend([
+                (
+                    format!("node {p}'s first inner child {child} has node {p} as its child"),
+                    node_at(child as usize) + CN_NODE_BASE,
+                    [
+                        u32le(p as u32),
+                        raw[node_at(child as usize) + 20..node_at(child as usize) + 24].to_vec(),
+                        vec![inner_count(child as usize).max(1)],
+                    ]
+                    .concat(),
+                ),
+                (
+                    format!("node {p}'s inner children start past the block's {n_nodes} nodes"),
+                    node_at(p) + CN_NODE_BASE,
+                    u32le(n_nodes as u32),
+                ),
+                (
+                    format!("node {p}'s inner children start at u32::MAX"),
+                    node_at(p) + CN_NODE_BASE,
+                    u32le(u32::MAX),
+                ),
+            ]);
+        }
+        for (what, at, new) in cases {
+            let b = fix.rewrite(Space::Block(blk), at, &new);
+            assert!(b != fix.bytes, "{}: {what}: nothing changed", fix.name);
+            let what = format!("{}: block {blk}: {what}", fix.name);
+            expect_caught(fix, what, b, &format!("block {blk}"), &[], &mut problems);
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// Every cluster root of every block (§7.1) made its own only child, with a box of its whole
+/// grid (so a ray that reaches any of its triangles takes it), checksums recomputed: every
+/// walk into a cluster goes round in a circle. Tracing must stop it (§11: more nodes visited
+/// than the block has, or deeper than 16 levels) with an error naming a block, not loop or
+/// overflow its stack; verify must report each cycle.
+#[test]
+fn cluster_cycles_end_the_walk_with_an_error() {
+    let mut problems = Vec::new();
+    for fix in [default_file(), deep_file()] {
+        let mut b = fix.bytes.clone();
+        let mut cycles = 0;
+        for (blk, raw) in fix.decoded.iter().enumerate() {
+            assert_eq!(fix.dir[blk].codec, CODEC_RAW, "{}", fix.name);
+            let nodes = block_parts(raw)[PART_CLUSTER_NODES].start;
+            for root in cluster_roots(raw) {
+                let at = fix.dir[blk].offset + nodes + root * CLUSTER_NODE_LEN;
+                b[at + CN_CHILD_COUNT] = 1;
+                write_u32(&mut b, at + CN_NODE_BASE, root as u32);
+                b[at + CN_INNER_COUNT] = 1;
+                b[at + CN_LO..at + CLUSTER_NODE_LEN].fill(0);
+                for k in 0..3 {
+                    b[at + CN_HI + 8 * k] = 255;
+                }
+                cycles += 1;
+            }
+        }
+        fix_checksums(&mut b);
+        let all: Vec<usize> = (0..fix.dir.len()).collect();
+        let what = format!("{}: {cycles} cluster roots made their own child", fix.name);
+        expect_caught(fix, what, b, "not after it", &all, &mut problems);
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
 /// Compressed blocks whose frame lies about the block (checksums recomputed): content longer
 /// or shorter than `raw_len`, a truncated frame, two frames, another block's frame, a frame
 /// that decodes to far more than `max_block_raw_len` (which must not be allocated), garbage.
@@ -2764,7 +3241,7 @@ fn links_rewritten_are_caught() {
 #[test]
 fn zstd_frames_that_lie_are_caught() {
     let mut problems = Vec::new();
-    for fix in [default_zstd_file(), deep_zstd_file()] {
+    for fix in [default_zstd_file(), list_zstd_file(), deep_zstd_file()] {
         let blk = fix.largest;
         let raw = &fix.decoded[blk];
         let frame = &fix.bytes[fix.dir[blk].stored()];
@@ -2826,7 +3303,7 @@ fn zstd_frames_that_lie_are_caught() {
 #[test]
 fn max_block_raw_len_is_checked() {
     let mut problems = Vec::new();
-    for fix in [default_file(), default_zstd_file()] {
+    for fix in [default_file(), default_zstd_file(), list_file()] {
         for (v, fix_checksum) in [((1u64 << 30) + 1, false), (u64::MAX, true)] {
             let mut b = fix.bytes.clone();
             write_u64(&mut b, MAX_BLOCK_RAW_LEN_AT, v);
@@ -2855,7 +3332,12 @@ fn max_block_raw_len_is_checked() {
 /// naming a damaged block, again and again (a failed block stays failed), and never panics.
 #[test]
 fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
-    for fix in [default_file(), default_zstd_file(), deep_file()] {
+    for fix in [
+        default_file(),
+        default_zstd_file(),
+        list_zstd_file(),
+        deep_file(),
+    ] {
         let opts = tight_options(fix);
         let scene =
             Scene::from_bytes_with(AlignedBytes::from_slice(&fix.bytes), "tight.oavm", &opts)
@@ -2912,7 +3394,7 @@ fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
 
 #[test]
 fn misaligned_buffers_give_errors_not_panics() {
-    for fix in [default_file(), default_zstd_file()] {
+    for fix in [default_file(), default_zstd_file(), list_file()] {
         for shift in 1..8usize {
             let what = format!("{}: file at buffer offset {shift}", fix.name);
             let w = what.clone();
@@ -2995,7 +3477,7 @@ fn huge_rank_in_a_rank_word_is_an_error_not_a_panic() {
         ),
         ("rank u64::MAX, checksums recomputed", 2, |_| u64::MAX, true),
     ];
-    for fix in [default_file(), deep_file(), deep_zstd_file()] {
+    for fix in [default_file(), list_file(), deep_file(), deep_zstd_file()] {
         let blk = fix.largest;
         let regions = [
             fix.region("ranks section").clone(),
@@ -3057,7 +3539,12 @@ fn huge_rank_in_a_rank_word_is_an_error_not_a_panic() {
 /// widened cell.
 #[test]
 fn verify_catches_a_moved_root_cube() {
-    let fix = default_file();
+    for fix in [default_file(), list_file()] {
+        moved_root_cube_is_caught(fix);
+    }
+}
+
+fn moved_root_cube_is_caught(fix: &'static Fixture) {
     let f64_at = |b: &[u8], at: usize| f64::from_bits(read_u64(b, at));
     let size = f64_at(&fix.bytes, ROOT_SIZE_AT);
     let cases: [(&str, usize, f64); 3] = [
@@ -3082,7 +3569,8 @@ fn verify_catches_a_moved_root_cube() {
         let traced = trace(fix, &scene);
         assert!(
             matches!(traced, Traced::Different(_)),
-            "{what}: the answers should change: {traced:?}"
+            "{}: {what}: the answers should change: {traced:?}",
+            fix.name
         );
         let defects = scene
             .verify()
@@ -3090,7 +3578,8 @@ fn verify_catches_a_moved_root_cube() {
             .unwrap_or_else(|e| vec![e.to_string()]);
         if defects.is_empty() {
             problems.push(format!(
-                "{what}: verify reports nothing; tracing gives {traced:?}"
+                "{}: {what}: verify reports nothing; tracing gives {traced:?}",
+                fix.name
             ));
         }
     }
@@ -3171,7 +3660,7 @@ fn verify_does_not_allocate_by_input_triangles() {
 #[test]
 fn verify_checks_padding_inside_a_block() {
     let mut problems = Vec::new();
-    for fix in [default_file(), default_zstd_file()] {
+    for fix in [default_file(), default_zstd_file(), list_file()] {
         let pads: Vec<Region> = fix
             .regions
             .iter()

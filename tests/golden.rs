@@ -3,22 +3,26 @@
 //! `tests/golden/` and reopened here by today's code. `tests/golden/README.md` says for each file
 //! the commit and the command that made it and its sha256.
 //!
-//! - The current version (3), raw and zstd-compressed, opens, verifies, and traces the committed
-//!   ray set to answers byte-identical to the recorded `v3.hits` / `v3.occl`, in the library and
-//!   through `oavm-trace`. The recorded answers are themselves checked: they hit often, agree
-//!   with each other (a ray is occluded exactly when it has a closest hit) and with the f64
-//!   reference over the mesh's triangles (rays aimed at shared edges and vertices aside, where
-//!   either triangle is right), and each recorded hit is at the `t` the triangle test gives for
-//!   the triangle it names.
-//! - Older versions (1, 2) fail to open with `FormatError::Version { expected: 3, found }` and a
-//!   message that names the file and says to repack, in the library and through `oavm-trace`
-//!   (non-zero exit, nothing written).
+//! - The current version (4) opens, verifies, and traces the committed ray set to answers
+//!   byte-identical to the recorded ones, in the library and through `oavm-trace`: its files of
+//!   clusters (the default leaves, format-spec.md §7.1), raw and zstd-compressed, to `v4.hits` /
+//!   `v3.occl` (version 3's closest hits but at five ties, where clusters name the smallest
+//!   primitive id, and its any-hit answers); its file of leaf lists (`--leaf list`, format 3's
+//!   leaves in a version-4 file) to version 3's own `v3.hits` / `v3.occl`, byte for byte. The
+//!   recorded answers are
+//!   themselves checked: they hit often, agree with each other (a ray is occluded exactly when
+//!   it has a closest hit) and with the f64 reference over the mesh's triangles (rays aimed at
+//!   shared edges and vertices aside, where either triangle is right), and each recorded hit is
+//!   at the `t` the triangle test gives for the triangle it names.
+//! - Older versions (1, 2, 3) fail to open with `FormatError::Version { expected: 4, found }`
+//!   and a message that names the file and says to repack, in the library and through
+//!   `oavm-trace` (non-zero exit, nothing written).
 //! - A golden file that is missing is a failure, never a skip.
 //!
-//! When the format moves to version 4, `CURRENT` becomes 4, `v4*.oavm` and their answers join
-//! the golden files (made as the README says), and `v3.oavm` / `v3-zstd.oavm` move to the
-//! rejected versions: their recorded answers stay in the README (sha256), so the file keeps
-//! proving what version 3 answered.
+//! When the format moves to version 5, `CURRENT` becomes 5, `v5*.oavm` and their answers join
+//! the golden files (made as the README says), and the `v4*.oavm` files move to the rejected
+//! versions: their recorded answers stay (and their sha256 in the README), so the files keep
+//! proving what version 4 answered.
 
 mod common;
 
@@ -34,22 +38,74 @@ use tempfile::TempDir;
 /// The format version today's code writes and reads (`format-spec.md` §12). Written out rather
 /// than taken from the crate: a version bump must come with a new golden file, and this test
 /// failing is what says so.
-const CURRENT: u32 = 3;
+const CURRENT: u32 = 4;
 
-/// The golden files of the current version: raw, and with every block zstd-compressed.
-const CURRENT_FILES: [&str; 2] = ["v3.oavm", "v3-zstd.oavm"];
+/// A golden file of the current version: its name, whether its solid leaves are clusters (the
+/// header's `CLUSTERS` flag, format-spec.md §2), and the answers it must trace to.
+struct Current {
+    name: &'static str,
+    clusters: bool,
+    answers: Answers,
+}
+
+/// Recorded answers to [`RAYS`]: closest hits and any hit.
+#[derive(Clone, Copy)]
+struct Answers {
+    hits: &'static str,
+    occl: &'static str,
+}
+
+/// What version 3's `oavm-trace` answered on `v3.oavm`; a file of lists must answer it still.
+const V3_ANSWERS: Answers = Answers {
+    hits: "v3.hits",
+    occl: "v3.occl",
+};
+/// What version 4's `oavm-trace` answers on `v4.oavm`, a file of clusters: closest hits that
+/// differ from version 3's only at ties (see [`cluster_answers_are_version_3_s_with_ties_to_the_smallest_id`]),
+/// and version 3's any-hit answers, byte for byte.
+const V4_ANSWERS: Answers = Answers {
+    hits: "v4.hits",
+    occl: "v3.occl",
+};
+
+/// The golden files of the current version: clusters raw and with every block
+/// zstd-compressed, and leaf lists (which answer as version 3 did, byte for byte).
+const CURRENT_FILES: [Current; 3] = [
+    Current {
+        name: "v4.oavm",
+        clusters: true,
+        answers: V4_ANSWERS,
+    },
+    Current {
+        name: "v4-zstd.oavm",
+        clusters: true,
+        answers: V4_ANSWERS,
+    },
+    Current {
+        name: "v4-list.oavm",
+        clusters: false,
+        answers: V3_ANSWERS,
+    },
+];
+
+/// Every set of recorded answers.
+const ALL_ANSWERS: [Answers; 2] = [V3_ANSWERS, V4_ANSWERS];
 
 /// The golden files of earlier versions, which must be rejected, and their versions.
-const REJECTED: [(&str, u32); 2] = [("v1.oavm", 1), ("v2.oavm", 2)];
+const REJECTED: [(&str, u32); 4] = [
+    ("v1.oavm", 1),
+    ("v2.oavm", 2),
+    ("v3.oavm", 3),
+    ("v3-zstd.oavm", 3),
+];
 
-/// The ray set (`RAYS.md`) and the answers recorded by `oavm-trace` on `v3.oavm`.
+/// The ray set (`RAYS.md`).
 const RAYS: &str = "rays.rays";
-const HITS: &str = "v3.hits";
-const OCCL: &str = "v3.occl";
 /// The mesh every golden file was packed from (`tools/make_golden_inputs.py`).
 const MESH: &str = "mesh.ply";
 
-/// Of the 618 rays, 298 have a closest hit in the recorded answers, on 148 distinct triangles:
+/// Of the 618 rays, 298 have a closest hit in each set of recorded answers, on 148 distinct
+/// triangles:
 /// the ray set is made to hit the mesh often (aimed rays, axis-parallel grids through it) and to
 /// miss it often (rays past it, cut short, invalid). Far fewer of either means the answers or the
 /// rays went wrong.
@@ -98,16 +154,26 @@ fn header_version(name: &str) -> u32 {
     u32::from_le_bytes(bytes[8..12].try_into().unwrap())
 }
 
+/// The `flags` field of an `.oavm` file's header (§2: after the version, a little-endian
+/// `u32`).
+fn header_flags(name: &str) -> u32 {
+    let bytes = read(name);
+    u32::from_le_bytes(bytes[12..16].try_into().unwrap())
+}
+
+/// §2: flag bit 2, `CLUSTERS`.
+const FLAG_CLUSTERS: u32 = 4;
+
 fn golden_rays() -> Vec<Ray> {
     rays::read_rays(&golden(RAYS), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn recorded_hits() -> Vec<Hit> {
-    rays::read_hits(&golden(HITS), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
+fn recorded_hits(a: Answers) -> Vec<Hit> {
+    rays::read_hits(&golden(a.hits), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn recorded_occlusion() -> Vec<u8> {
-    rays::read_occlusion(&golden(OCCL), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
+fn recorded_occlusion(a: Answers) -> Vec<u8> {
+    rays::read_occlusion(&golden(a.occl), 1 << 20).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// The rays whose answers differ (as `key` sees them), at most ten, for a failure message.
@@ -145,14 +211,20 @@ fn hit_bits(h: &Hit) -> (u32, u32) {
 
 #[test]
 fn current_version_files_are_current() {
-    for name in CURRENT_FILES {
-        assert_eq!(header_version(name), CURRENT, "{name}");
+    for f in CURRENT_FILES {
+        assert_eq!(header_version(f.name), CURRENT, "{}", f.name);
+        assert_eq!(
+            header_flags(f.name) & FLAG_CLUSTERS != 0,
+            f.clusters,
+            "{}: the CLUSTERS flag",
+            f.name
+        );
     }
 }
 
 #[test]
 fn current_version_opens_and_verifies() {
-    for name in CURRENT_FILES {
+    for Current { name, .. } in CURRENT_FILES {
         let scene = Scene::open(golden(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
         let report = scene.verify().unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(
@@ -167,9 +239,10 @@ fn current_version_opens_and_verifies() {
 #[test]
 fn current_version_traces_byte_identical_to_the_recorded_answers() {
     let rays = golden_rays();
-    let recorded_hits_bytes = read(HITS);
-    let recorded_occl_bytes = read(OCCL);
-    for name in CURRENT_FILES {
+    for Current { name, answers, .. } in CURRENT_FILES {
+        let (hits_name, occl_name) = (answers.hits, answers.occl);
+        let recorded_hits_bytes = read(hits_name);
+        let recorded_occl_bytes = read(occl_name);
         let scene = Scene::open(golden(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
 
         let mut hits = vec![Hit::MISS; rays.len()];
@@ -178,8 +251,8 @@ fn current_version_traces_byte_identical_to_the_recorded_answers() {
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(
             rays::encode_records(&hits, b"HITS") == recorded_hits_bytes,
-            "{name}: closest hits differ from {HITS}: {}",
-            differences(&rays, &recorded_hits(), &hits, hit_bits)
+            "{name}: closest hits differ from {hits_name}: {}",
+            differences(&rays, &recorded_hits(answers), &hits, hit_bits)
         );
 
         let mut occluded = vec![0u8; rays.len()];
@@ -188,33 +261,40 @@ fn current_version_traces_byte_identical_to_the_recorded_answers() {
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(
             rays::encode_records(&occluded, b"OCCL") == recorded_occl_bytes,
-            "{name}: any-hit answers differ from {OCCL}: {}",
-            differences(&rays, &recorded_occlusion(), &occluded, |&o| o)
+            "{name}: any-hit answers differ from {occl_name}: {}",
+            differences(&rays, &recorded_occlusion(answers), &occluded, |&o| o)
         );
     }
 }
 
-/// The recorded answers are worth comparing with: many hits and many misses, spread over the
-/// mesh; closest hit and any hit agree with each other; brute force over the mesh's triangles
-/// (no tree, no file) gives the same answers; and each recorded hit lies on the triangle it
-/// names, at the recorded `t` exactly.
+/// The recorded answers, each set, are worth comparing with: many hits and many misses, spread
+/// over the mesh; closest hit and any hit agree with each other; brute force over the mesh's
+/// triangles (no tree, no file) gives the same answers; and each recorded hit lies on the
+/// triangle it names, at the recorded `t` exactly.
 #[test]
 fn recorded_answers_are_sound() {
+    for answers in ALL_ANSWERS {
+        answers_are_sound(answers);
+    }
+}
+
+fn answers_are_sound(a: Answers) {
+    let (hits_name, occl_name) = (a.hits, a.occl);
     let rays = golden_rays();
-    let hits = recorded_hits();
-    let occluded = recorded_occlusion();
-    assert_eq!(hits.len(), rays.len(), "{HITS} answers another ray set");
-    assert_eq!(occluded.len(), rays.len(), "{OCCL} answers another ray set");
+    let hits = recorded_hits(a);
+    let occluded = recorded_occlusion(a);
+    assert_eq!(hits.len(), rays.len(), "{hits_name} answers another ray set");
+    assert_eq!(occluded.len(), rays.len(), "{occl_name} answers another ray set");
 
     let hit_count = hits.iter().filter(|h| h.is_hit()).count();
     assert!(
         hit_count >= MIN_HITS,
-        "only {hit_count} of {} rays hit",
+        "{hits_name}: only {hit_count} of {} rays hit",
         rays.len()
     );
     assert!(
         rays.len() - hit_count >= MIN_MISSES,
-        "only {} of {} rays miss",
+        "{hits_name}: only {} of {} rays miss",
         rays.len() - hit_count,
         rays.len()
     );
@@ -223,7 +303,7 @@ fn recorded_answers_are_sound() {
     prims.dedup();
     assert!(
         prims.len() >= MIN_DISTINCT_PRIMS,
-        "the hits fall on only {} triangles",
+        "{hits_name}: the hits fall on only {} triangles",
         prims.len()
     );
 
@@ -254,16 +334,62 @@ fn recorded_answers_are_sound() {
             }
         }
     }
-    // The f64 reference, through today's tracer (whose answers equal the recorded ones, above):
+    // The f64 reference, through today's tracer on a file that answers as recorded (above):
     // rays aimed at shared edges and vertices may be excused, at most one in ten.
-    let scene = Scene::open(golden("v3.oavm")).expect("open");
-    common::compare_with_reference(&mesh, &scene, &rays, 1).require(250, rays.len() / 10, "golden");
+    let traced = CURRENT_FILES
+        .iter()
+        .find(|f| f.answers.hits == hits_name)
+        .expect("a current file answers as recorded")
+        .name;
+    let scene = Scene::open(golden(traced)).expect("open");
+    common::compare_with_reference(&mesh, &scene, &rays, 1).require(250, rays.len() / 10, traced);
     assert!(
         wrong.is_empty(),
-        "{} problems:\n{}",
+        "{hits_name}: {} problems:\n{}",
         wrong.len(),
         wrong.join("\n")
     );
+}
+
+/// The closest hits of clusters are version 3's but where two or more triangles are hit at the
+/// same `t`, bit for bit: there clusters name the smallest primitive id hit at that `t`
+/// (format-spec.md §7.2, the tie rule of a group's lanes and of the cluster walk), where the
+/// lists of version 3 named the first found. `RAYS.md` allows either; this pins which rays
+/// moved and why.
+#[test]
+fn cluster_answers_are_version_3_s_with_ties_to_the_smallest_id() {
+    let rays = golden_rays();
+    let (v3, v4) = (recorded_hits(V3_ANSWERS), recorded_hits(V4_ANSWERS));
+    assert_eq!((v3.len(), v4.len()), (rays.len(), rays.len()));
+    let mesh = oavm::mesh::load(&golden(MESH)).unwrap_or_else(|e| panic!("{e}"));
+    let mut ties = Vec::new();
+    for (i, ray) in rays.iter().enumerate() {
+        if hit_bits(&v3[i]) == hit_bits(&v4[i]) {
+            continue;
+        }
+        assert_eq!(
+            v3[i].t.to_bits(),
+            v4[i].t.to_bits(),
+            "ray {i}: version 3 {:?}, clusters {:?}: not a tie",
+            v3[i],
+            v4[i]
+        );
+        let at_t: Vec<u32> = (0..mesh.triangles.len() as u32)
+            .filter(|&p| {
+                intersect_triangle(ray, &mesh.triangle(p as usize)).map(f32::to_bits)
+                    == Some(v4[i].t.to_bits())
+            })
+            .collect();
+        assert!(
+            at_t.contains(&v3[i].prim) && at_t.first() == Some(&v4[i].prim),
+            "ray {i}: version 3 {:?}, clusters {:?}; triangles hit at that t: {at_t:?}",
+            v3[i],
+            v4[i]
+        );
+        ties.push(i);
+    }
+    // The five rays aimed at shared vertices and edges that tests/golden/README.md lists.
+    assert_eq!(ties, [277, 337, 493, 525, 567]);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -349,11 +475,11 @@ fn describe(o: &Output) -> String {
 #[test]
 fn cli_traces_the_current_version_as_recorded() {
     let rays = golden(RAYS);
-    for name in CURRENT_FILES {
+    for Current { name, answers, .. } in CURRENT_FILES {
         let dir = TempDir::new().unwrap();
         for (flag, out, recorded) in [
-            ("--hits", "out.hits", HITS),
-            ("--occluded", "out.occl", OCCL),
+            ("--hits", "out.hits", answers.hits),
+            ("--occluded", "out.occl", answers.occl),
         ] {
             let out = dir.path().join(out);
             let o = oavm_trace(&[

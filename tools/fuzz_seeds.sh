@@ -8,7 +8,11 @@
 # occlusion files and the .oavm files are made by the project's own release binaries from those
 # cuts. Each .oavm seed stays under 24 KB (fuzz.sh's -max_len for the oavm targets is 32768):
 # small inputs mutate faster and keep the committed corpus small; several blocks (4 KiB target
-# size), compressed and raw, deep trees and unmerged volumes fit in that.
+# size), compressed and raw, deep trees and unmerged volumes fit in that. Both kinds of solid
+# leaf (format-spec.md §2 flag CLUSTERS): clusters, the default (§7.1, §7.2), and leaf lists
+# (`--leaf list`, §6, §7; the seeds named *_list).
+#
+# The binaries are built in $CARGO_TARGET_DIR if it is set (else target/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -19,7 +23,7 @@ mkdir -p "$seeds"/{ply,obj,aff,rays,oavm,oavm_fixed,pack}
 python3 tools/fuzz_seeds.py meshes "$scenes" "$seeds"
 
 nice -n 19 cargo build --release --quiet --bins --example rays
-bin=$root/target/release
+bin=${CARGO_TARGET_DIR:-$root/target}/release
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 
@@ -42,15 +46,30 @@ pack() { # NAME MESH ARGS...
     shift 2
     "$bin/oavm-pack" "$tmp/$mesh" "$tmp/$name.oavm" --threads 1 "$@" >/dev/null
 }
+# Clusters. A cluster holds up to 512 triangles by default, so a cut of the dragon is one leaf
+# (one wide BVH several nodes deep: dragon200_z); the seeds that want several leaves and blocks
+# give a smaller leaf size (clusters of 4 make the 60 triangles 28 KB: 8 is the smallest under
+# 24 KB).
 pack cornell cornell.obj
 pack cornell_z cornell.obj --compress
-pack dragon60_4k dragon60.ply --block-size 4K
-pack dragon200_4k_z dragon200.ply --block-size 4K --compress=1
+pack dragon200_z dragon200.ply --compress=1
+pack dragon60_4k dragon60.ply --block-size 4K --leaf-size 16
+pack dragon200_4k_z dragon200.ply --block-size 4K --leaf-size 32 --compress=1
 pack dragon20_deep_z dragon20.ply --leaf-size 3 --max-depth 8 --block-size 4K --compress
-pack dragon60_leaf4_z dragon60.ply --leaf-size 4 --max-depth 6 --block-size 4K --compress
+pack dragon60_leaf8_z dragon60.ply --leaf-size 8 --max-depth 6 --block-size 4K --compress
 pack dragon20_nomerge_z dragon20.ply --block-size 4K --no-merge --leaf-size 4 --compress
 pack museum_block museum_block.aff --block-size 4K
 pack keys_t keys_only.aff --time 0.5
+# Leaf lists: the seeds of format 3, with the options they had.
+pack cornell_list cornell.obj --leaf list
+pack cornell_z_list cornell.obj --leaf list --compress
+pack dragon60_4k_list dragon60.ply --leaf list --block-size 4K
+pack dragon200_4k_z_list dragon200.ply --leaf list --block-size 4K --compress=1
+pack dragon20_deep_z_list dragon20.ply --leaf list --leaf-size 3 --max-depth 8 --block-size 4K --compress
+pack dragon60_leaf4_z_list dragon60.ply --leaf list --leaf-size 4 --max-depth 6 --block-size 4K --compress
+pack dragon20_nomerge_z_list dragon20.ply --leaf list --block-size 4K --no-merge --leaf-size 4 --compress
+pack museum_block_list museum_block.aff --leaf list --block-size 4K
+pack keys_t_list keys_only.aff --leaf list --time 0.5
 for f in "$tmp"/*.oavm; do
     size=$(stat -c %s "$f")
     if [ "$size" -gt 24576 ]; then
@@ -67,11 +86,17 @@ for s in primary random; do
         --occluded "$seeds/rays/dragon.$s.occl" >/dev/null
 done
 
-# Raw files with every block marked zstd, for oavm_fixed (see zmark in tools/fuzz_seeds.py).
-pack dragon200_4k dragon200.ply --block-size 4K
-pack dragon20_nomerge dragon20.ply --block-size 4K --no-merge --leaf-size 4
+# Raw files with every block marked zstd, for oavm_fixed (see zmark in tools/fuzz_seeds.py). They
+# are not compressed: dragon20_nomerge's clusters are of 8 (of 4, as in dragon20_nomerge_z, the
+# file is 38 KB, past fuzz.sh's -max_len).
+pack dragon200_4k dragon200.ply --block-size 4K --leaf-size 32
+pack dragon20_nomerge dragon20.ply --block-size 4K --no-merge --leaf-size 8
+pack dragon200_4k_list dragon200.ply --leaf list --block-size 4K
+pack dragon20_nomerge_list dragon20.ply --leaf list --block-size 4K --no-merge --leaf-size 4
 python3 tools/fuzz_seeds.py zmark "$seeds/oavm_fixed" \
-    "$tmp"/cornell.oavm "$tmp"/dragon200_4k.oavm "$tmp"/museum_block.oavm "$tmp"/dragon20_nomerge.oavm
+    "$tmp"/cornell.oavm "$tmp"/dragon200_4k.oavm "$tmp"/museum_block.oavm "$tmp"/dragon20_nomerge.oavm \
+    "$tmp"/cornell_list.oavm "$tmp"/dragon200_4k_list.oavm "$tmp"/museum_block_list.oavm \
+    "$tmp"/dragon20_nomerge_list.oavm
 
 for t in "$seeds"/*; do
     printf '%-11s %3d files %7d bytes\n' "$(basename "$t")" "$(ls "$t" | wc -l)" "$(cat "$t"/* | wc -c)"

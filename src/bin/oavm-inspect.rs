@@ -166,7 +166,7 @@ fn text(args: &Args, i: &Inspection) -> String {
     let d = &i.directory;
     let _ = writeln!(
         t,
-        "\nblocks: {} ({} raw, {} zstd), {} bytes stored, {} decoded (largest {}, smallest {}), {} triangle records",
+        "\nblocks: {} ({} raw, {} zstd), {} bytes stored, {} decoded (largest {}, smallest {}), {} {}",
         d.blocks,
         d.raw_blocks,
         d.zstd_blocks,
@@ -174,7 +174,13 @@ fn text(args: &Args, i: &Inspection) -> String {
         d.decoded_bytes,
         d.largest_decoded,
         d.smallest_decoded,
-        d.triangle_records
+        d.triangle_records,
+        // Spec §8.2: what a block's `triangles` count.
+        if h.flags & oavm::physical::format::FLAG_CLUSTERS != 0 {
+            "group lanes"
+        } else {
+            "triangle records"
+        }
     );
     for (level, n) in &d.root_levels {
         let _ = writeln!(t, "  roots at level {level:>2}: {n} blocks");

@@ -667,7 +667,8 @@ pub struct BlockEntry {
     /// Absolute level of the block's roots.
     pub root_level: u32,
     pub root_count: u32,
-    /// Triangle records in the block.
+    /// Triangles stored in the block: its triangle records (lists) or its groups' lanes in use
+    /// (clusters).
     pub triangles: u32,
     /// xxh3-64 of the `stored_len` stored bytes.
     pub checksum: u64,
@@ -686,7 +687,7 @@ pub const MAX_ZSTD_RATIO: u64 = 64;
 /// Spec §8.3: the tag that starts every block's raw bytes ("OBLK", little-endian).
 pub const BLOCK_TAG: u32 = u32::from_le_bytes(*b"OBLK");
 
-/// Spec §8.3: the header of a block's raw bytes (64 bytes), followed by the block's records as
+/// Spec §8.3: the header of a block's raw bytes (80 bytes), followed by the block's records as
 /// [`block_layout`] places them.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]

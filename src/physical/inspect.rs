@@ -56,6 +56,8 @@ pub struct DirectorySummary {
     pub decoded_bytes: u64,
     pub smallest_decoded: u64,
     pub largest_decoded: u64,
+    /// The entries' `triangles` summed (spec §8.2): triangle records in a file of lists, group
+    /// lanes in use in a file of clusters.
     pub triangle_records: u64,
     /// Blocks per level of their roots: `(level, blocks)`.
     pub root_levels: Vec<(u32, u64)>,

@@ -10,6 +10,7 @@ pub const HEADER_LEN: usize = 256;
 pub const HEADER_CHECKSUM: usize = 248;
 /// §2: header fields these tests rewrite.
 pub const VERSION_AT: usize = 8;
+pub const FLAGS_AT: usize = 12;
 pub const FILE_SIZE_AT: usize = 32;
 pub const ROOT_MIN_AT: usize = 40;
 pub const ROOT_SIZE_AT: usize = 64;
@@ -45,11 +46,36 @@ pub const CODEC_RAW: u32 = 0;
 pub const CODEC_ZSTD: u32 = 1;
 pub const RAW_ALIGN: usize = 4096;
 pub const ALIGN: usize = 64;
-/// §8.3: a block's header, and where its counts are.
-pub const BLOCK_HEADER_LEN: usize = 64;
+/// §2: flag bits.
+pub const FLAG_COMPRESSED: u32 = 2;
+pub const FLAG_CLUSTERS: u32 = 4;
+/// §8.3: a block's header, and where its counts are: `level_count` (u32), then from
+/// `node_count` on seven u64 counts, one per part after the level table, in part order (nodes,
+/// ranks, volumes, refs, triangles, cluster nodes, groups), then `block_id`.
+pub const BLOCK_HEADER_LEN: usize = 80;
 pub const BH_LEVEL_COUNT: usize = 4;
 pub const BH_NODE_COUNT: usize = 16;
+pub const BH_BLOCK_ID: usize = 72;
+/// §8.3: a block's parts, the level table first.
+pub const BLOCK_PART_COUNT: usize = 8;
+/// §7.1: a cluster node (80 bytes) and the fields these tests rewrite.
+pub const CLUSTER_NODE_LEN: usize = 80;
+pub const CN_ORIGIN: usize = 0;
+pub const CN_EXP: usize = 12;
+pub const CN_CHILD_COUNT: usize = 15;
+pub const CN_NODE_BASE: usize = 16;
+pub const CN_GROUP_BASE: usize = 20;
+pub const CN_INNER_COUNT: usize = 24;
+pub const CN_LO: usize = 32;
+pub const CN_HI: usize = 56;
+/// §7.2: a triangle group (160 bytes) and its fields.
+pub const TRI_GROUP_LEN: usize = 160;
+pub const TG_CORNER: usize = 0;
+pub const TG_TRI: usize = 96;
+pub const TG_COUNT: usize = 120;
+pub const TG_PRIM: usize = 128;
 /// §4.2: the kinds of node record (bits 30–31 of `meta`).
+pub const KIND_SOLID: u32 = 1;
 pub const KIND_INTERNAL: u32 = 2;
 pub const KIND_LINK: u32 = 3;
 pub const LINK_ROOT_MASK: u32 = (1 << 30) - 1;
