@@ -242,9 +242,9 @@ pub fn excused(tris: &[[[f32; 3]; 3]], ray: &Ray) -> bool {
 /// subnormal (a direction near `f32::MAX`), where f32 keeps no relative precision.
 ///
 /// Underflow: an f32 operation whose result is subnormal errs by up to half the smallest
-/// subnormal, 2^-150, absolutely, whatever its relative error. The scaled `t` (`u * az + v * bz
-/// + w * cz`, with `az = sz * a.z` and so on) underflows when the direction is huge (`sz =
-/// 1 / d.z` tiny) and the triangle small: its three `z`, three products and two sums each err
+/// subnormal, 2^-150, absolutely, whatever its relative error. The scaled `t`, `u * az +
+/// v * bz + w * cz` with `az = sz * a.z` and so on, underflows when the direction is huge
+/// (`sz = 1 / d.z` tiny) and the triangle small: its three `z`, three products and two sums err
 /// by up to 2^-150 more, the `z` weighed by the edge functions, and the edge functions' own
 /// three operations each by the `z`. Divided by the determinant, that is an error of `t` the
 /// relative bound does not see: a direction of (1e30, -1e30, 1e30) on a triangle 1e-4 across,
