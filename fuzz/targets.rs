@@ -237,8 +237,19 @@ pub fn excused(tris: &[[[f32; 3]; 3]], ray: &Ray) -> bool {
 /// How far the f32 watertight test's `t` may lie from the exact one: pbrt-v4's bound on the
 /// rounding error of that test (Pharr, Jakob, Humphreys, *Physically Based Rendering*, 4th ed.,
 /// "Robust Triangle Intersections"), evaluated here in f64 on the ray and triangle (not by the
-/// tracer's code) with a factor 4 to spare, plus the smallest normal f32: a `t` below it is
+/// tracer's code), and the error of gradual underflow, which that bound (relative errors only)
+/// leaves out; with a factor 4 to spare, plus the smallest normal f32: a `t` below it is
 /// subnormal (a direction near `f32::MAX`), where f32 keeps no relative precision.
+///
+/// Underflow: an f32 operation whose result is subnormal errs by up to half the smallest
+/// subnormal, 2^-150, absolutely, whatever its relative error. The scaled `t`, `u * az +
+/// v * bz + w * cz` with `az = sz * a.z` and so on, underflows when the direction is huge
+/// (`sz = 1 / d.z` tiny) and the triangle small: its three `z`, three products and two sums err
+/// by up to 2^-150 more, the `z` weighed by the edge functions, and the edge functions' own
+/// three operations each by the `z`. Divided by the determinant, that is an error of `t` the
+/// relative bound does not see: a direction of (1e30, -1e30, 1e30) on a triangle 1e-4 across,
+/// `t` = 5.5e-36, scaled `t` -1.7e-43 (118 steps of the smallest subnormal), `t` off by 0.4 %
+/// (`regressions/pack/huge_direction_subnormal_t_scaled`).
 pub fn t_rounding(tri: &[[f32; 3]; 3], ray: &Ray) -> f64 {
     let d = ray.dir.map(f64::from);
     // The dominant axis, the first of equal ones as the watertight test picks it: the bound
@@ -268,7 +279,9 @@ pub fn t_rounding(tri: &[[f32; 3]; 3], ray: &Ray) -> f64 {
     let dy = gamma(5.0) * (my + mz);
     let de = 2.0 * (gamma(2.0) * mx * my + dy * mx + dx * my);
     let bound = 3.0 * (gamma(3.0) * me * mz + de * mz + dz * me) / det;
-    4.0 * bound + f64::from(f32::MIN_POSITIVE)
+    let tiny = (-150f64).exp2();
+    let underflow = (3.0 * me * tiny + 5.0 * tiny + 9.0 * mz * tiny) / det;
+    4.0 * (bound + underflow) + f64::from(f32::MIN_POSITIVE)
 }
 
 /// Units in the last place of `t` that [`agree`] allows beyond RAYS.md's tolerance.

@@ -2378,9 +2378,10 @@ struct MutTally {
 fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8], m: &Mutation) -> bool {
     let is_mesh = |blk: usize, at: usize| {
         let parts = block_parts(&fix.decoded[blk]);
+        // A group's corners, slots and ids; not its count and reserved word.
         let in_group = |at: usize| {
             let field = (at - parts[PART_GROUPS].start) % TRI_GROUP_LEN;
-            field < TG_COUNT || field >= TG_PRIM
+            !(TG_COUNT..TG_PRIM).contains(&field)
         };
         parts[PART_REFS].contains(&at)
             || parts[PART_TRIANGLES].contains(&at)

@@ -116,6 +116,76 @@ fn open_bugs_still_fail() {
     );
 }
 
+/// The corpora of the `.oavm` targets reach today's format, so that replaying them exercises
+/// more than the version check: each holds files that open as the current version (for
+/// `oavm_fixed`, after its checksum fix-up) and verify clean, some of clusters and some of leaf
+/// lists (format-spec.md §2, flag `CLUSTERS`). A format change that leaves the corpora behind
+/// fails here: make the seeds again (`tools/fuzz.sh seeds`) and merge them (`tools/fuzz.sh
+/// cmin`). Files of other versions stay in the corpora (they cover the version check) and must
+/// be rejected by it: a `FormatError::Version` naming their version.
+#[test]
+fn oavm_corpora_reach_the_current_format() {
+    use oavm::physical::AlignedBytes;
+    use oavm::physical::format::{FLAG_CLUSTERS, MAGIC, VERSION};
+    use oavm::{Error, FormatError, Scene};
+
+    let mut summary = Vec::new();
+    for (target, fixed) in [("oavm", false), ("oavm_fixed", true)] {
+        let dir = fuzz_dir().join("corpus").join(target);
+        let corpus = files(&dir).unwrap_or_else(|| panic!("{} is missing", dir.display()));
+        let (mut clusters, mut lists, mut current, mut other_versions) = (0, 0, 0, 0);
+        for f in &corpus {
+            let data = std::fs::read(f).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+            let mut bytes = AlignedBytes::from_slice(&data);
+            if fixed {
+                targets::fix_checksums(bytes.as_mut_slice());
+            }
+            // The version of a file with a whole header (format-spec.md §2: 256 bytes, the
+            // version after the magic); a shorter one is refused for its length first.
+            let b = bytes.as_ref();
+            let version = (b.len() >= 256 && b[..8] == MAGIC)
+                .then(|| u32::from_le_bytes(b[8..12].try_into().expect("4 bytes")));
+            let flags = b
+                .get(12..16)
+                .map_or(0, |f| u32::from_le_bytes(f.try_into().expect("4 bytes")));
+            match (version, Scene::from_bytes(bytes, "corpus.oavm")) {
+                (Some(v), Err(Error::Format { source, .. })) if v != VERSION => {
+                    assert!(
+                        matches!(source, FormatError::Version { found, .. } if found == v),
+                        "{}: a version-{v} file fails with another error: {source}",
+                        f.display()
+                    );
+                    other_versions += 1;
+                }
+                (Some(v), Ok(_)) if v != VERSION => {
+                    panic!("{}: a version-{v} file opened", f.display())
+                }
+                (_, Ok(scene)) => {
+                    current += 1;
+                    if scene.verify().is_ok_and(|r| r.is_ok()) {
+                        match flags & FLAG_CLUSTERS != 0 {
+                            true => clusters += 1,
+                            false => lists += 1,
+                        }
+                    }
+                }
+                (_, Err(_)) => {}
+            }
+        }
+        summary.push(format!(
+            "{target}: {} files, {current} open as version {VERSION} ({clusters} of clusters \
+             and {lists} of lists verify clean), {other_versions} of other versions rejected",
+            corpus.len()
+        ));
+        assert!(
+            clusters > 0 && lists > 0,
+            "fuzz/corpus/{target}/ has {clusters} sound files of clusters and {lists} of lists \
+             of version {VERSION}: the corpus is stale (tools/fuzz.sh seeds, then cmin)"
+        );
+    }
+    println!("{}", summary.join("\n"));
+}
+
 /// The checksum fix-up of `oavm_fixed` (fuzz/README.md) does what it claims: on an intact file
 /// it changes nothing, and a raw file whose blocks are marked zstd comes out as a sound
 /// compressed file (verify finds nothing) that answers the probe rays as the raw one does.

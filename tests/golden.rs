@@ -283,8 +283,16 @@ fn answers_are_sound(a: Answers) {
     let rays = golden_rays();
     let hits = recorded_hits(a);
     let occluded = recorded_occlusion(a);
-    assert_eq!(hits.len(), rays.len(), "{hits_name} answers another ray set");
-    assert_eq!(occluded.len(), rays.len(), "{occl_name} answers another ray set");
+    assert_eq!(
+        hits.len(),
+        rays.len(),
+        "{hits_name} answers another ray set"
+    );
+    assert_eq!(
+        occluded.len(),
+        rays.len(),
+        "{occl_name} answers another ray set"
+    );
 
     let hit_count = hits.iter().filter(|h| h.is_hit()).count();
     assert!(

@@ -8,8 +8,9 @@
 //! file with one damaged block fails `--verify` and any trace that reaches the block with an
 //! error naming the file and the block, writing nothing, never panicking.
 //!
-//! (A block of 4 KiB holds a few dozen triangles, so the bunny has about 2,700 of them: budgets
-//! of a few blocks make the pager evict and read again all the time.)
+//! (A solid leaf is one cluster of up to 512 triangles, and a block holds whole leaves, so 4 KiB
+//! blocks make the bunny's 614 clusters 595 blocks, most of them one cluster each: budgets of a
+//! few blocks make the pager evict and read again all the time.)
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -528,7 +529,7 @@ fn cli_budget_and_order_do_not_change_the_output_files() {
         "5000",
         "--shadow",
         "--mem-budget",
-        "64K",
+        five.as_str(),
         "--json",
     ]));
     assert_success(&o);
@@ -568,18 +569,35 @@ fn cli_a_damaged_block_is_named_by_verify_and_by_a_trace_that_reaches_it() {
     let file = pack(dir.path(), "bunny.oavm", &[]);
     let good = fs::read(&file).unwrap();
 
-    // The block to damage: one in the middle of the directory. Rays start at the centres of
-    // its triangles (one way, then the other), so they walk it first.
+    // The block to damage: the one that most rays of a small image from the framing camera
+    // (the renderer's) need first, so that a render reaches it: with link bounds (§8.1) a ray
+    // pages in only the blocks whose solid leaves it may meet, and with clusters the bunny's
+    // 595 blocks are small, so a block picked at random (as the middle of the directory was
+    // when blocks were lists) may lie behind the surface every primary ray stops at. Rays start
+    // at the centres of its triangles (its groups' lanes, in a file of clusters; its triangle
+    // records in a file of lists), one way, then the other, so they walk it first.
     let scene = Scene::from_bytes(AlignedBytes::from_slice(&good), &file).unwrap();
+    let smallest_budget = (3 * scene.file().header().max_block_raw_len).to_string();
     let dir_entries = scene.file().directory();
-    let id = dir_entries.len() / 2;
+    let mut first = vec![0usize; dir_entries.len()];
+    for r in Camera::framing(&bounds()).primary_rays(64, 48) {
+        if let Some(b) = scene.tree().first_block(&r).expect("the intact file") {
+            first[b as usize] += 1;
+        }
+    }
+    let id = (0..first.len()).max_by_key(|&b| first[b]).unwrap();
+    assert!(first[id] > 0, "no ray needs a block");
     let e = dir_entries[id];
     assert_eq!(e.codec, CODEC_RAW);
     let (off, len) = (e.offset as usize, e.stored_len as usize);
     let view = BlockView::parse(&good[off..off + len], id as u32, &e).expect("the block reads");
+    let lanes = view
+        .groups
+        .iter()
+        .flat_map(|g| (0..g.count.min(8) as usize).map(|l| g.triangle(l)));
     let mut rays = Vec::new();
-    for t in view.triangles {
-        let c: [f32; 3] = std::array::from_fn(|k| (t.v[0][k] + t.v[1][k] + t.v[2][k]) / 3.0);
+    for v in view.triangles.iter().map(|t| t.v).chain(lanes) {
+        let c: [f32; 3] = std::array::from_fn(|k| (v[0][k] + v[1][k] + v[2][k]) / 3.0);
         for d in [[0.3, 0.5, 0.8], [-0.3, -0.5, -0.8]] {
             rays.push(Ray::new(c, d, 0.0, f32::INFINITY));
         }
@@ -603,8 +621,8 @@ fn cli_a_damaged_block_is_named_by_verify_and_by_a_trace_that_reaches_it() {
     );
 
     // A trace reaching it fails naming the file and the block, and writes nothing; with any
-    // budget and order, either query.
-    for budget in [None, Some("16K")] {
+    // budget (none, or the smallest the file allows) and order, either query.
+    for budget in [None, Some(smallest_budget.as_str())] {
         for (flag, name) in [("--hits", "out.hits"), ("--occluded", "out.occl")] {
             let out = dir.path().join(name);
             let mut cmd = trace_cmd(&file);
