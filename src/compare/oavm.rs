@@ -36,15 +36,19 @@ impl OavmAccel {
     }
 }
 
+/// The comparison counts every node a structure's traversal visits: for a file of clusters,
+/// the octree's nodes and the clusters' BVH nodes together (a BVH's inner nodes are what the
+/// other structures' node counts are), so `nodes_visited` also takes `cluster_nodes_visited`.
 impl Accelerator for OavmAccel {
     fn stats(&self) -> &StructureStats {
         &self.stats
     }
 
     fn intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
-        let rays = c.rays; // the tracer counts its rays; here the batch does
+        let (rays, before) = (c.rays, c.cluster_nodes_visited); // the batch counts the rays
         let hit = self.scene.tree().intersect(ray, c);
         c.rays = rays;
+        c.nodes_visited += c.cluster_nodes_visited - before;
         match hit {
             Ok(Some(h)) => Hit {
                 t: h.t,
@@ -57,9 +61,10 @@ impl Accelerator for OavmAccel {
     }
 
     fn occluded(&self, ray: &Ray, c: &mut Counters) -> bool {
-        let rays = c.rays;
+        let (rays, before) = (c.rays, c.cluster_nodes_visited);
         let hit = self.scene.tree().occluded(ray, c);
         c.rays = rays;
+        c.nodes_visited += c.cluster_nodes_visited - before;
         matches!(hit, Ok(true))
     }
 }

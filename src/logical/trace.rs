@@ -45,8 +45,8 @@ use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
 use crate::mapping::{Corruption, TreeMap};
 use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
-    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, KIND_EMPTY, KIND_LINK, KIND_SOLID, LinkBounds,
-    MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
+    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, KIND_EMPTY, KIND_INTERNAL, KIND_LINK, KIND_SOLID,
+    LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -745,16 +745,35 @@ impl<'a> Tree<'a> {
     ) -> Result<(), TraceError> {
         const NONE: u32 = u32::MAX;
 
+        // The root: internal, a link to a block (a tree small enough to be one block), or
+        // empty (a file without triangles).
+        let root = self.top.node(0, 0)?;
+        let (kind, block, index) = match root.kind_bits() {
+            KIND_INTERNAL => (EntryKind::Internal, NONE, 0),
+            KIND_LINK => {
+                let (b, i) = root.link_bits();
+                (EntryKind::Root, b, i)
+            }
+            KIND_EMPTY => return Ok(()),
+            _ => {
+                return Err(TraceError::Corrupt(Corruption {
+                    what: "invalid root record",
+                    block: None,
+                    level: 0,
+                    index: 0,
+                }));
+            }
+        };
         let mut stacks = STACKS.take();
         let stack = &mut stacks.octree;
         stack.clear();
         stack.push(Entry {
             t: r.t0,
             lo: [0; 3],
-            index: 0,
+            index,
             level: 0,
-            block: NONE,
-            kind: EntryKind::Internal,
+            block,
+            kind,
         });
         let result = self.descend_stack::<ANY, S>(isa, r, w, k, stack, &mut stacks.cluster);
         STACKS.set(stacks);
