@@ -752,6 +752,7 @@ impl<'a> Tree<'a> {
             KIND_INTERNAL => (EntryKind::Internal, NONE, 0),
             KIND_LINK => {
                 let (b, i) = root.link_bits();
+                self.check_link(b, 0, 0)?;
                 (EntryKind::Root, b, i)
             }
             KIND_EMPTY => return Ok(()),
@@ -985,6 +986,7 @@ impl<'a> Tree<'a> {
                                     continue;
                                 }
                                 let (b, root) = rec.link_bits();
+                                self.check_link(b, level + 1, child)?;
                                 (EntryKind::Root, b, root as u64)
                             }
                             _ => return Err(bad("invalid leaf record")),
@@ -1007,6 +1009,21 @@ impl<'a> Tree<'a> {
                 return Ok(());
             }
         }
+    }
+
+    /// A link (at `level`, node `index` of the top tree) to block `b`: `b` must be in the
+    /// directory (which also keeps it from `u32::MAX`, the stack's mark for the top tree).
+    #[inline(always)]
+    fn check_link(&self, b: u32, level: u32, index: u64) -> Result<(), TraceError> {
+        if (b as usize) < self.directory.len() {
+            return Ok(());
+        }
+        Err(TraceError::Corrupt(Corruption {
+            what: "link to a block the directory does not have",
+            block: Some(b),
+            level,
+            index,
+        }))
     }
 
     /// Link bounds record `at` (spec §8.1) of the link whose cell is `lo` (edge `size`),
