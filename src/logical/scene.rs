@@ -16,7 +16,7 @@ use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
 use crate::mapping::{Corruption, LevelInfos, TreeMap};
 use crate::os::MappedFile;
-use crate::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, SectionKind};
+use crate::physical::format::{FLAG_COMPRESSED, SectionKind};
 use crate::physical::{BlockReader, OavmFile};
 
 /// How an opened file is traced.
@@ -284,9 +284,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 file: self.file.data().as_ref(),
                 ready,
             }),
-            h.root_min,
-            h.root_size,
-            h.flags & FLAG_CLUSTERS != 0,
+            h,
         )
     }
 

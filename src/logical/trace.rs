@@ -45,8 +45,8 @@ use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
 use crate::mapping::{Corruption, TreeMap};
 use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
-    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, KIND_EMPTY, KIND_INTERNAL, KIND_LINK, KIND_SOLID,
-    LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
+    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, FLAG_CLUSTERS, Header, KIND_EMPTY, KIND_INTERNAL,
+    KIND_LINK, KIND_SOLID, LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -258,9 +258,7 @@ impl<'a> Tree<'a> {
         directory: &'a [BlockEntry],
         blocks: &'a dyn BlockFetch,
         direct: Option<Direct<'a>>,
-        root_min: [f64; 3],
-        root_size: f64,
-        clusters: bool,
+        header: &Header,
     ) -> Tree<'a> {
         Tree {
             top,
@@ -268,9 +266,9 @@ impl<'a> Tree<'a> {
             directory,
             blocks,
             direct,
-            root_min,
-            scale: LATTICE_SIZE as f64 / root_size,
-            clusters,
+            root_min: header.root_min,
+            scale: LATTICE_SIZE as f64 / header.root_size,
+            clusters: header.flags & FLAG_CLUSTERS != 0,
             avx2: Avx2::detect(),
         }
     }
