@@ -216,6 +216,11 @@ struct RayCtx {
     /// The ray in world units, for cluster boxes.
     boxes: BoxRay,
     tmin: f32,
+    /// Per axis, the planes by which the ray enters the low and the high half of a cell and
+    /// leaves them, in that order, as offsets from the cell's low face: `half * cell_h +
+    /// cell_m` (the halves widened by the cell margin).
+    cell_h: [[f64; 4]; 3],
+    cell_m: [[f64; 4]; 3],
     /// Where the ray enters and leaves the root cube.
     t0: f64,
     t1: f64,
@@ -471,6 +476,17 @@ impl<'a> Tree<'a> {
             shear: RayShear::new(ray),
             boxes: BoxRay::new(ray),
             tmin: ray.tmin,
+            cell_h: fwd.map(|f| {
+                if f {
+                    [0.0, 1.0, 1.0, 2.0]
+                } else {
+                    [1.0, 2.0, 0.0, 1.0]
+                }
+            }),
+            cell_m: fwd.map(|f| {
+                let m = CELL_MARGIN;
+                if f { [-m, -m, m, m] } else { [m, m, -m, -m] }
+            }),
             t0,
             t1,
         };
@@ -896,16 +912,16 @@ impl<'a> Tree<'a> {
                 let mut leave_at = [[0f64; 2]; 3];
                 for a in 0..3 {
                     let lo = e.lo[a] as f64;
-                    let (mid, hi) = (lo + half as f64, lo + size as f64);
                     if r.moves[a] {
-                        let t = |p: f64| p * r.inv[a] - r.oi[a];
-                        let (l0, l1) = (t(lo - m), t(mid + m));
-                        let (h0, h1) = (t(mid - m), t(hi + m));
-                        let (l0, l1) = if r.fwd[a] { (l0, l1) } else { (l1, l0) };
-                        let (h0, h1) = if r.fwd[a] { (h0, h1) } else { (h1, h0) };
-                        enter_at[a] = [l0, h0];
-                        leave_at[a] = [l1, h1];
+                        // The planes (exact: integers below 2^23) by the ray's direction.
+                        let (h, c) = (&r.cell_h[a], &r.cell_m[a]);
+                        let t: [f64; 4] = std::array::from_fn(|i| {
+                            (lo + h[i] * half as f64 + c[i]) * r.inv[a] - r.oi[a]
+                        });
+                        enter_at[a] = [t[0], t[1]];
+                        leave_at[a] = [t[2], t[3]];
                     } else {
+                        let (mid, hi) = (lo + half as f64, lo + size as f64);
                         let o = r.o[a];
                         let inside = |a: f64, b: f64| {
                             if o >= a && o <= b {
@@ -918,26 +934,16 @@ impl<'a> Tree<'a> {
                         leave_at[a] = [f64::INFINITY; 2];
                     }
                 }
-                // Branch-free over the eight children: which are not empty leaves, and which the
-                // ray meets (comparisons, not f64::max, which is NaN-aware and slow; a NaN makes
-                // `enter <= exit` false, a miss).
-                let fmax = |a: f64, b: f64| if a > b { a } else { b };
-                let fmin = |a: f64, b: f64| if a < b { a } else { b };
-                let mut enters = [0f64; 8];
+                // The eight children at once; then only those met are looked at.
+                let (met, enters) = isa.cell_hits(&enter_at, &leave_at, r.tmin as f64, w.t_stop);
                 let mut mask = 0u32;
-                for (o, rec) in recs.iter().enumerate() {
-                    let (hx, hy, hz) = (o & 1, (o >> 1) & 1, (o >> 2) & 1);
-                    let enter = fmax(
-                        fmax(r.tmin as f64, enter_at[0][hx]),
-                        fmax(enter_at[1][hy], enter_at[2][hz]),
-                    );
-                    let exit = fmin(
-                        fmin(w.t_stop, leave_at[0][hx]),
-                        fmin(leave_at[1][hy], leave_at[2][hz]),
-                    );
-                    let live = (internal >> o) & 1 == 1 || rec.kind_bits() != KIND_EMPTY;
-                    enters[o] = enter;
-                    mask |= ((live & (enter <= exit)) as u32) << o;
+                let mut scan = met;
+                while scan != 0 {
+                    let o = scan.trailing_zeros();
+                    scan &= scan - 1;
+                    let live =
+                        (internal >> o) & 1 == 1 || recs[o as usize].kind_bits() != KIND_EMPTY;
+                    mask |= (live as u32) << o;
                 }
                 let mut hits: [(f64, u8); 8] = [(0.0, 0); 8];
                 let mut n = 0usize;
