@@ -223,10 +223,13 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     /// smaller than the file's decoded blocks (rays binned by their first block, so a block is
     /// read once for its bin: on the 130M-triangle file in a 1.5 GiB cgroup, zstd, 10^6 random
     /// rays ran at 0.38 of the unlimited speed sorted by Morton key, 0.80 binned), else
-    /// [`Order::Morton`] (no top-tree walk per ray).
+    /// [`Order::None`]: in memory, sorting costs more than the coherence it buys (format 4,
+    /// 2 threads, `tools/ab_speed.sh`: the dragon's primary / random / shadow rays ran 1.17x /
+    /// 1.23x / 1.07x faster as given than sorted by Morton key, Sibenik's 1.08x / 1.33x /
+    /// 1.28x).
     pub fn default_order(&self) -> Order {
         if self.fits_in_budget() {
-            Order::Morton
+            Order::None
         } else {
             Order::Blocks
         }

@@ -166,7 +166,7 @@ pub struct TraceArgs {
     /// first block they need, found in the top tree, then as morton) or none (as given; image
     /// tiles row by row). The answers are the same; the blocks read again under a small budget
     /// are not. Default: blocks when the budget is smaller than the file's decoded blocks,
-    /// morton otherwise.
+    /// none otherwise (in memory, sorting costs more than the coherence it buys).
     #[arg(long, value_parser = parse_order)]
     pub order: Option<Order>,
     /// Worker threads. Default: one per core, or eight per core when the budget is smaller
