@@ -3,10 +3,11 @@
 #
 #   tools/results.sh [--reps N] [--random N] ...   # extra flags go to every oavm-bench run
 #
-# Runs `oavm-bench --json` over the seven scenes (all five structures, 1 and 2 threads), then
+# Runs `oavm-bench --json` over the seven scenes (all five structures, 1 and 2 threads), with
+# OAVM's leaves as lists (the paper's structure) and as clusters (the default), then
 # over the dragon's decimations for build-time scaling, renders the kitchen from its own
 # viewpoint, and writes the page with tools/results.py. The JSON is kept in target/results/
-# (not in git). About 15 minutes on a 2-core machine.
+# (not in git). About 30 minutes on a 2-core machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 S=../shared/scenes
@@ -24,11 +25,13 @@ SCENES=(
   "$S/sibenik/sibenik.obj"
   "$S/cornell_box/CornellBox-Original.obj"
 )
-"$BIN/oavm-bench" --json "$@" "${SCENES[@]}" > "$OUT/bench.json.tmp"
+"$BIN/oavm-bench" --json --leaf list "$@" "${SCENES[@]}" > "$OUT/bench.json.tmp"
 mv "$OUT/bench.json.tmp" "$OUT/bench.json"
+"$BIN/oavm-bench" --json --leaf cluster "$@" "${SCENES[@]}" > "$OUT/clusters.json.tmp"
+mv "$OUT/clusters.json.tmp" "$OUT/clusters.json"
 
 # Build times against size: few rays, one run, one thread (only the builds matter here).
-"$BIN/oavm-bench" --json --reps 1 --threads 1 --random 1000 --width 32 --height 24 \
+"$BIN/oavm-bench" --json --leaf list --reps 1 --threads 1 --random 1000 --width 32 --height 24 \
   "$S/dragon/dragon_vrip_res4.ply" "$S/dragon/dragon_vrip_res3.ply" \
   "$S/dragon/dragon_vrip_res2.ply" "$S/dragon/dragon_vrip.ply" > "$OUT/scaling.json.tmp"
 mv "$OUT/scaling.json.tmp" "$OUT/scaling.json"
@@ -36,7 +39,10 @@ mv "$OUT/scaling.json.tmp" "$OUT/scaling.json"
 "$BIN/oavm-pack" "$S/bart/kitchen/kitchen.aff" "$OUT/kitchen.oavm" > /dev/null
 "$BIN/oavm-trace" "$OUT/kitchen.oavm" --view "$S/bart/kitchen/kitchen.aff" -o docs/kitchen.png
 
-python3 tools/results.py "$OUT/bench.json" --scaling "$OUT/scaling.json" \
-  --kitchen-png kitchen.png --command "tools/results.sh $*" > docs/results.md.tmp
+commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
+git diff --quiet HEAD -- src Cargo.toml 2>/dev/null || commit="$commit-dirty"
+python3 tools/results.py "$OUT/bench.json" --clusters "$OUT/clusters.json" \
+  --scaling "$OUT/scaling.json" --kitchen-png kitchen.png --commit "$commit" \
+  --command "tools/results.sh $*" > docs/results.md.tmp
 mv docs/results.md.tmp docs/results.md
 echo "wrote docs/results.md and docs/kitchen.png"

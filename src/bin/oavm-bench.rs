@@ -107,6 +107,7 @@ fn run(args: &Args) -> Result<(), Error> {
     }
     if args.json {
         cli::print_json(&Report {
+            format_version: oavm::physical::format::VERSION,
             options: opts,
             scenes,
         })?;

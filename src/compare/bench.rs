@@ -330,6 +330,9 @@ impl SceneResult {
 /// Everything one run measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
+    /// The file format OAVM was built in (spec §2 `version`): what a page of these figures
+    /// says it measured.
+    pub format_version: u32,
     #[serde(flatten)]
     pub options: Options,
     pub scenes: Vec<SceneResult>,
