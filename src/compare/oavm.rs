@@ -68,3 +68,57 @@ impl Accelerator for OavmAccel {
         matches!(hit, Ok(true))
     }
 }
+
+#[cfg(test)]
+mod top_bounds_tests {
+    use super::*;
+    use crate::compare::Accelerator;
+    use crate::compare::test_util::{check, tris_of, unit_rays, unit_soup};
+    use crate::logical::{Counters, top_bounds};
+    use crate::physical::format::{LATTICE_SIZE, SectionKind};
+
+    /// A slab of triangles (the unit soup squashed to a tenth in y and z): the root cube is the
+    /// slab's x extent on every axis, so the root's box must be about a tenth of it in y and z,
+    /// hold every vertex, and the traversal that culls by the boxes must still find every hit
+    /// brute force finds.
+    #[test]
+    fn boxes_hold_every_vertex_and_cull_nothing_they_should_not() {
+        let slab: Vec<_> = unit_soup(5_000, 7)
+            .into_iter()
+            .map(|t| t.map(|v| [v[0], 0.45 + 0.1 * v[1], 0.45 + 0.1 * v[2]]))
+            .collect();
+        let (_, mesh) = tris_of(slab);
+        let opts = BuildOptions {
+            leaf_size: 8,
+            ..BuildOptions::default()
+        };
+        let acc = OavmAccel::build(&mesh, &opts).unwrap();
+        let scene = acc.scene();
+        let h = scene.file().header();
+        let tree = scene.tree();
+        let top = tree.map();
+        assert!(top.level_count() > 2, "the top tree must have internal nodes to test");
+        let boxes = top_bounds(top, scene.file().records(SectionKind::LinkBounds));
+        let (lo, hi) = boxes[0];
+        let scale = LATTICE_SIZE as f64 / h.root_size;
+        for v in &mesh.positions {
+            for k in 0..3 {
+                let p = (v[k] as f64 - h.root_min[k]) * scale;
+                assert!(lo[k] <= p && p <= hi[k], "vertex {v:?} outside the root's box");
+            }
+        }
+        let n = LATTICE_SIZE as f64;
+        for k in 1..3 {
+            assert!(hi[k] - lo[k] < 0.2 * n, "axis {k}: {lo:?} {hi:?}");
+        }
+        // Some internal node below the root is culled by its box for rays that pass beside
+        // the slab, and none of the answers changes.
+        let rays = unit_rays(8_000, 3);
+        check(&acc as &dyn Accelerator, &mesh, &rays, 80);
+        let mut c = Counters::default();
+        for r in &rays {
+            let _ = tree.intersect(r, &mut c);
+        }
+        assert!(c.top_nodes_culled > 0, "{c:?}");
+    }
+}

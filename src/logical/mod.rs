@@ -11,6 +11,7 @@ mod order;
 mod pager;
 mod report;
 mod scene;
+mod top_bounds;
 mod trace;
 mod verify;
 
@@ -24,4 +25,6 @@ pub use scene::{
     default_mem_budget, max_rays,
 };
 pub use trace::{Counters, HitInfo, TraceError, Tree};
+#[cfg(test)]
+pub(crate) use top_bounds::top_bounds;
 pub use verify::VerifyReport;

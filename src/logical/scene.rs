@@ -2,6 +2,7 @@
 //! the batch calls (closest hit, any hit, in an order).
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -11,6 +12,7 @@ use super::held::ReadyMap;
 use super::order::{Order, RayKeys};
 use super::pager::{BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions};
 use super::trace::{BlockFetch, Counters, Direct, TraceError, Tree};
+use super::top_bounds::{LatticeBox, top_bounds};
 use super::verify::VerifyReport;
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, Ray};
@@ -82,6 +84,8 @@ pub struct Scene<D = MappedFile> {
     budget: u64,
     /// Threads that may trace at once (what the budget holds).
     threads: usize,
+    /// The boxes of the top tree's nodes, made on first use (`top_bounds`).
+    top_boxes: OnceLock<Vec<LatticeBox>>,
 }
 
 /// What an opened scene is and holds, for reports.
@@ -172,6 +176,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             pager,
             budget,
             threads,
+            top_boxes: OnceLock::new(),
         })
     }
 
@@ -278,9 +283,12 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             self.file.records(SectionKind::Nodes),
             self.file.records(SectionKind::Ranks),
         );
+        let link_bounds = self.file.records(SectionKind::LinkBounds);
+        let top_boxes = self.top_boxes.get_or_init(|| top_bounds(&top, link_bounds));
         Tree::new(
             top,
-            self.file.records(SectionKind::LinkBounds),
+            link_bounds,
+            top_boxes,
             self.file.directory(),
             self,
             self.pager.resident_forever().map(|ready| Direct {

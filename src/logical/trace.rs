@@ -38,6 +38,7 @@ use serde::Serialize;
 use std::sync::OnceLock;
 
 use super::held::{Held, ReadyMap};
+use super::top_bounds::LatticeBox;
 use super::pager::{BlockBytes, PageCounters, PageError};
 use crate::geom::triangle::RayShear;
 use crate::geom::{BoxRay, Ray};
@@ -64,6 +65,9 @@ pub struct Counters {
     /// Links whose bounds (spec §8.1) the ray missed: their blocks were passed without being
     /// asked of the pager.
     pub links_culled: u64,
+    /// Internal nodes of the top tree whose box (the union of the link bounds below them) the
+    /// ray missed, in the top-down traversal of a file of clusters.
+    pub top_nodes_culled: u64,
     /// Ray–triangle tests (in a file of clusters: the lanes in use of the groups tested).
     pub triangles_tested: u64,
     /// Clusters (spec §7.1) whose wide BVH a ray entered (its leaf's bounds were met).
@@ -88,6 +92,7 @@ impl std::ops::AddAssign for Counters {
         self.volumes_crossed += o.volumes_crossed;
         self.leaves_culled += o.leaves_culled;
         self.links_culled += o.links_culled;
+        self.top_nodes_culled += o.top_nodes_culled;
         self.triangles_tested += o.triangles_tested;
         self.clusters_entered += o.clusters_entered;
         self.cluster_nodes_visited += o.cluster_nodes_visited;
@@ -192,6 +197,8 @@ pub struct Tree<'a> {
     top: TreeMap<'a>,
     /// Parallel to the top tree's node records (spec §8.1); unvalidated.
     link_bounds: &'a [LinkBounds],
+    /// The top tree's nodes' boxes, by record (`top_bounds`); culls its internal nodes.
+    top_boxes: &'a [LatticeBox],
     directory: &'a [BlockEntry],
     blocks: &'a dyn BlockFetch,
     direct: Option<Direct<'a>>,
@@ -260,6 +267,7 @@ impl<'a> Tree<'a> {
     pub(crate) fn new(
         top: TreeMap<'a>,
         link_bounds: &'a [LinkBounds],
+        top_boxes: &'a [LatticeBox],
         directory: &'a [BlockEntry],
         blocks: &'a dyn BlockFetch,
         direct: Option<Direct<'a>>,
@@ -268,6 +276,7 @@ impl<'a> Tree<'a> {
         Tree {
             top,
             link_bounds,
+            top_boxes,
             directory,
             blocks,
             direct,
@@ -763,7 +772,13 @@ impl<'a> Tree<'a> {
         // empty (a file without triangles).
         let root = self.top.node(0, 0)?;
         let (kind, block, index) = match root.kind_bits() {
-            KIND_INTERNAL => (EntryKind::Internal, NONE, 0),
+            KIND_INTERNAL => {
+                if !self.top_node_may_hit(r, w.t_best, 0) {
+                    k.top_nodes_culled += 1;
+                    return Ok(());
+                }
+                (EntryKind::Internal, NONE, 0)
+            }
             KIND_LINK => {
                 let (b, i) = root.link_bits();
                 self.check_link(b, 0, 0)?;
@@ -972,6 +987,13 @@ impl<'a> Tree<'a> {
                     ];
                     let is_internal = (internal >> o) & 1 == 1;
                     let (kind, block, index) = if is_internal {
+                        if e.block == NONE {
+                            let at = self.top.node_start(level + 1) + child;
+                            if !self.top_node_may_hit(r, w.t_best, at) {
+                                k.top_nodes_culled += 1;
+                                continue;
+                            }
+                        }
                         (EntryKind::Internal, e.block, child)
                     } else {
                         match rec.kind_bits() {
@@ -1012,6 +1034,17 @@ impl<'a> Tree<'a> {
             if need.is_none() {
                 return Ok(());
             }
+        }
+    }
+
+    /// Whether the ray may hit anything below top-tree node record `at` over `[tmin, t_best]`:
+    /// its box (`top_bounds`), which holds every widened link box below it. A record without
+    /// a box lets the ray in.
+    #[inline(always)]
+    fn top_node_may_hit(&self, r: &RayCtx, t_best: f32, at: u64) -> bool {
+        match usize::try_from(at).ok().and_then(|i| self.top_boxes.get(i)) {
+            Some((lo, hi)) => box_may_hit(r, t_best, *lo, *hi),
+            None => true,
         }
     }
 
