@@ -97,14 +97,20 @@ mod top_bounds_tests {
         let h = scene.file().header();
         let tree = scene.tree();
         let top = tree.map();
-        assert!(top.level_count() > 2, "the top tree must have internal nodes to test");
+        assert!(
+            top.level_count() > 2,
+            "the top tree must have internal nodes to test"
+        );
         let boxes = top_bounds(top, scene.file().records(SectionKind::LinkBounds));
         let (lo, hi) = boxes[0];
         let scale = LATTICE_SIZE as f64 / h.root_size;
         for v in &mesh.positions {
             for k in 0..3 {
                 let p = (v[k] as f64 - h.root_min[k]) * scale;
-                assert!(lo[k] <= p && p <= hi[k], "vertex {v:?} outside the root's box");
+                assert!(
+                    lo[k] <= p && p <= hi[k],
+                    "vertex {v:?} outside the root's box"
+                );
             }
         }
         let n = LATTICE_SIZE as f64;

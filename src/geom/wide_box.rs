@@ -111,6 +111,17 @@ const SLACK: f32 = f32::from_bits(1 << 9);
 /// The entry reported for a child that is not hit.
 const MISS_T: f32 = f32::INFINITY;
 
+/// `t` grown as the box test grows a child's exit before it compares the child's entry with
+/// it: an entry the test reported is at most `grown_exit(t)` for every `t` at or past the
+/// child's exact entry. A traversal that culls a child later (popped from its stack when a
+/// hit at `t` has been found) must compare its reported entry with `grown_exit(t)`, not `t`:
+/// the reported entry may exceed the exact one by about `2^-21` of itself, and a triangle
+/// lying in the child's face is hit at the exact entry.
+#[inline(always)]
+pub fn grown_exit(t: f32) -> f32 {
+    t * if t.is_sign_negative() { GROW_NEG } else { GROW } + SLACK
+}
+
 /// A ray's constants for the box test (the per-ray precomputation of Williams et al.).
 #[derive(Clone, Copy, Debug)]
 pub struct BoxRay {

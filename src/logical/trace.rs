@@ -38,9 +38,10 @@ use serde::Serialize;
 use std::sync::OnceLock;
 
 use super::held::{Held, ReadyMap};
-use super::top_bounds::LatticeBox;
 use super::pager::{BlockBytes, PageCounters, PageError};
+use super::top_bounds::LatticeBox;
 use crate::geom::triangle::RayShear;
+use crate::geom::wide_box::grown_exit;
 use crate::geom::{BoxRay, Ray};
 use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
 use crate::mapping::{Corruption, TreeMap};
@@ -632,7 +633,7 @@ impl<'a> Tree<'a> {
                         };
                         k.triangles_tested += leaf.len() as u64;
                         // Four triangles at a time; a short last group repeats its first
-                        // triangle (a repeated hit changes nothing: ties keep the first).
+                        // triangle (a repeated hit is the same (t, prim): it changes nothing).
                         for group in leaf.chunks(4) {
                             let tri = |i: usize| tris.get(group[i.min(group.len() - 1)] as usize);
                             let (Some(r0), Some(r1), Some(r2), Some(r3)) =
@@ -661,7 +662,13 @@ impl<'a> Tree<'a> {
                                 if ANY {
                                     return Ok(Step::Done(Some(hit)));
                                 }
-                                if w.s.best.is_none() || t < w.s.t_best {
+                                // Ties to the smallest primitive id, as in a cluster: the
+                                // answer does not depend on the order of the references.
+                                let better = match &w.s.best {
+                                    None => true,
+                                    Some(b) => (t, hit.prim) < (b.t, b.prim),
+                                };
+                                if better {
                                     w.s.t_best = t;
                                     w.s.best = Some(hit);
                                 }
@@ -1246,7 +1253,10 @@ fn trace_cluster<const ANY: bool, S: Simd8>(
     stack.push((root, r.tmin, 0));
     let mut visits = 0usize;
     while let Some((ni, tnear, depth)) = stack.pop() {
-        if tnear > w.t_best {
+        // The box test's entries are not lower bounds (they may exceed the exact entry by
+        // about 2^-21 of it): a child whose box lies flat in the plane of the closest hit so
+        // far may hold a closer one, so the entry is compared as the test compares it.
+        if tnear > grown_exit(w.t_best) {
             continue;
         }
         let Some(n) = h.cluster_nodes.get(ni as usize) else {

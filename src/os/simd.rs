@@ -582,7 +582,17 @@ mod tests {
 
         // The octree's eight cells: the same mask and the same entries as the scalar form,
         // with infinities, NaNs, ties and signed zeros among the planes.
-        let planes = [0.0, -0.0, 1.0, 2.0, -3.0, 7.5, f64::INFINITY, f64::NEG_INFINITY, f64::NAN];
+        let planes = [
+            0.0,
+            -0.0,
+            1.0,
+            2.0,
+            -3.0,
+            7.5,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
         let mut hits = 0;
         for _ in 0..20000 {
             let mut pick = || planes[(next() % planes.len() as u64) as usize];
@@ -594,7 +604,10 @@ mod tests {
             assert_eq!(gm, wm, "{enter:?} {exit:?} {tmin} {tmax}");
             for o in 0..8 {
                 let (g, w) = (gt[o], wt[o]);
-                assert!(g.to_bits() == w.to_bits() || g.is_nan() && w.is_nan(), "{g} {w}");
+                assert!(
+                    g.to_bits() == w.to_bits() || g.is_nan() && w.is_nan(),
+                    "{g} {w}"
+                );
             }
             hits += gm.count_ones();
         }
