@@ -182,27 +182,32 @@ fn assign(
         let t = &tris[id as usize];
         // Per axis: may the triangle reach the lower child (side 0), the upper child (side 1)?
         // A triangle on one side only is certain to overlap the child there, given it overlaps
-        // the parent; only triangles straddling a mid-plane need the exact test.
-        let mut sides = [[false; 2]; 3];
-        let mut straddles = false;
+        // the parent; only triangles straddling a mid-plane need the exact test. As bits: bit k
+        // of `sides[s]` says whether side `s` of axis `k` may be reached.
+        let mut sides = [0usize; 2];
         for k in 0..3 {
-            sides[k] = [
-                t.lo[k] <= mid[k] + CELL_MARGIN,
-                t.hi[k] >= mid[k] - CELL_MARGIN,
-            ];
-            straddles |= sides[k][0] && sides[k][1];
+            sides[0] |= ((t.lo[k] <= mid[k] + CELL_MARGIN) as usize) << k;
+            sides[1] |= ((t.hi[k] >= mid[k] - CELL_MARGIN) as usize) << k;
+        }
+        let straddles = sides[0] & sides[1] != 0;
+        if !straddles {
+            // One child at most: octant bit k is 1 where only the upper side is reached (a
+            // triangle that reaches neither side of an axis reaches no child).
+            if sides[0] | sides[1] == 0b111 {
+                out[sides[1]].push(id);
+            }
+            continue;
         }
         for (o, list) in out.iter_mut().enumerate() {
-            let bit = |k: usize| (o >> k) & 1;
-            if !(0..3).all(|k| sides[k][bit(k)]) {
+            // Octant `o` is reached where every axis reaches the side its bit names.
+            if (sides[1] & o) | (sides[0] & !o & 0b111) != 0b111 {
                 continue;
             }
-            if straddles {
-                let c: [f64; 3] = std::array::from_fn(|k| origin[k] + half * (bit(k) as f64 + 0.5));
-                let h = [half * 0.5 + CELL_MARGIN; 3];
-                if !triangle_overlaps_box(&t.v, c, h) {
-                    continue;
-                }
+            let bit = |k: usize| (o >> k) & 1;
+            let c: [f64; 3] = std::array::from_fn(|k| origin[k] + half * (bit(k) as f64 + 0.5));
+            let h = [half * 0.5 + CELL_MARGIN; 3];
+            if !triangle_overlaps_box(&t.v, c, h) {
+                continue;
             }
             list.push(id);
         }
