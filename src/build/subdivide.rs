@@ -191,9 +191,9 @@ fn assign(
         for (s, &id) in sides.iter_mut().zip(run) {
             let t = &tris[id as usize];
             let (mut lower, mut upper) = (0usize, 0usize);
-            for k in 0..3 {
-                lower |= ((t.lo[k] <= mid[k] + CELL_MARGIN) as usize) << k;
-                upper |= ((t.hi[k] >= mid[k] - CELL_MARGIN) as usize) << k;
+            for (k, ((&lo, &hi), &m)) in t.lo.iter().zip(&t.hi).zip(&mid).enumerate() {
+                lower |= ((lo <= m + CELL_MARGIN) as usize) << k;
+                upper |= ((hi >= m - CELL_MARGIN) as usize) << k;
             }
             *s = (lower, upper);
         }
@@ -213,8 +213,7 @@ fn assign(
                     continue;
                 }
                 let bit = |k: usize| (o >> k) & 1;
-                let c: [f64; 3] =
-                    std::array::from_fn(|k| origin[k] + half * (bit(k) as f64 + 0.5));
+                let c: [f64; 3] = std::array::from_fn(|k| origin[k] + half * (bit(k) as f64 + 0.5));
                 let h = [half * 0.5 + CELL_MARGIN; 3];
                 if triangle_overlaps_box(&t.v, c, h) {
                     list.push(id);

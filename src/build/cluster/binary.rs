@@ -258,12 +258,7 @@ type Bins = [[Bin; BINS]; 3];
 /// (the parent's area and the traversal cost are the same for every candidate, so they are
 /// left out); ties go to the more even split, then to the lower axis and bin. Partitions `r`
 /// and returns the left count, or `None` if no boundary separates anything. `bins` is scratch.
-fn sah_split(
-    r: &mut [PrimRef],
-    clo: &[f32; 3],
-    chi: &[f32; 3],
-    bins: &mut Bins,
-) -> Option<usize> {
+fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3], bins: &mut Bins) -> Option<usize> {
     let nb = (2 * r.len()).clamp(4, BINS);
     let mut scale = [0f32; 3];
     let mut live = [false; 3];
