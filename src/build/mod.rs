@@ -13,6 +13,7 @@
 //! [`check_cluster`] re-derives from its records that it is well-formed and complete.
 
 pub(crate) mod blocks;
+mod clip;
 mod cluster;
 mod layout;
 mod merge;

@@ -19,7 +19,6 @@ pub struct LatticeTri {
     pub lo: [f64; 3],
     pub hi: [f64; 3],
 }
-
 impl LatticeTri {
     pub fn new(v: [[f64; 3]; 3]) -> LatticeTri {
         let lo = std::array::from_fn(|k| v[0][k].min(v[1][k]).min(v[2][k]));
@@ -178,33 +177,48 @@ fn assign(
     half: f64,
 ) -> [Vec<u32>; 8] {
     let mut out: [Vec<u32>; 8] = Default::default();
-    for &id in ids {
-        let t = &tris[id as usize];
-        // Per axis: may the triangle reach the lower child (side 0), the upper child (side 1)?
-        // A triangle on one side only is certain to overlap the child there, given it overlaps
-        // the parent; only triangles straddling a mid-plane need the exact test.
-        let mut sides = [[false; 2]; 3];
-        let mut straddles = false;
-        for k in 0..3 {
-            sides[k] = [
-                t.lo[k] <= mid[k] + CELL_MARGIN,
-                t.hi[k] >= mid[k] - CELL_MARGIN,
-            ];
-            straddles |= sides[k][0] && sides[k][1];
+    // Per axis: may the triangle reach the lower child (side 0), the upper child (side 1)? A
+    // triangle on one side only is certain to overlap the child there, given it overlaps the
+    // parent; only triangles straddling a mid-plane need the exact test. As bits: bit k of
+    // `lower` (`upper`) says whether the lower (upper) side of axis `k` may be reached.
+    //
+    // In two passes over a run of triangles: the first only reads boxes and computes these
+    // bits, with no branch, so that the processor has many of the triangles' cache misses in
+    // flight at once (a node's triangles are scattered over the array); the second sends them.
+    const RUN: usize = 64;
+    for run in ids.chunks(RUN) {
+        let mut sides = [(0usize, 0usize); RUN];
+        for (s, &id) in sides.iter_mut().zip(run) {
+            let t = &tris[id as usize];
+            let (mut lower, mut upper) = (0usize, 0usize);
+            for (k, ((&lo, &hi), &m)) in t.lo.iter().zip(&t.hi).zip(&mid).enumerate() {
+                lower |= ((lo <= m + CELL_MARGIN) as usize) << k;
+                upper |= ((hi >= m - CELL_MARGIN) as usize) << k;
+            }
+            *s = (lower, upper);
         }
-        for (o, list) in out.iter_mut().enumerate() {
-            let bit = |k: usize| (o >> k) & 1;
-            if !(0..3).all(|k| sides[k][bit(k)]) {
+        for (&(lower, upper), &id) in sides.iter().zip(run) {
+            if lower & upper == 0 {
+                // One child at most: octant bit k is 1 where only the upper side is reached (a
+                // triangle that reaches neither side of an axis reaches no child).
+                if lower | upper == 0b111 {
+                    out[upper].push(id);
+                }
                 continue;
             }
-            if straddles {
-                let c: [f64; 3] = std::array::from_fn(|k| origin[k] + half * (bit(k) as f64 + 0.5));
-                let h = [half * 0.5 + CELL_MARGIN; 3];
-                if !triangle_overlaps_box(&t.v, c, h) {
+            let t = &tris[id as usize];
+            for (o, list) in out.iter_mut().enumerate() {
+                // Octant `o` is reached where every axis reaches the side its bit names.
+                if (upper & o) | (lower & !o & 0b111) != 0b111 {
                     continue;
                 }
+                let bit = |k: usize| (o >> k) & 1;
+                let c: [f64; 3] = std::array::from_fn(|k| origin[k] + half * (bit(k) as f64 + 0.5));
+                let h = [half * 0.5 + CELL_MARGIN; 3];
+                if triangle_overlaps_box(&t.v, c, h) {
+                    list.push(id);
+                }
             }
-            list.push(id);
         }
     }
     out

@@ -51,13 +51,9 @@ pub(super) struct BinNode {
     pub leaf: bool,
     /// Binary levels below this node (0 for a leaf).
     pub height: u32,
-}
-
-impl BinNode {
-    /// Half the surface area, in f64 (no overflow for any f32 box).
-    pub fn area(&self) -> f64 {
-        half_area(&self.lo, &self.hi)
-    }
+    /// Inner: half the surface area of its box, in f64 (no overflow for any f32 box); the
+    /// collapse compares it for every child it may open. Leaf: 0.
+    pub area: f64,
 }
 
 /// A node waiting to be built: `refs[start..end]`, at binary depth `depth`.
@@ -110,6 +106,7 @@ pub(super) fn build(
     also_leaf: impl Fn(&[PrimRef]) -> bool,
 ) {
     tasks.clear();
+    let mut bins: Bins = [[EMPTY_BIN; BINS]; 3];
     nodes.push(empty_node());
     tasks.push(Task {
         node: 0,
@@ -129,9 +126,10 @@ pub(super) fn build(
             node.b = r.len() as u32;
             continue;
         }
+        node.area = half_area(&blo, &bhi);
         let sah = matches!(split, Split::Sah { max_depth } if t.depth < max_depth);
         let mid = sah
-            .then(|| sah_split(r, &clo, &chi))
+            .then(|| sah_split(r, &clo, &chi, &mut bins))
             .flatten()
             .unwrap_or_else(|| median_split(r, &clo, &chi, leaf_max));
         let left = nodes.len() as u32;
@@ -172,6 +170,7 @@ fn empty_node() -> BinNode {
         b: 0,
         leaf: false,
         height: 0,
+        area: 0.0,
     }
 }
 
@@ -243,19 +242,23 @@ impl Bin {
 /// per unit.
 #[inline(always)]
 fn bin_of(c: f32, lo: f32, scale: f32, nb: usize) -> usize {
-    // c >= lo, so the product is >= 0 (or NaN for a zero extent, which is never binned); the
-    // cast saturates. (To i32, not usize: the saturating conversion is a few instructions
-    // shorter, and this is the build's innermost loop.)
-    (((c - lo) * scale) as i32).min(nb as i32 - 1) as usize
+    // c >= lo, so the product is >= 0 (or NaN for an axis of infinite extent, scale 0, which is
+    // never read); the cast saturates (NaN to 0), and the clamp keeps any value a bin. (To i32,
+    // not usize: the saturating conversion is a few instructions shorter, and this is the
+    // build's innermost loop.)
+    (((c - lo) * scale) as i32).max(0).min(nb as i32 - 1) as usize
 }
+
+/// Bins of the three axes: scratch of [`build`], reset by [`sah_split`] where it bins.
+type Bins = [[Bin; BINS]; 3];
 
 /// The binned-SAH split of `r` (Wald 2007 §3): each axis with a centroid extent is cut into
 /// [`BINS`] equal bins (fewer for a node of few primitives: `2n`, at least 4), and every
 /// boundary between bins is priced `A_l * n_l + A_r * n_r`
 /// (the parent's area and the traversal cost are the same for every candidate, so they are
 /// left out); ties go to the more even split, then to the lower axis and bin. Partitions `r`
-/// and returns the left count, or `None` if no boundary separates anything.
-fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3]) -> Option<usize> {
+/// and returns the left count, or `None` if no boundary separates anything. `bins` is scratch.
+fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3], bins: &mut Bins) -> Option<usize> {
     let nb = (2 * r.len()).clamp(4, BINS);
     let mut scale = [0f32; 3];
     let mut live = [false; 3];
@@ -270,59 +273,70 @@ fn sah_split(r: &mut [PrimRef], clo: &[f32; 3], chi: &[f32; 3]) -> Option<usize>
     if !live.iter().any(|&l| l) {
         return None;
     }
-    let mut bins = [[EMPTY_BIN; BINS]; 3];
+    // Every axis is binned, the three (and a fourth, unused lane) at once, so that the bin
+    // numbers are computed 4-wide; an axis without extent has scale 0, all in bin 0, unread.
+    for axis in bins.iter_mut() {
+        axis[..nb].fill(EMPTY_BIN);
+    }
+    let lo4 = [clo[0], clo[1], clo[2], 0.0];
+    let scale4 = [scale[0], scale[1], scale[2], 0.0];
     for p in r.iter() {
+        let b: [usize; 4] = std::array::from_fn(|k| bin_of(p.c(k), lo4[k], scale4[k], nb));
         for k in 0..3 {
-            if live[k] {
-                bins[k][bin_of(p.c(k), clo[k], scale[k], nb)].grow(&p.lo, &p.hi, 1);
-            }
+            bins[k][b[k]].grow(&p.lo, &p.hi, 1);
         }
     }
     let total = r.len() as u32;
-    // (cost, imbalance, axis, last bin of the left side)
-    let mut best: Option<(f64, u32, usize, usize)> = None;
+    // The best candidate so far: its (cost, imbalance), axis and last bin of the left side.
+    // Updated by selects, not branches: which candidate wins is as unpredictable as the data.
+    let (mut best_cost, mut best_imbalance) = (f64::INFINITY, u32::MAX);
+    let (mut best_axis, mut best_bin) = (0usize, 0usize);
+    let mut found = false;
     for k in 0..3 {
         if !live[k] {
             continue;
         }
-        // Right sides: area of bins i.. . A boundary after an empty bin prices the same as the
-        // one before it (which is found first and kept), so empty bins are skipped: the same
-        // split, for fewer area evaluations.
+        let bk = &bins[k][..nb];
+        // The non-empty bins, in order, gathered without a branch. A boundary after an empty
+        // bin prices the same as the one before it (which is found first and kept), and one
+        // with nothing on a side is no split: the candidates are the boundaries after each
+        // non-empty bin but the last.
+        let mut idx = [0usize; BINS];
+        let mut m = 0;
+        for (i, b) in bk.iter().enumerate() {
+            idx[m] = i;
+            m += (b.n > 0) as usize;
+        }
+        // Right sides: area of the non-empty bins t.. .
         let mut right_area = [0f64; BINS];
         let mut acc = EMPTY_BIN;
-        let mut last = 0.0;
-        for i in (1..nb).rev() {
-            let b = &bins[k][i];
-            if b.n > 0 {
-                acc.grow(&b.lo, &b.hi, b.n);
-                last = acc.area();
-            }
-            right_area[i] = last;
+        for t in (1..m).rev() {
+            let b = &bk[idx[t]];
+            acc.grow(&b.lo, &b.hi, b.n);
+            right_area[t] = acc.area();
         }
         let mut left = EMPTY_BIN;
-        for i in 0..nb - 1 {
-            let b = &bins[k][i];
-            if b.n == 0 {
-                continue;
-            }
+        for t in 0..m.saturating_sub(1) {
+            let b = &bk[idx[t]];
             left.grow(&b.lo, &b.hi, b.n);
             let nl = left.n;
             let nr = total - nl;
-            if nl == 0 || nr == 0 {
-                continue;
-            }
-            let cost = left.area() * nl as f64 + right_area[i + 1] * nr as f64;
+            let cost = left.area() * nl as f64 + right_area[t + 1] * nr as f64;
             let imbalance = nl.abs_diff(nr);
-            let better = match best {
-                None => true,
-                Some((c, im, _, _)) => cost < c || (cost == c && imbalance < im),
-            };
-            if better {
-                best = Some((cost, imbalance, k, i));
-            }
+            // Costs are finite (coordinates below 2^123, counts below 2^32), so the first
+            // candidate beats the initial infinity.
+            let better = (cost < best_cost) | ((cost == best_cost) & (imbalance < best_imbalance));
+            best_cost = if better { cost } else { best_cost };
+            best_imbalance = if better { imbalance } else { best_imbalance };
+            best_axis = if better { k } else { best_axis };
+            best_bin = if better { idx[t] } else { best_bin };
+            found |= better;
         }
     }
-    let (_, _, k, split) = best?;
+    if !found {
+        return None;
+    }
+    let (k, split) = (best_axis, best_bin);
     // In-place partition: bins 0..=split to the left.
     let (lo, s) = (clo[k], scale[k]);
     let mut i = 0;

@@ -70,6 +70,8 @@ pub(super) struct Local {
     window: u32,
     stamp: Vec<u32>,
     local: Vec<u8>,
+    /// The window's triangles' masks (kept, so that a window clears only its own).
+    masks: Vec<Mask>,
 }
 
 impl Local {
@@ -92,7 +94,9 @@ pub(super) fn form(vid: &[[u32; 3]], w: &[PrimRef], out: &mut Vec<Draft>, scratc
     // Window-local vertex numbers, as bits of a mask per triangle.
     scratch.window += 1;
     let mut next = 0usize;
-    let mut masks = [[0u64; 3]; MAX_WINDOW];
+    scratch.masks.clear();
+    scratch.masks.resize(m, [0; 3]);
+    let masks = &mut scratch.masks;
     for (i, p) in w.iter().enumerate() {
         for &v in &vid[p.id as usize] {
             let v = v as usize;

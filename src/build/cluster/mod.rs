@@ -80,13 +80,13 @@
 
 mod binary;
 mod check;
-mod clip;
 mod group;
 mod wide;
 
 #[cfg(test)]
 mod tests;
 
+use super::clip;
 use crate::physical::format::{ClusterNode, GROUP_LANES, MAX_CLUSTER_DEPTH, TriGroup};
 pub use check::{ClusterShape, check_cluster};
 
@@ -390,8 +390,8 @@ pub fn build_cluster(
 
 /// The box every box on the way to triangle `v` must contain, in f32: the bounds of the part of
 /// the triangle inside the closed box `clip`, rounded outward to f32 and cut to the triangle's
-/// own bounds. The part is found by Sutherland–Hodgman clipping in f64 (the module's `clip`,
-/// which gives what the octree's leaf bounds use, `geom::tribox::clipped_bounds`, faster). A
+/// own bounds. The part is found by Sutherland–Hodgman clipping in f64 (`build::clip`, which
+/// gives what `geom::tribox::clipped_bounds` gives, faster). A
 /// triangle that only touches `clip` (clipping leaves nothing, or rounding leaves an empty box)
 /// gets its bounds cut to `clip`, possibly flat; `None` if even those miss `clip` (nothing of it
 /// is inside).

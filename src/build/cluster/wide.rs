@@ -57,7 +57,7 @@ impl Input<'_> {
         for (i, e) in f.iter().enumerate() {
             let Entry::Inner(b) = *e else { continue };
             let node = &self.bin[b as usize];
-            let (a, h) = (node.area(), node.height);
+            let (a, h) = (node.area, node.height);
             let better = |(ba, bh): (f64, u32)| match self.mode {
                 Mode::Sah => a > ba || (a == ba && h > bh),
                 Mode::Shallow => h > bh || (h == bh && a > ba),

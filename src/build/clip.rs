@@ -1,8 +1,10 @@
 //! The part of a triangle inside a box: Sutherland–Hodgman clipping in f64 against the box's
-//! six planes, as `geom::tribox::clipped_bounds` does for the octree's leaf bounds, but
-//! skipping the planes that cut nothing (most triangles of a cluster cross one or two faces of
-//! its cell, if any): clipping a polygon against a plane it lies inside of returns it
-//! unchanged, so the result is the same, for a fraction of the work.
+//! six planes, as `geom::tribox::clipped_bounds` does, but skipping the planes that cut nothing
+//! (most triangles of a leaf cross one or two faces of its cell, if any) and without copying
+//! the polygon after each plane: clipping a polygon against a plane it lies inside of returns
+//! it unchanged, so the result is bit for bit the same, for a fraction of the work. The
+//! builder's two clips use it: a solid leaf's tight bounds (`layout`, in lattice units) and the
+//! boxes of a cluster's triangles (`cluster::triangle_box`, in world units).
 
 /// The bounds of the part of `tri` inside the closed box `[lo, hi]`, each coordinate clamped to
 /// the box; `None` if clipping leaves nothing.
