@@ -773,14 +773,15 @@ fn meshes_at_any_scale_trace_right_or_are_refused() {
     assert!(!out.exists());
 }
 
-/// A file of clusters and a file of leaf lists give the same answers, byte for byte (the same
-/// `t` bits, the same primitive: ties go to the smallest id in both), on Sibenik, whose walls
-/// and floors are axis-aligned planes: the boxes of a cluster lie flat in them, where a box
-/// test's rounded entry may exceed the exact one. 10^6 random rays: the three of them that a
-/// traversal culling such boxes by their raw entry got wrong (a farther triangle's hit, 2e-6
-/// farther) are among them.
+/// A file of clusters and a file of leaf lists find the same closest hit, to the bit of its `t`,
+/// on Sibenik, whose walls and floors are axis-aligned planes: the boxes of a cluster lie flat
+/// in them, where a box test's rounded entry may exceed the exact one. Where two triangles are
+/// hit at exactly the same `t`, lists keep the first in their leaf (format 3's answer) and
+/// clusters the smallest id, so a cluster's primitive is never the larger of the two. 10^6
+/// random rays: the three of them that a traversal culling such boxes by their raw entry got
+/// wrong (a farther triangle's hit, 2e-6 farther; once the larger id of a tie) are among them.
 #[test]
-fn sibenik_answers_are_the_same_bytes_with_clusters_and_with_lists() {
+fn sibenik_clusters_and_lists_find_the_same_closest_hits() {
     let mesh = load_shared("sibenik/sibenik.obj");
     let clusters = build_scene(&mesh, &BuildOptions::default());
     let lists = build_scene(&mesh, &BuildOptions::with_leaf(LeafKind::List));
@@ -789,21 +790,15 @@ fn sibenik_answers_are_the_same_bytes_with_clusters_and_with_lists() {
     let primary = Camera::framing(&b).primary_rays(WIDTH, HEIGHT);
     for (name, rays) in [("random", &random), ("primary", &primary)] {
         let (c, l) = (closest(&clusters, rays), closest(&lists, rays));
-        let bits = |h: &Hit| (h.t.to_bits(), h.prim);
-        let differ: Vec<usize> = (0..rays.len())
-            .filter(|&i| bits(&c[i]) != bits(&l[i]))
-            .collect();
+        let same = |c: &Hit, l: &Hit| c.t.to_bits() == l.t.to_bits() && c.prim <= l.prim;
+        let differ: Vec<usize> = (0..rays.len()).filter(|&i| !same(&c[i], &l[i])).collect();
         let hits = c.iter().filter(|h| h.prim != Hit::MISS.prim).count();
         assert!(hits > rays.len() / 10, "{name}: only {hits} hits");
         assert!(
             differ.is_empty(),
             "{name}: {} rays differ, first {:?}",
             differ.len(),
-            differ
-                .iter()
-                .take(3)
-                .map(|&i| (i, c[i], l[i]))
-                .collect::<Vec<_>>()
+            differ.iter().take(3).map(|&i| (i, c[i], l[i])).collect::<Vec<_>>()
         );
     }
     let shadow = shadow_rays(&primary, &closest(&clusters, &primary), default_light(&b));

@@ -633,7 +633,7 @@ impl<'a> Tree<'a> {
                         };
                         k.triangles_tested += leaf.len() as u64;
                         // Four triangles at a time; a short last group repeats its first
-                        // triangle (a repeated hit is the same (t, prim): it changes nothing).
+                        // triangle (a repeated hit changes nothing: ties keep the first).
                         for group in leaf.chunks(4) {
                             let tri = |i: usize| tris.get(group[i.min(group.len() - 1)] as usize);
                             let (Some(r0), Some(r1), Some(r2), Some(r3)) =
@@ -662,13 +662,10 @@ impl<'a> Tree<'a> {
                                 if ANY {
                                     return Ok(Step::Done(Some(hit)));
                                 }
-                                // Ties to the smallest primitive id, as in a cluster: the
-                                // answer does not depend on the order of the references.
-                                let better = match &w.s.best {
-                                    None => true,
-                                    Some(b) => (t, hit.prim) < (b.t, b.prim),
-                                };
-                                if better {
+                                // Ties keep the first found, in the order of the leaf's
+                                // references: the answers of format 3, which the paper's
+                                // structure keeps (a cluster takes the smallest id instead).
+                                if w.s.best.is_none() || t < w.s.t_best {
                                     w.s.t_best = t;
                                     w.s.best = Some(hit);
                                 }
