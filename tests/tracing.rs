@@ -798,7 +798,11 @@ fn sibenik_clusters_and_lists_find_the_same_closest_hits() {
             differ.is_empty(),
             "{name}: {} rays differ, first {:?}",
             differ.len(),
-            differ.iter().take(3).map(|&i| (i, c[i], l[i])).collect::<Vec<_>>()
+            differ
+                .iter()
+                .take(3)
+                .map(|&i| (i, c[i], l[i]))
+                .collect::<Vec<_>>()
         );
     }
     let shadow = shadow_rays(&primary, &closest(&clusters, &primary), default_light(&b));

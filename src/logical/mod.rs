@@ -24,7 +24,5 @@ pub use scene::{
     BYTES_PER_RAY, FALLBACK_MEM_BUDGET, IO_THREADS_PER_CORE, Scene, SceneInfo, SceneOptions,
     default_mem_budget, max_rays,
 };
-#[cfg(test)]
-pub(crate) use top_bounds::top_bounds;
 pub use trace::{Counters, HitInfo, TraceError, Tree};
 pub use verify::VerifyReport;

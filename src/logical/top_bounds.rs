@@ -104,3 +104,85 @@ fn visit(
     }
     b
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::build::{BuildOptions, Quiet, build, encode};
+    use crate::geom::{Hit, Ray, reference};
+    use crate::logical::{Counters, Scene};
+    use crate::mesh::Mesh;
+    use crate::physical::format::{LATTICE_SIZE, SectionKind};
+    use crate::rays::{Bounds, SplitMix64, random_rays};
+
+    /// A slab of 5,000 small random triangles, 1 long in x and 0.1 in y and z: the root cube
+    /// is the slab's x extent on every axis, so the root's box must be about a tenth of it in
+    /// y and z and hold every vertex; and the traversal that culls by the boxes must cull some
+    /// node and still find every hit that an f64 brute force finds.
+    #[test]
+    fn boxes_hold_every_vertex_and_cull_nothing_they_should_not() {
+        let mut rng = SplitMix64::new(7);
+        let mut r = || rng.next_f64() as f32;
+        let mut mesh = Mesh::default();
+        for i in 0..5_000u32 {
+            let c = [r(), 0.45 + 0.1 * r(), 0.45 + 0.1 * r()];
+            for _ in 0..3 {
+                let s = [0.2, 0.02, 0.02];
+                mesh.positions
+                    .push(std::array::from_fn(|k| c[k] + s[k] * (r() - 0.5)));
+            }
+            mesh.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
+        }
+        let opts = BuildOptions {
+            leaf_size: 8,
+            ..BuildOptions::default()
+        };
+        let (parts, _) = build(&mesh, &opts, &Quiet).unwrap();
+        let scene = Scene::from_bytes(encode(&parts).unwrap(), "memory").unwrap();
+        let h = scene.file().header();
+        let tree = scene.tree();
+        let top = tree.map();
+        assert!(
+            top.level_count() > 2,
+            "the top tree must have internal nodes to test"
+        );
+        let boxes = top_bounds(top, scene.file().records(SectionKind::LinkBounds));
+        let (lo, hi) = boxes[0];
+        let scale = LATTICE_SIZE as f64 / h.root_size;
+        for v in &mesh.positions {
+            for k in 0..3 {
+                let p = (v[k] as f64 - h.root_min[k]) * scale;
+                assert!(
+                    lo[k] <= p && p <= hi[k],
+                    "vertex {v:?} outside the root's box"
+                );
+            }
+        }
+        let n = LATTICE_SIZE as f64;
+        for k in 1..3 {
+            assert!(hi[k] - lo[k] < 0.2 * n, "axis {k}: {lo:?} {hi:?}");
+        }
+        // Rays through the slab's cube: those passing beside the slab are culled at some
+        // internal node, and every answer is brute force's.
+        let bounds = Bounds::of_points(mesh.positions.iter().copied());
+        let rays: Vec<Ray> = random_rays(&bounds, 8_000, 3);
+        let tris = mesh.corners();
+        let diag = bounds.diagonal();
+        let mut c = Counters::default();
+        let mut hits = 0;
+        for ray in &rays {
+            let got = tree.intersect(ray, &mut c).unwrap();
+            let got = got.map_or(Hit::MISS, |g| Hit {
+                t: g.t,
+                prim: g.prim,
+            });
+            let want = reference::closest(&tris, ray);
+            hits += want.is_hit() as usize;
+            if !reference::grazes(&tris, ray) {
+                assert!(want.agrees(&got, diag), "{ray:?}: {want:?} against {got:?}");
+            }
+        }
+        assert!(hits > 80, "{hits} hits");
+        assert!(c.top_nodes_culled > 0, "{c:?}");
+    }
+}
