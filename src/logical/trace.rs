@@ -1209,13 +1209,18 @@ fn leaf_may_hit(r: &RayCtx, t_best: f32, lo: [u32; 3], size: u32, b: u32) -> boo
 fn box_may_hit(r: &RayCtx, t_best: f32, blo: [f64; 3], bhi: [f64; 3]) -> bool {
     let (mut tn, mut tf) = (r.tmin as f64, t_best as f64);
     let mut inside = true;
+    // Plain comparisons (one `maxsd`/`minsd` each), not `f64::max`/`min`, whose NaN rules cost
+    // three instructions each. The operands are ordered so that a NaN (which finite planes
+    // and a moving axis never give) leaves `tn` and `tf` as they were: never a cull.
+    let fmax = |a: f64, b: f64| if a > b { a } else { b };
+    let fmin = |a: f64, b: f64| if a < b { a } else { b };
     // One index over several per-axis arrays.
     #[allow(clippy::needless_range_loop)]
     for a in 0..3 {
         if r.moves[a] {
             let (x, y) = (blo[a] * r.inv[a] - r.oi[a], bhi[a] * r.inv[a] - r.oi[a]);
-            tn = tn.max(x.min(y));
-            tf = tf.min(x.max(y));
+            tn = fmax(fmin(x, y), tn);
+            tf = fmin(fmax(x, y), tf);
         } else {
             inside &= r.o[a] >= blo[a] && r.o[a] <= bhi[a];
         }
