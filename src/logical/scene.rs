@@ -287,7 +287,6 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         let top_boxes = self.top_boxes.get_or_init(|| top_bounds(&top, link_bounds));
         Tree::new(
             top,
-            link_bounds,
             top_boxes,
             self.file.directory(),
             self,

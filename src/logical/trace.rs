@@ -48,7 +48,7 @@ use crate::mapping::{Corruption, TreeMap};
 use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
     BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, FLAG_CLUSTERS, Header, KIND_EMPTY, KIND_INTERNAL,
-    KIND_LINK, KIND_SOLID, LinkBounds, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
+    KIND_LINK, KIND_SOLID, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -196,8 +196,6 @@ impl std::ops::Deref for Fetched<'_> {
 #[derive(Clone, Copy)]
 pub struct Tree<'a> {
     top: TreeMap<'a>,
-    /// Parallel to the top tree's node records (spec §8.1); unvalidated.
-    link_bounds: &'a [LinkBounds],
     /// The top tree's nodes' boxes, by record (`top_bounds`); culls its internal nodes.
     top_boxes: &'a [LatticeBox],
     directory: &'a [BlockEntry],
@@ -267,7 +265,6 @@ impl<'a> Tree<'a> {
     /// A tree over a validated top tree, the (untrusted) block directory and a pager.
     pub(crate) fn new(
         top: TreeMap<'a>,
-        link_bounds: &'a [LinkBounds],
         top_boxes: &'a [LatticeBox],
         directory: &'a [BlockEntry],
         blocks: &'a dyn BlockFetch,
@@ -276,7 +273,6 @@ impl<'a> Tree<'a> {
     ) -> Tree<'a> {
         Tree {
             top,
-            link_bounds,
             top_boxes,
             directory,
             blocks,
@@ -1011,7 +1007,7 @@ impl<'a> Tree<'a> {
                             }
                             KIND_LINK if e.block == NONE => {
                                 let at = self.top.node_start(level + 1) + child;
-                                if !self.link_bounds_hit(r, w.t_best, at, lo, half) {
+                                if !self.top_node_may_hit(r, w.t_best, at) {
                                     k.links_culled += 1;
                                     continue;
                                 }
@@ -1042,8 +1038,8 @@ impl<'a> Tree<'a> {
     }
 
     /// Whether the ray may hit anything below top-tree node record `at` over `[tmin, t_best]`:
-    /// its box (`top_bounds`), which holds every widened link box below it. A record without
-    /// a box lets the ray in.
+    /// its box (`top_bounds`): a link's bounds widened by the margin, an internal node's union
+    /// of the link boxes below it. A record without a box lets the ray in.
     #[inline(always)]
     fn top_node_may_hit(&self, r: &RayCtx, t_best: f32, at: u64) -> bool {
         match usize::try_from(at).ok().and_then(|i| self.top_boxes.get(i)) {
@@ -1067,47 +1063,16 @@ impl<'a> Tree<'a> {
         }))
     }
 
-    /// Link bounds record `at` (spec §8.1) of the link whose cell is `lo` (edge `size`),
-    /// widened by the margin, met over `[tmin, t_best]`; records past the section let the ray
-    /// in.
-    #[inline(always)]
-    fn link_bounds_hit(&self, r: &RayCtx, t_best: f32, at: u64, lo: [u32; 3], size: u32) -> bool {
-        let Some(lb) = usize::try_from(at)
-            .ok()
-            .and_then(|i| self.link_bounds.get(i))
-        else {
-            return true;
-        };
-        let s256 = size as f64 / 256.0;
-        let blo: [f64; 3] =
-            std::array::from_fn(|a| lo[a] as f64 + lb.lo[a] as f64 * s256 - CELL_MARGIN);
-        let bhi: [f64; 3] =
-            std::array::from_fn(|a| lo[a] as f64 + (lb.hi[a] as f64 + 1.0) * s256 + CELL_MARGIN);
-        box_may_hit(r, t_best, blo, bhi)
-    }
-
     /// Whether the ray may hit anything below the link at `level` on the walk's path: its
-    /// bounds (spec §8.1), widened by the cell margin, met over `[tmin, closest hit so far]`.
+    /// bounds (spec §8.1), widened by the cell margin (its box in `top_bounds`), met over
+    /// `[tmin, closest hit so far]`.
     /// A ray that misses them would cull every solid leaf below the link by the same test (each
     /// leaf's widened bounds lie inside the link's), so skipping the block changes no answer.
     /// Bounds past the section (which open rules out) let the walk in.
     #[inline(always)]
     fn link_may_hit(&self, r: &RayCtx, w: &WalkState, level: u32) -> bool {
         let at = self.top.node_start(level) + w.tpath[(level & 31) as usize];
-        let Some(lb) = usize::try_from(at)
-            .ok()
-            .and_then(|i| self.link_bounds.get(i))
-        else {
-            return true;
-        };
-        let size = morton::cell_size(level);
-        let s256 = size as f64 / 256.0;
-        let cell_lo = w.q.map(|x| (x & !(size - 1)) as f64);
-        let blo: [f64; 3] =
-            std::array::from_fn(|a| cell_lo[a] + lb.lo[a] as f64 * s256 - CELL_MARGIN);
-        let bhi: [f64; 3] =
-            std::array::from_fn(|a| cell_lo[a] + (lb.hi[a] as f64 + 1.0) * s256 + CELL_MARGIN);
-        box_may_hit(r, w.s.t_best, blo, bhi)
+        self.top_node_may_hit(r, w.s.t_best, at)
     }
 
     /// Descends inside the held block from `w.level` to the leaf containing `w.q`; checks, when
