@@ -30,6 +30,6 @@ pub mod render;
 
 pub use build::{BuildOptions, BuildStats};
 pub use error::{Error, FormatError};
-pub use geom::{Hit, Ray};
+pub use geom::{Hit, HitAttributes, Ray};
 pub use logical::{Counters, Scene};
 pub use mesh::Mesh;

@@ -12,6 +12,8 @@
 //! Format 4: [`build_cluster`] builds the compact wide BVH of one solid leaf (a cluster) and
 //! [`check_cluster`] re-derives from its records that it is well-formed and complete.
 
+#[cfg(feature = "progress")]
+pub mod bar;
 pub(crate) mod blocks;
 mod clip;
 mod cluster;
@@ -39,7 +41,7 @@ pub use cluster::{
     ClusterBuild, ClusterBuilder, ClusterError, ClusterShape, ClusterTri, build_cluster,
     check_cluster, triangle_box,
 };
-pub use pack::{PackOptions, PackReport, StreamingReport, pack};
+pub use pack::{PackOptions, PackReport, StreamingReport, pack, pack_mesh};
 pub use prepare::{check_scale, is_degenerate};
 pub use stats::{BuildStats, PointerCounts};
 use stats::{PhaseSeconds, TreeCounts};

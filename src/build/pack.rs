@@ -8,6 +8,7 @@ use serde::Serialize;
 
 use super::{BuildOptions, BuildStats, Progress, build, streaming, write};
 use crate::error::Error;
+use crate::mesh::Mesh;
 use crate::output::Output;
 use crate::physical::writer::BlockOptions;
 
@@ -99,7 +100,67 @@ pub fn pack(
     };
     let mesh = crate::mesh::load_with(mesh_path, opts.time, &limits)?;
     let parse_seconds = t0.elapsed().as_secs_f64();
+    let source = MeshSource {
+        name: mesh_path.display().to_string(),
+        bytes: mesh_bytes,
+        parse_seconds,
+    };
+    pack_built(mesh, source, output, out, opts, progress, t0)
+}
 
+/// Builds the tree of `mesh` (already in memory: arrays handed over by a program, such as the
+/// Python bindings' `oavm.pack((vertices, faces), ...)`) and writes it to `out` atomically, as
+/// [`pack`] does for a mesh file; `name` names the mesh in the report. The mesh is untrusted:
+/// an index out of range or a non-finite corner is an error, as in a file. `opts.time` and
+/// `opts.mem_budget` apply to mesh files only and are refused.
+pub fn pack_mesh(
+    mesh: Mesh,
+    name: &str,
+    out: &Path,
+    opts: &PackOptions,
+    progress: &dyn Progress,
+) -> Result<PackReport, Error> {
+    opts.build.validate()?;
+    opts.blocks.validate()?;
+    if opts.time.is_some() {
+        return Err(Error::Invalid(
+            "a scene time poses an .aff scene file, not a mesh given as arrays".into(),
+        ));
+    }
+    if opts.mem_budget.is_some() {
+        return Err(Error::Invalid(
+            "a memory budget streams a binary PLY file; a mesh given as arrays is already in \
+             memory and is packed there"
+                .into(),
+        ));
+    }
+    let output = Output::create(out, &[])?;
+    let source = MeshSource {
+        name: name.to_string(),
+        bytes: (mesh.positions.len() * 12 + mesh.triangles.len() * 12) as u64,
+        parse_seconds: 0.0,
+    };
+    pack_built(mesh, source, output, out, opts, progress, Instant::now())
+}
+
+/// The mesh a pack read, for its report.
+struct MeshSource {
+    name: String,
+    /// The file's bytes, or the arrays' (12 per vertex and per triangle).
+    bytes: u64,
+    parse_seconds: f64,
+}
+
+/// Builds `mesh` in memory and writes it to `output` (the in-memory half of [`pack`]).
+fn pack_built(
+    mesh: Mesh,
+    source: MeshSource,
+    output: Output,
+    out: &Path,
+    opts: &PackOptions,
+    progress: &dyn Progress,
+    t0: Instant,
+) -> Result<PackReport, Error> {
     let (parts, stats) = build(&mesh, &opts.build, progress)?;
     drop(mesh);
 
@@ -109,13 +170,16 @@ pub fn pack(
     drop(parts);
     let write_seconds = t1.elapsed().as_secs_f64();
     Ok(PackReport {
-        mesh: mesh_path.display().to_string(),
+        mesh: source.name,
         time: opts.time,
         output: out.display().to_string(),
         options: opts.build,
-        mesh_bytes,
-        parse_seconds,
-        parse_mb_per_s: mesh_bytes as f64 / 1e6 / parse_seconds.max(1e-9),
+        mesh_bytes: source.bytes,
+        parse_seconds: source.parse_seconds,
+        parse_mb_per_s: match source.parse_seconds {
+            s if s > 0.0 => source.bytes as f64 / 1e6 / s,
+            _ => 0.0,
+        },
         bytes_per_triangle: file_bytes as f64 / stats.input_triangles.max(1) as f64,
         stats,
         write_seconds,

@@ -114,6 +114,12 @@ pub enum MeshError {
         vertex: u64,
     },
 
+    /// A mesh handed over as arrays (not read from a file) that cannot be packed: a face
+    /// refers to a vertex that does not exist, a corner is not finite, there are no faces. The
+    /// message names the arrays and the face or vertex.
+    #[error("{0}")]
+    Arrays(String),
+
     /// The file is well formed but yields no triangle.
     #[error(
         "{file}: the mesh has no triangles (every face has fewer than three vertices, or there are no faces)"

@@ -14,5 +14,5 @@ pub(crate) mod tribox;
 pub mod wide_box;
 
 pub use group::TriGroupView;
-pub use ray::{AGREEMENT_TOLERANCE, Hit, Ray};
+pub use ray::{AGREEMENT_TOLERANCE, Hit, HitAttributes, Ray};
 pub use wide_box::{BoxRay, ClusterNodeView};

@@ -79,3 +79,96 @@ impl Hit {
 /// `RAYS.md`: two hits agree when their `t` differ by at most this fraction of the diagonal of
 /// the mesh's bounding box.
 pub const AGREEMENT_TOLERANCE: f64 = 1e-4;
+
+/// A closest hit with its surface attributes: what a renderer or a measurement needs beyond
+/// `t` and the primitive id (28 bytes; not a file record).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct HitAttributes {
+    /// `t` of the closest hit; `+inf` for a miss (as [`Hit::t`]).
+    pub t: f32,
+    /// Primitive id of the triangle hit; `u32::MAX` for a miss (as [`Hit::prim`]).
+    pub prim: u32,
+    /// Barycentric coordinates of the hit point in the triangle `(v0, v1, v2)` as the mesh gives
+    /// its corners: the point is `(1 - u - v) v0 + u v1 + v v2` (Embree's convention), with
+    /// `u, v >= 0` and `u + v <= 1`. NaN for a miss.
+    pub u: f32,
+    pub v: f32,
+    /// The unit geometric normal `(v1 - v0) x (v2 - v0) / |...|`: it follows the winding of the
+    /// corners (counter-clockwise seen from the side it points to), whichever side the ray came
+    /// from. NaN for a miss.
+    pub normal: [f32; 3],
+}
+const _: () = assert!(std::mem::size_of::<HitAttributes>() == 28);
+
+impl HitAttributes {
+    pub const MISS: HitAttributes = HitAttributes {
+        t: f32::INFINITY,
+        prim: u32::MAX,
+        u: f32::NAN,
+        v: f32::NAN,
+        normal: [f32::NAN; 3],
+    };
+
+    /// The attributes of `ray` hitting the triangle with corners `tri` (id `prim`) at `t`. The
+    /// barycentrics are solved in f64 from the ray itself (Moller-Trumbore), not from the point
+    /// at the rounded `t`, and clamped into the triangle: the watertight test accepts hits on
+    /// an edge that a non-watertight solve puts a rounding outside it.
+    pub fn new(ray: &Ray, t: f32, prim: u32, tri: &[[f32; 3]; 3]) -> HitAttributes {
+        let p = |i: usize| tri[i].map(|c| c as f64);
+        let (v0, v1, v2) = (p(0), p(1), p(2));
+        let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let cross = |a: [f64; 3], b: [f64; 3]| {
+            [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ]
+        };
+        let (e1, e2) = (sub(v1, v0), sub(v2, v0));
+        let d = ray.dir.map(|c| c as f64);
+        let o = ray.origin.map(|c| c as f64);
+        let pv = cross(d, e2);
+        let det = dot(e1, pv);
+        let (mut u, mut v) = if det != 0.0 && det.is_finite() {
+            let tv = sub(o, v0);
+            let qv = cross(tv, e1);
+            (dot(tv, pv) / det, dot(d, qv) / det)
+        } else {
+            // A ray in the triangle's plane (the watertight test hit its edge): the
+            // barycentrics of the point at `t`, projected onto the plane.
+            let w = sub(ray.at(t as f64), v0);
+            let (d00, d01, d11) = (dot(e1, e1), dot(e1, e2), dot(e2, e2));
+            let (d20, d21) = (dot(w, e1), dot(w, e2));
+            let den = d00 * d11 - d01 * d01;
+            ((d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den)
+        };
+        if !(u.is_finite() && v.is_finite()) {
+            (u, v) = (0.0, 0.0);
+        }
+        u = u.clamp(0.0, 1.0);
+        v = v.clamp(0.0, 1.0);
+        if u + v > 1.0 {
+            let s = u + v;
+            (u, v) = (u / s, v / s);
+        }
+        let n = cross(e1, e2);
+        let len = dot(n, n).sqrt();
+        HitAttributes {
+            t,
+            prim,
+            u: u as f32,
+            v: v as f32,
+            normal: n.map(|c| (c / len) as f32),
+        }
+    }
+
+    /// The closest-hit record (`t` and the primitive id).
+    pub fn hit(&self) -> Hit {
+        Hit {
+            t: self.t,
+            prim: self.prim,
+        }
+    }
+}

@@ -15,7 +15,7 @@ use super::top_bounds::{LatticeBox, top_bounds};
 use super::trace::{BlockFetch, Counters, Direct, TraceError, Tree};
 use super::verify::VerifyReport;
 use crate::error::{Error, FormatError};
-use crate::geom::{Hit, Ray};
+use crate::geom::{Hit, HitAttributes, Ray};
 use crate::mapping::{Corruption, LevelInfos, TreeMap};
 use crate::os::MappedFile;
 use crate::physical::format::{FLAG_COMPRESSED, SectionKind};
@@ -352,6 +352,23 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             Ok(tree.intersect(ray, c)?.map_or(Hit::MISS, |h| Hit {
                 t: h.t,
                 prim: h.prim,
+            }))
+        })
+    }
+
+    /// Closest hits of `rays` with their barycentric coordinates and geometric normals into
+    /// `out`, traced in `order`: the same `t` and primitive ids as
+    /// [`Self::intersect_batch_ordered`].
+    pub fn intersect_attributes_ordered(
+        &self,
+        rays: &[Ray],
+        out: &mut [HitAttributes],
+        order: Order,
+    ) -> Result<Counters, Error> {
+        let tree = self.tree();
+        self.batch(rays, out, order, |ray, c| {
+            Ok(tree.intersect(ray, c)?.map_or(HitAttributes::MISS, |h| {
+                HitAttributes::new(ray, h.t, h.prim, &h.v)
             }))
         })
     }

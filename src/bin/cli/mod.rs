@@ -1,20 +1,16 @@
 //! What the binaries share: running `main` with errors printed once with their whole chain, the
 //! progress bar, the thread pool, argument groups and value parsers. Only the binaries use
-//! clap and indicatif; the library never draws or parses arguments.
+//! clap; the library parses no arguments, and draws only through `oavm::build::bar` (feature
+//! `progress`), which the binaries and the Python bindings share.
 
 // Each binary includes this module and uses part of it.
 #![allow(dead_code)]
 
+use oavm::Error;
+use oavm::logical::Order;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
-
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use oavm::Error;
-use oavm::logical::Order;
 
 /// Runs `run`, printing an error (and its sources) prefixed by the program name; exit status 1
 /// on an error. A broken pipe on stdout is not an error.
@@ -55,78 +51,9 @@ pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
     print_text(&(text + "\n"))
 }
 
-/// A progress bar on stderr for the library's phases ([`oavm::build::Progress`]): a spinner
-/// with the phase and the elapsed time, or a bar with a rate and the time left when the amount
-/// of work is known. It stays hidden for the first second, so quick runs print nothing, and
-/// never draws when stderr is not a terminal.
-pub struct Progress {
-    bar: ProgressBar,
-    done: Arc<AtomicBool>,
-}
-
-impl Progress {
-    pub fn new(enabled: bool) -> Progress {
-        let bar = ProgressBar::hidden();
-        bar.set_style(spinner());
-        let done = Arc::new(AtomicBool::new(false));
-        if enabled {
-            let (bar, done) = (bar.clone(), done.clone());
-            std::thread::spawn(move || {
-                std::thread::sleep(Duration::from_secs(1));
-                if !done.load(Ordering::Acquire) {
-                    bar.set_draw_target(ProgressDrawTarget::stderr());
-                    bar.enable_steady_tick(Duration::from_millis(120));
-                }
-            });
-        }
-        Progress { bar, done }
-    }
-
-    pub fn finish(&self) {
-        self.done.store(true, Ordering::Release);
-        self.bar.finish_and_clear();
-    }
-}
-
-fn spinner() -> ProgressStyle {
-    ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
-        .unwrap_or_else(|_| ProgressStyle::default_spinner())
-}
-
-impl oavm::build::Progress for Progress {
-    fn phase(&self, name: &str, total: Option<u64>, bytes: bool) {
-        let style = match (total, bytes) {
-            (None, _) => spinner(),
-            (Some(_), true) => ProgressStyle::with_template(
-                "{spinner} [{elapsed_precise}] {msg:<16} [{bar:30}] {bytes}/{total_bytes} \
-                 {binary_bytes_per_sec}, {eta} left",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-            (Some(_), false) => ProgressStyle::with_template(
-                "{spinner} [{elapsed_precise}] {msg:<16} [{bar:30}] {pos}/{len} {per_sec}, {eta} \
-                 left",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        };
-        self.bar.set_style(style.progress_chars("=> "));
-        if let Some(total) = total {
-            self.bar.set_length(total);
-        }
-        self.bar.set_position(0);
-        self.bar.reset_eta();
-        self.bar.set_message(name.to_string());
-    }
-
-    fn at(&self, done: u64) {
-        self.bar.set_position(done);
-    }
-}
-
-impl Drop for Progress {
-    fn drop(&mut self) {
-        self.finish();
-    }
-}
+/// The progress bar of the library's phases, shared with the Python bindings.
+#[allow(unused_imports)]
+pub use oavm::build::bar::Progress;
 
 /// Runs `f` on a rayon pool of `threads` threads (0: one per core).
 pub fn with_threads<T: Send>(

@@ -1,0 +1,371 @@
+"""oavm: a ray-tracing acceleration structure that lives in a file.
+
+Pack a mesh once, then open the file (in well under a millisecond, whatever its size) and trace
+numpy arrays of rays against it, from any number of processes or machines::
+
+    import numpy as np, oavm
+    oavm.pack("bunny.ply", "bunny.oavm")
+    with oavm.open("bunny.oavm") as scene:
+        t, prim = scene.intersect(origins, directions)
+        blocked = scene.occluded(origins, directions, tmax=1.0)
+
+Rays are the records of ``RAYS.md``: a ``(N, 8)`` float32 array of origin (3), tmin, direction
+(3), tmax; directions are used as given (``t`` is in units of the direction). Closest hits come
+back as ``t`` (float32, ``inf`` on a miss) and ``prim`` (uint32, the triangle's index in the
+mesh, ``0xFFFFFFFF`` on a miss); any-hit answers as a bool array. ``oavm.dask`` traces a dask
+array of rays on a cluster.
+
+Every call that traces, packs or verifies releases the GIL and runs on the library's threads.
+Errors of the library arrive as exceptions carrying its message (the file and the place):
+``FileNotFoundError`` / ``OSError`` for files that cannot be read or written, ``FormatError``
+for a file that is not a sound ``.oavm`` file, ``MeshError`` for a mesh that cannot be packed,
+``ValueError`` for bad arguments.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from typing import Any, NamedTuple, Optional, Union
+
+import numpy as np
+
+from . import _native
+from ._native import FORMAT_VERSION, FormatError, MeshError, OavmError
+
+__all__ = [
+    "FORMAT_VERSION",
+    "MISS",
+    "FormatError",
+    "Hits",
+    "HitsWithAttributes",
+    "MeshError",
+    "OavmError",
+    "Scene",
+    "open",
+    "pack",
+    "rays",
+]
+
+#: The primitive id of a miss.
+MISS = 0xFFFFFFFF
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+class Hits(NamedTuple):
+    """Closest hits: ``t`` (float32, ``inf`` on a miss) and ``prim`` (uint32, ``MISS``)."""
+
+    t: np.ndarray
+    prim: np.ndarray
+
+
+class HitsWithAttributes(NamedTuple):
+    """Closest hits with their surface attributes.
+
+    ``u``, ``v``: barycentric coordinates, the hit point being ``(1-u-v) v0 + u v1 + v v2`` for
+    the triangle's corners as the mesh lists them (Embree's convention); ``normal``: ``(N, 3)``
+    unit geometric normal ``(v1-v0) x (v2-v0)``, following the corners' winding. All NaN on a
+    miss.
+    """
+
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+
+
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([KMGT]?)(?:i?B)?\s*$", re.IGNORECASE)
+
+
+def _bytes(name: str, value: Union[None, int, str]) -> Optional[int]:
+    """A size in bytes from an int or a string such as ``"4G"`` or ``"512 MiB"`` (binary units)."""
+    if value is None:
+        return None
+    if isinstance(value, bool):
+        raise ValueError(f"{name}: expected a size in bytes (an int or a string like '4G'), got {value!r}")
+    if isinstance(value, (int, np.integer)):
+        n = int(value)
+    elif isinstance(value, str):
+        m = _SIZE.match(value)
+        if not m:
+            raise ValueError(f"{name}: cannot read {value!r} as a size (e.g. 1073741824, '512M', '4G')")
+        unit = m.group(2).upper()
+        n = int(float(m.group(1)) * (1024 ** ("KMGT".index(unit) + 1) if unit else 1))
+    else:
+        raise ValueError(f"{name}: expected a size in bytes (an int or a string like '4G'), got {type(value).__name__}")
+    if n <= 0 or n >= 2**64:
+        raise ValueError(f"{name}: {value!r} is not a positive size below 2^64 bytes")
+    return n
+
+
+def _count(name: str, value: Optional[int], lo: int, hi: int) -> Optional[int]:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name}: expected an int, got {type(value).__name__}")
+    if not lo <= int(value) <= hi:
+        raise ValueError(f"{name}: {int(value)} is not between {lo} and {hi}")
+    return int(value)
+
+
+def _real_array(name: str, a: Any) -> np.ndarray:
+    """``a`` as an array of real numbers (no copy when it is one already)."""
+    try:
+        arr = np.asarray(a)
+    except Exception as e:  # a ragged list, an object that is not array-like
+        raise ValueError(f"{name}: cannot be read as an array: {e}") from None
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(
+            f"{name}: dtype {arr.dtype} is not a real number type (expected float32; "
+            "other float and integer types are converted)"
+        )
+    return arr
+
+
+def _float32_c(arr: np.ndarray) -> np.ndarray:
+    """C-contiguous, aligned, native-order float32: ``arr`` itself when it already is."""
+    with np.errstate(over="ignore"):  # beyond the float32 range: inf, which the library refuses
+        return np.require(arr, dtype=np.float32, requirements=["C_CONTIGUOUS", "ALIGNED"])
+
+
+def rays(origins: Any, directions: Any, tmin: Any = 0.0, tmax: Any = np.inf) -> np.ndarray:
+    """The ``(N, 8)`` float32 ray array (``RAYS.md`` order) of ``origins`` and ``directions``
+    (``(N, 3)`` each, or one of them ``(3,)`` for all rays) and ``tmin``, ``tmax`` (scalars or
+    ``(N,)``)."""
+    o = _real_array("origins", origins)
+    d = _real_array("directions", directions)
+    for name, x in (("origins", o), ("directions", d)):
+        if x.ndim not in (1, 2) or x.shape[-1] != 3:
+            raise ValueError(f"{name}: expected shape (N, 3) or (3,), got {x.shape}")
+    n = max(o.shape[0] if o.ndim == 2 else 1, d.shape[0] if d.ndim == 2 else 1)
+    if o.ndim == 1 and d.ndim == 1:
+        n = 1
+    for name, x in (("origins", o), ("directions", d)):
+        if x.ndim == 2 and x.shape[0] != n:
+            raise ValueError(f"origins and directions: {o.shape[0] if o.ndim == 2 else 1} against "
+                             f"{d.shape[0] if d.ndim == 2 else 1} rays")
+    out = np.empty((n, 8), dtype=np.float32)
+    out[:, 0:3] = o
+    out[:, 4:7] = d
+    for name, x, col in (("tmin", tmin, 3), ("tmax", tmax, 7)):
+        v = _real_array(name, x)
+        if v.ndim > 1 or (v.ndim == 1 and v.shape[0] != n):
+            raise ValueError(f"{name}: expected a number or shape ({n},), got shape {v.shape}")
+        out[:, col] = v
+    return out
+
+
+def _ray_array(rays_or_origins: Any, directions: Any, tmin: Any, tmax: Any) -> np.ndarray:
+    if directions is None:
+        if tmin is not None or tmax is not None:
+            raise ValueError("tmin and tmax go with origins and directions; a (N, 8) ray array carries its own")
+        arr = _real_array("rays", rays_or_origins)
+        if arr.ndim != 2 or arr.shape[1] != 8:
+            raise ValueError(
+                f"rays: expected shape (N, 8) (origin, tmin, direction, tmax per ray), got {arr.shape}"
+                + ("; give origins and directions as two arguments" if arr.ndim == 2 and arr.shape[1] == 3 else "")
+            )
+        return _float32_c(arr)
+    return rays(rays_or_origins, directions, 0.0 if tmin is None else tmin, np.inf if tmax is None else tmax)
+
+
+class Scene:
+    """An opened ``.oavm`` file (see :func:`open`). Usable from many threads at once; picklable
+    (by path and budget: a worker that unpickles it opens the file itself); a context manager
+    that closes (unmaps) the file on exit."""
+
+    def __init__(self, path: PathLike, *, mem_budget: Union[None, int, str] = None):
+        budget = _bytes("mem_budget", mem_budget)
+        self._path = os.fspath(path)
+        self._native: Optional[_native.NativeScene] = None
+        self._native = _native.open(self._path, budget)
+        self._mem_budget = budget
+        self._info: Optional[dict] = None
+
+    def _scene(self) -> "_native.NativeScene":
+        s = self._native
+        if s is None:
+            raise ValueError(f"{self._path}: the scene is closed")
+        return s
+
+    @property
+    def path(self) -> str:
+        """The file's path, as given to :func:`open`."""
+        return self._path
+
+    @property
+    def info(self) -> dict:
+        """The file's header and counts (format version, triangles, leaves, blocks, bounds) and
+        how it is traced (memory budget, threads), as a dict."""
+        return json.loads(self._scene().info())
+
+    def verify(self) -> dict:
+        """Checks every byte, checksum and invariant of the file (reading it whole). Returns the
+        report as a dict; raises :class:`FormatError` listing the defects if there are any."""
+        report = json.loads(self._scene().verify())
+        if not report["ok"]:
+            defects = report["defects"]
+            raise FormatError(
+                f"{self._path}: verification failed ({len(defects)} defects): " + "; ".join(defects[:20])
+                + (" ..." if len(defects) > 20 else "")
+            )
+        return report
+
+    def intersect(
+        self,
+        rays: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        *,
+        attributes: bool = False,
+        threads: Optional[int] = None,
+    ) -> Union[Hits, HitsWithAttributes]:
+        """Closest hits of ``rays`` (an ``(N, 8)`` array in ``RAYS.md`` order) or of
+        ``origins, directions`` (``(N, 3)`` each; ``tmin`` default 0, ``tmax`` default inf).
+
+        Returns :class:`Hits` ``(t, prim)``, or with ``attributes=True``
+        :class:`HitsWithAttributes` ``(t, prim, u, v, normal)``. ``threads``: how many threads
+        trace (default: one per core, more when a memory budget makes the tracer read from
+        disk). A contiguous float32 ray array is traced in place, not copied; do not write to
+        it from another thread meanwhile."""
+        arr = _ray_array(rays, directions, tmin, tmax)
+        out = self._scene().intersect(arr, _count("threads", threads, 1, 1 << 16), bool(attributes))
+        return HitsWithAttributes(*out) if attributes else Hits(*out)
+
+    def occluded(
+        self,
+        rays: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        *,
+        threads: Optional[int] = None,
+    ) -> np.ndarray:
+        """Any-hit answers (a bool array: some triangle is hit with ``tmin <= t <= tmax``), for
+        the same arguments as :meth:`intersect`."""
+        arr = _ray_array(rays, directions, tmin, tmax)
+        return self._scene().occluded(arr, _count("threads", threads, 1, 1 << 16))
+
+    def close(self) -> None:
+        """Unmaps the file; the scene cannot trace afterwards. Idempotent."""
+        self._native = None
+
+    @property
+    def closed(self) -> bool:
+        return self._native is None
+
+    def __enter__(self) -> "Scene":
+        self._scene()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __reduce__(self):
+        return (_reopen, (self._path, self._mem_budget))
+
+    def __repr__(self) -> str:
+        if self._native is None:
+            return f"<oavm.Scene {self._path!r} (closed)>"
+        i = self.info
+        return (f"<oavm.Scene {self._path!r}: {i['input_triangles']} triangles, "
+                f"{i['blocks']} blocks, {i['file_bytes']} bytes, format {i['format_version']}>")
+
+
+def _reopen(path: str, mem_budget: Optional[int]) -> Scene:
+    return Scene(path, mem_budget=mem_budget)
+
+
+def open(path: PathLike, *, mem_budget: Union[None, int, str] = None) -> Scene:  # noqa: A001
+    """Opens a packed ``.oavm`` file for tracing. Reads only the header, section table and top
+    tree: its cost does not grow with the file. ``mem_budget`` (bytes, or a string like
+    ``"4G"``): the most decoded blocks kept in memory (default: half of the memory available);
+    a file larger than it is traced by paging blocks in and out."""
+    return Scene(path, mem_budget=mem_budget)
+
+
+def pack(
+    mesh: Any,
+    out_path: PathLike,
+    *,
+    leaf_size: Optional[int] = None,
+    max_depth: Optional[int] = None,
+    compress: Union[None, bool, int] = None,
+    mem_budget: Union[None, int, str] = None,
+    progress: bool = True,
+    leaf: str = "cluster",
+    block_size: Union[None, int, str] = None,
+    threads: Optional[int] = None,
+) -> dict:
+    """Packs a triangle mesh into an ``.oavm`` file, written atomically (it appears only when
+    complete). Returns the pack report as a dict (triangles, nodes, leaves, volumes, bytes,
+    seconds per phase).
+
+    ``mesh``: a path (PLY, OBJ, or a BART AFF scene), or a ``(vertices, faces)`` pair of arrays
+    (``(V, 3)`` floats and ``(F, 3)`` integer indices: what trimesh's ``mesh.vertices,
+    mesh.faces`` and Open3D's ``np.asarray(m.vertices), np.asarray(m.triangles)`` give);
+    primitive ids are the face indices. ``leaf_size``: subdivide leaves holding more triangles
+    (default 512 for clusters, 32 for lists); ``max_depth``: deepest octree level (default 16,
+    at most 21); ``compress``: ``True`` or a zstd level (1-22) to store blocks compressed;
+    ``mem_budget``: pack a binary PLY file within about this much memory, streaming it (for
+    meshes larger than memory); ``progress``: a progress bar on stderr when it is a terminal;
+    ``leaf``: ``"cluster"`` (a wide BVH per leaf, the fastest) or ``"list"`` (the OAVM paper's
+    triangle lists); ``block_size``: target size of a block, the unit of paging (default 256K);
+    ``threads``: build threads (default one per core; the file is the same for any count)."""
+    level: Optional[int]
+    if compress is None or compress is False:
+        level = None
+    elif compress is True:
+        level = 3
+    else:
+        level = _count("compress", compress, -(1 << 17), 22)
+    opts = dict(
+        leaf=str(leaf),
+        leaf_size=_count("leaf_size", leaf_size, 1, 2**32 - 1),
+        max_depth=_count("max_depth", max_depth, 0, 2**32 - 1),
+        compress=level,
+        block_size=_bytes("block_size", block_size),
+        progress=bool(progress),
+        threads=_count("threads", threads, 1, 1 << 16),
+    )
+    out = os.fspath(out_path)
+    if isinstance(mesh, (str, bytes, os.PathLike)):
+        report = _native.pack_file(os.fsdecode(mesh), out, mem_budget=_bytes("mem_budget", mem_budget), **opts)
+        return json.loads(report)
+    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
+        if mem_budget is not None:
+            raise ValueError("mem_budget streams a binary PLY file; a mesh given as arrays is packed in memory")
+        v = _real_array("vertices", mesh[0])
+        f = _real_array("faces", mesh[1])
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise ValueError(f"vertices: expected shape (V, 3), got {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise ValueError(f"faces: expected shape (F, 3) (triangles), got {f.shape}")
+        if f.dtype.kind == "f":
+            if f.size and not np.array_equal(f, np.round(f)):
+                raise ValueError("faces: the indices are not whole numbers")
+        if f.size:
+            lo, hi = f.min(), f.max()
+            if lo < 0:
+                face = int(np.argwhere(f < 0)[0][0])
+                raise MeshError(f"arrays: face {face} holds the negative vertex index {int(f[face].min())}")
+            if hi > 0xFFFFFFFE:
+                raise MeshError(f"arrays: vertex index {int(hi)} does not fit in 32 bits")
+        v32 = _float32_c(v)
+        f32 = np.require(f, dtype=np.uint32, requirements=["C_CONTIGUOUS", "ALIGNED"])
+        return json.loads(_native.pack_arrays(v32, f32, out, **opts))
+    raise ValueError(
+        f"mesh: expected a path or a (vertices, faces) pair of arrays, got {type(mesh).__name__}"
+    )
+
+
+try:  # the version of the installed distribution (maturin takes it from Cargo.toml)
+    from importlib.metadata import version as _version
+
+    __version__ = _version("oavm")
+except Exception:  # pragma: no cover - not installed as a distribution
+    __version__ = "unknown"

@@ -1,0 +1,149 @@
+"""Tracing a dask array of rays: one packed file, traced by every worker of a cluster.
+
+A packed file is read-only and opens in well under a millisecond, so each worker process maps
+the same file (from a shared file system, or its own copy at the same path) and traces the
+chunks of rays it is given::
+
+    import dask.array as da, oavm.dask
+    rays = da.from_array(ray_array, chunks=(1_000_000, 8))      # (N, 8), RAYS.md order
+    t, prim = oavm.dask.intersect("scene.oavm", rays)           # dask arrays, lazy
+    t, prim = dask.compute(t, prim)                              # one trace per chunk
+
+Works with a ``dask.distributed`` cluster and with dask's local schedulers (threads,
+processes, synchronous). Each process opens a file once and keeps it open for later chunks and
+later calls, keyed by its real path, modification time, size and inode, and the memory budget:
+a file re-packed in place is opened again, never traced stale.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from typing import Any, Dict, Optional, Union
+
+import numpy as np
+
+try:
+    import dask.array as da
+except ImportError as e:  # pragma: no cover - depends on the environment
+    raise ImportError("oavm.dask needs dask: pip install 'oavm[dask]' (or dask[array])") from e
+
+from . import Hits, HitsWithAttributes, Scene, _bytes, _count
+from . import open as _open
+
+__all__ = ["intersect", "occluded", "scene", "cache_info", "HIT_DTYPE", "ATTRIBUTES_DTYPE"]
+
+#: The record of one closest hit (the ``HITS`` record of RAYS.md).
+HIT_DTYPE = np.dtype([("t", "<f4"), ("prim", "<u4")])
+#: A closest hit with its barycentric coordinates and geometric normal.
+ATTRIBUTES_DTYPE = np.dtype([("t", "<f4"), ("prim", "<u4"), ("u", "<f4"), ("v", "<f4"), ("normal", "<f4", (3,))])
+
+#: Rays per chunk when a numpy array (not a dask array) is given.
+DEFAULT_CHUNK = 1 << 20
+
+_LOCK = threading.Lock()
+_SCENES: Dict[tuple, Scene] = {}
+_OPENS = 0
+
+
+def _key(path: str, mem_budget: Optional[int]) -> tuple:
+    real = os.path.realpath(path)
+    st = os.stat(real)
+    return (real, st.st_mtime_ns, st.st_size, st.st_ino, mem_budget)
+
+
+def scene(path: Union[str, "os.PathLike[str]"], mem_budget: Optional[int] = None) -> Scene:
+    """This process's opened scene of ``path``: opened on first use, kept, and opened again
+    when the file has changed (another modification time, size or inode) since."""
+    global _OPENS
+    key = _key(os.fspath(path), mem_budget)
+    with _LOCK:
+        s = _SCENES.get(key)
+        if s is None:
+            # Older versions of the same file with the same budget are dropped (a call still
+            # tracing with one keeps its own reference until it returns).
+            for k in [k for k in _SCENES if k[0] == key[0] and k[4] == mem_budget]:
+                _SCENES.pop(k).close()
+            s = _open(key[0], mem_budget=mem_budget)
+            _SCENES[key] = s
+            _OPENS += 1
+        return s
+
+
+def cache_info() -> dict:
+    """What this process's cache holds: ``opens`` (files opened so far) and ``files`` (the
+    real paths open now). For a cluster: ``client.run(oavm.dask.cache_info)``."""
+    with _LOCK:
+        return {"pid": os.getpid(), "opens": _OPENS, "files": sorted({k[0] for k in _SCENES})}
+
+
+def _intersect_block(block: np.ndarray, path: str, mem_budget: Optional[int], threads: Optional[int],
+                     attributes: bool) -> np.ndarray:
+    hits = scene(path, mem_budget).intersect(block, threads=threads, attributes=attributes)
+    out = np.empty(len(block), dtype=ATTRIBUTES_DTYPE if attributes else HIT_DTYPE)
+    for name, column in zip(hits._fields, hits):
+        out[name] = column
+    return out
+
+
+def _occluded_block(block: np.ndarray, path: str, mem_budget: Optional[int], threads: Optional[int]) -> np.ndarray:
+    return scene(path, mem_budget).occluded(block, threads=threads)
+
+
+def _as_rays(rays: Any, chunk: Optional[int]) -> "da.Array":
+    if not isinstance(rays, da.Array):
+        arr = np.asarray(rays)
+        size = _count("chunk", chunk, 1, 1 << 40) or DEFAULT_CHUNK
+        rays = da.from_array(arr, chunks=(size,) + arr.shape[1:])
+    elif chunk is not None:
+        rays = rays.rechunk((_count("chunk", chunk, 1, 1 << 40), -1))
+    if rays.ndim != 2 or rays.shape[1] != 8:
+        raise ValueError(f"rays: expected shape (N, 8) (origin, tmin, direction, tmax per ray), got {rays.shape}")
+    if rays.dtype.kind not in "fiu":
+        raise ValueError(f"rays: dtype {rays.dtype} is not a real number type (expected float32)")
+    if len(rays.chunks[1]) != 1:
+        rays = rays.rechunk({1: -1})  # a chunk must hold whole rays
+    return rays
+
+
+def _check_file(path: str) -> str:
+    # Fail now, on the client, for a file that is missing or not an .oavm file, rather than
+    # in every task; workers open it again (the path must name the same file there).
+    path = os.fspath(path)
+    with _open(path):
+        pass
+    return path
+
+
+def intersect(path: Union[str, "os.PathLike[str]"], rays: Any, *, attributes: bool = False,
+              mem_budget: Union[None, int, str] = None, threads: Optional[int] = None,
+              chunk: Optional[int] = None) -> Union[Hits, HitsWithAttributes]:
+    """Closest hits of a ``(N, 8)`` dask array of rays (chunked along the rays; a numpy array
+    is cut into chunks of ``chunk`` rays) through the file at ``path``: :class:`oavm.Hits` of
+    dask arrays ``(t, prim)``, or with ``attributes=True`` :class:`oavm.HitsWithAttributes`
+    ``(t, prim, u, v, normal)``. Compute them together (``dask.compute(*hits)``) to trace
+    once. ``mem_budget``, ``threads``: per worker process, as for :func:`oavm.open` and
+    :meth:`oavm.Scene.intersect`."""
+    rays = _as_rays(rays, chunk)
+    path = _check_file(path)
+    dtype = ATTRIBUTES_DTYPE if attributes else HIT_DTYPE
+    records = rays.map_blocks(
+        _intersect_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1 << 16),
+        bool(attributes), dtype=dtype, drop_axis=1, meta=np.empty((0,), dtype),
+        token="oavm-intersect",
+    )
+    fields = [records[name] for name in dtype.names]
+    return HitsWithAttributes(*fields) if attributes else Hits(*fields)
+
+
+def occluded(path: Union[str, "os.PathLike[str]"], rays: Any, *, mem_budget: Union[None, int, str] = None,
+             threads: Optional[int] = None, chunk: Optional[int] = None) -> "da.Array":
+    """Any-hit answers (a bool dask array) of a ``(N, 8)`` dask array of rays, as
+    :func:`intersect`."""
+    rays = _as_rays(rays, chunk)
+    path = _check_file(path)
+    return rays.map_blocks(
+        _occluded_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1 << 16),
+        dtype=bool, drop_axis=1, meta=np.empty((0,), bool), token="oavm-occluded",
+    )
+

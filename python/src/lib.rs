@@ -1,0 +1,469 @@
+//! `oavm._native`: the Python bindings' compiled half. It holds no logic of its own: it hands
+//! numpy buffers to the `oavm` library and its errors back to Python. The Python half
+//! (`python/oavm/__init__.py`) checks and converts arguments, so everything that arrives here
+//! is a C-contiguous array of the expected dtype and shape; this half still checks shapes and
+//! never trusts them with an index.
+//!
+//! Every call that traces, packs or verifies releases the GIL and runs on a rayon pool of the
+//! threads asked for (one pool per thread count, made on first use and kept). A long batch is
+//! traced in slices of [`SLICE`] rays, taking the GIL back between slices to let Python deliver
+//! signals: Ctrl-C interrupts it with `KeyboardInterrupt`.
+
+use std::collections::HashMap;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, OnceLock};
+
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use oavm::build::{BuildOptions, LeafKind, PackOptions, PackReport};
+use oavm::logical::{IO_THREADS_PER_CORE, Order, SceneOptions};
+use oavm::mesh::Mesh;
+use oavm::physical::BlockOptions;
+use oavm::physical::DEFAULT_BLOCK_SIZE;
+use oavm::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_MERGED, VERSION};
+use oavm::{Error, Hit, HitAttributes, Ray, Scene};
+use pyo3::create_exception;
+use pyo3::exceptions::{
+    PyException, PyFileNotFoundError, PyOSError, PyPermissionError, PyValueError,
+};
+use pyo3::prelude::*;
+
+create_exception!(
+    oavm,
+    OavmError,
+    PyException,
+    "An error of the oavm library (its message names the file and the place)."
+);
+create_exception!(
+    oavm,
+    FormatError,
+    OavmError,
+    "A .oavm file that breaks the format (corrupt, truncated, of another version) or that \
+     changed while it was read."
+);
+create_exception!(
+    oavm,
+    MeshError,
+    OavmError,
+    "A mesh file or mesh arrays that cannot be read or packed."
+);
+
+/// Rays traced per release of the GIL: about a second of work, so Ctrl-C answers quickly
+/// while the hand-out and (under a budget) the sort by block stay amortised.
+const SLICE: usize = 1 << 22;
+
+/// The library's error as a Python exception, with the whole chain of causes in its message
+/// (as `oavm-trace` prints it).
+fn to_py(e: Error) -> PyErr {
+    let mut msg = e.to_string();
+    let mut src = std::error::Error::source(&e);
+    while let Some(s) = src {
+        let text = s.to_string();
+        if !msg.contains(&text) {
+            msg.push_str(&format!(": {text}"));
+        }
+        src = s.source();
+    }
+    let io_kind = match &e {
+        Error::Io { source, .. } => Some(source.kind()),
+        Error::Mesh(oavm::error::MeshError::Io { source, .. }) => Some(source.kind()),
+        _ => None,
+    };
+    match (io_kind, &e) {
+        (Some(std::io::ErrorKind::NotFound), _) => PyFileNotFoundError::new_err(msg),
+        (Some(std::io::ErrorKind::PermissionDenied), _) => PyPermissionError::new_err(msg),
+        (Some(_), _) | (None, Error::Output { .. }) => PyOSError::new_err(msg),
+        (None, Error::Format { .. } | Error::Changed { .. }) => FormatError::new_err(msg),
+        (None, Error::Mesh(_)) => MeshError::new_err(msg),
+        (None, Error::Invalid(_) | Error::Budget { .. }) => PyValueError::new_err(msg),
+        (None, _) => OavmError::new_err(msg),
+    }
+}
+
+/// The cores of this machine.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// A rayon pool of `threads` threads, made on first use and kept for the process.
+fn pool(threads: usize) -> PyResult<Arc<rayon::ThreadPool>> {
+    static POOLS: OnceLock<Mutex<HashMap<usize, Arc<rayon::ThreadPool>>>> = OnceLock::new();
+    let mut pools = POOLS
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    if let Some(p) = pools.get(&threads) {
+        return Ok(p.clone());
+    }
+    let p = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("oavm-{i}"))
+        .build()
+        .map_err(|e| OavmError::new_err(format!("cannot start {threads} threads: {e}")))?;
+    let p = Arc::new(p);
+    pools.insert(threads, p.clone());
+    Ok(p)
+}
+
+/// The rays of a `(N, 8)` float32 array, in place when it is aligned for them (numpy's arrays
+/// are), else copied.
+fn rays_of<'a>(a: &'a PyReadonlyArray2<'_, f32>) -> PyResult<std::borrow::Cow<'a, [Ray]>> {
+    if a.shape()[1] != 8 {
+        return Err(PyValueError::new_err(format!(
+            "rays: expected shape (N, 8), got ({}, {})",
+            a.shape()[0],
+            a.shape()[1]
+        )));
+    }
+    let flat = a
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(format!("rays: {e}")))?;
+    Ok(match bytemuck::try_cast_slice::<f32, Ray>(flat) {
+        Ok(rays) => std::borrow::Cow::Borrowed(rays),
+        Err(_) => std::borrow::Cow::Owned(
+            flat.chunks_exact(8)
+                .map(|c| Ray::new([c[0], c[1], c[2]], [c[4], c[5], c[6]], c[3], c[7]))
+                .collect(),
+        ),
+    })
+}
+
+/// An opened `.oavm` file (`oavm.Scene` wraps it).
+#[pyclass(frozen, module = "oavm._native")]
+struct NativeScene {
+    scene: Scene,
+    path: PathBuf,
+    mem_budget: Option<u64>,
+}
+
+impl NativeScene {
+    /// The threads to trace on: the ones asked for, lowered to what the budget holds, or the
+    /// tracer's default for this machine and budget (as `oavm-trace`).
+    fn threads(&self, threads: Option<usize>) -> PyResult<usize> {
+        match threads {
+            Some(0) => Err(PyValueError::new_err("threads must be at least 1")),
+            Some(n) => Ok(n.min(self.scene.threads())),
+            None => Ok(self.scene.default_threads(cores())),
+        }
+    }
+
+    /// Answers `rays` into `out` slice by slice with `answer`, the GIL released during each.
+    fn traced<T: Send + Sync + Copy>(
+        &self,
+        py: Python<'_>,
+        rays: &[Ray],
+        out: &mut [T],
+        threads: Option<usize>,
+        answer: impl Fn(&Scene, &[Ray], &mut [T], Order) -> Result<(), Error> + Sync,
+    ) -> PyResult<()> {
+        let pool = pool(self.threads(threads)?)?;
+        let order = self.scene.default_order();
+        for (rays, out) in rays.chunks(SLICE).zip(out.chunks_mut(SLICE)) {
+            py.detach(|| pool.install(|| answer(&self.scene, rays, out, order)))
+                .map_err(to_py)?;
+            py.check_signals()?;
+        }
+        Ok(())
+    }
+}
+
+#[pymethods]
+impl NativeScene {
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    #[getter]
+    fn mem_budget(&self) -> Option<u64> {
+        self.mem_budget
+    }
+
+    /// Closest hits: `(t, prim)`, or with `attributes` `(t, prim, u, v, normal)`.
+    #[pyo3(signature = (rays, threads=None, attributes=false))]
+    fn intersect<'py>(
+        &self,
+        py: Python<'py>,
+        rays: PyReadonlyArray2<'py, f32>,
+        threads: Option<usize>,
+        attributes: bool,
+    ) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        let rays = rays_of(&rays)?;
+        let n = rays.len();
+        if !attributes {
+            let mut hits = vec![Hit::MISS; n];
+            self.traced(py, &rays, &mut hits, threads, |s, r, o, order| {
+                s.intersect_batch_ordered(r, o, order).map(drop)
+            })?;
+            let t: Vec<f32> = hits.iter().map(|h| h.t).collect();
+            let prim: Vec<u32> = hits.iter().map(|h| h.prim).collect();
+            return Ok(vec![
+                PyArray1::from_vec(py, t).into_any(),
+                PyArray1::from_vec(py, prim).into_any(),
+            ]);
+        }
+        let mut hits = vec![HitAttributes::MISS; n];
+        self.traced(py, &rays, &mut hits, threads, |s, r, o, order| {
+            s.intersect_attributes_ordered(r, o, order).map(drop)
+        })?;
+        let column = |f: fn(&HitAttributes) -> f32| hits.iter().map(f).collect::<Vec<f32>>();
+        let normal: Vec<f32> = hits.iter().flat_map(|h| h.normal).collect();
+        let normal = PyArray1::from_vec(py, normal).reshape([n, 3])?;
+        Ok(vec![
+            PyArray1::from_vec(py, column(|h| h.t)).into_any(),
+            PyArray1::from_vec(py, hits.iter().map(|h| h.prim).collect::<Vec<u32>>()).into_any(),
+            PyArray1::from_vec(py, column(|h| h.u)).into_any(),
+            PyArray1::from_vec(py, column(|h| h.v)).into_any(),
+            normal.into_any(),
+        ])
+    }
+
+    /// Any-hit answers, as a bool array.
+    #[pyo3(signature = (rays, threads=None))]
+    fn occluded<'py>(
+        &self,
+        py: Python<'py>,
+        rays: PyReadonlyArray2<'py, f32>,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let rays = rays_of(&rays)?;
+        let mut occl = vec![0u8; rays.len()];
+        self.traced(py, &rays, &mut occl, threads, |s, r, o, order| {
+            s.occluded_batch_ordered(r, o, order).map(drop)
+        })?;
+        Ok(PyArray1::from_vec(
+            py,
+            occl.into_iter().map(|o| o != 0).collect(),
+        ))
+    }
+
+    /// Checks every byte, checksum and invariant; the report as JSON (`ok`, `defects`, ...).
+    fn verify(&self, py: Python<'_>) -> PyResult<String> {
+        let pool = pool(cores())?;
+        let t = std::time::Instant::now();
+        let report = py
+            .detach(|| pool.install(|| self.scene.verify()))
+            .map_err(to_py)?;
+        Ok(serde_json::json!({
+            "path": self.path,
+            "ok": report.is_ok(),
+            "seconds": t.elapsed().as_secs_f64(),
+            "bytes_checked": report.bytes_checked,
+            "sections_checked": report.sections_checked,
+            "defects": report.defects,
+        })
+        .to_string())
+    }
+
+    /// The header, the counts and the tracing set-up, as JSON.
+    fn info(&self) -> String {
+        let h = self.scene.file().header();
+        let s = self.scene.info();
+        serde_json::json!({
+            "path": self.path,
+            "format_version": h.version,
+            "file_bytes": s.file_bytes,
+            "leaf": if h.flags & FLAG_CLUSTERS != 0 { "cluster" } else { "list" },
+            "merged": h.flags & FLAG_MERGED != 0,
+            "compressed": h.flags & FLAG_COMPRESSED != 0,
+            "input_triangles": h.input_triangles,
+            "stored_triangles": h.stored_triangles,
+            "block_triangles": h.block_triangles,
+            "mesh_min": h.mesh_min,
+            "mesh_max": h.mesh_max,
+            "root_min": h.root_min,
+            "root_size": h.root_size,
+            "levels": h.level_count,
+            "max_depth": h.max_depth,
+            "leaf_size": h.leaf_size,
+            "solid_leaves": h.solid_leaves,
+            "empty_leaves": h.empty_leaves,
+            "blocks": h.block_count,
+            "max_block_raw_len": h.max_block_raw_len,
+            "decoded_bytes": self.scene.decoded_bytes(),
+            "mem_budget": self.scene.budget(),
+            "fits_in_budget": self.scene.fits_in_budget(),
+            "threads": self.scene.default_threads(cores()),
+            "max_threads": self.scene.threads(),
+            "pager_peak_resident_bytes": s.pager_peak_resident_bytes,
+        })
+        .to_string()
+    }
+}
+
+/// Opens a file, O(1) in its size: the header, section table and top tree's level table.
+#[pyfunction]
+#[pyo3(signature = (path, mem_budget=None))]
+fn open(py: Python<'_>, path: PathBuf, mem_budget: Option<u64>) -> PyResult<NativeScene> {
+    let opts = SceneOptions {
+        mem_budget,
+        // As `oavm-trace`: room for the reader threads a budget smaller than the file wants;
+        // each call traces on `Scene::default_threads` of them unless told otherwise.
+        threads: cores() * IO_THREADS_PER_CORE,
+        check_blocks: true,
+    };
+    let scene = py
+        .detach(|| Scene::open_with(&path, &opts))
+        .map_err(to_py)?;
+    Ok(NativeScene {
+        scene,
+        path,
+        mem_budget,
+    })
+}
+
+/// The pack options from the keyword arguments.
+fn pack_options(
+    leaf: &str,
+    leaf_size: Option<u32>,
+    max_depth: Option<u32>,
+    compress: Option<i32>,
+    mem_budget: Option<u64>,
+    block_size: Option<u64>,
+) -> PyResult<PackOptions> {
+    let leaf = match leaf {
+        "cluster" => LeafKind::Cluster,
+        "list" => LeafKind::List,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "leaf must be 'cluster' or 'list', not {other:?}"
+            )));
+        }
+    };
+    let opts = PackOptions {
+        build: BuildOptions {
+            max_depth: max_depth.unwrap_or(oavm::build::DEFAULT_MAX_DEPTH),
+            leaf_size: leaf_size.unwrap_or(leaf.default_leaf_size()),
+            leaf,
+            merge: true,
+        },
+        blocks: BlockOptions {
+            block_size: block_size.unwrap_or(DEFAULT_BLOCK_SIZE),
+            compress,
+        },
+        time: None,
+        mem_budget,
+    };
+    opts.build.validate().map_err(to_py)?;
+    opts.blocks.validate().map_err(to_py)?;
+    Ok(opts)
+}
+
+/// Runs a pack with the GIL released and a progress bar on a terminal's stderr.
+fn run_pack(
+    py: Python<'_>,
+    progress: bool,
+    threads: Option<usize>,
+    pack: impl FnOnce(&dyn oavm::build::Progress) -> Result<PackReport, Error> + Send,
+) -> PyResult<String> {
+    let pool = pool(threads.unwrap_or_else(cores).max(1))?;
+    let report = py
+        .detach(|| {
+            let bar = oavm::build::bar::Progress::new(progress && std::io::stderr().is_terminal());
+            let r = pool.install(|| pack(&bar));
+            bar.finish();
+            r
+        })
+        .map_err(to_py)?;
+    serde_json::to_string(&report)
+        .map_err(|e| OavmError::new_err(format!("cannot write the report: {e}")))
+}
+
+/// Packs a mesh file (PLY, OBJ, AFF); the report as JSON.
+#[pyfunction]
+#[pyo3(signature = (mesh, out, leaf="cluster", leaf_size=None, max_depth=None, compress=None,
+                    mem_budget=None, block_size=None, progress=true, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn pack_file(
+    py: Python<'_>,
+    mesh: PathBuf,
+    out: PathBuf,
+    leaf: &str,
+    leaf_size: Option<u32>,
+    max_depth: Option<u32>,
+    compress: Option<i32>,
+    mem_budget: Option<u64>,
+    block_size: Option<u64>,
+    progress: bool,
+    threads: Option<usize>,
+) -> PyResult<String> {
+    let opts = pack_options(leaf, leaf_size, max_depth, compress, mem_budget, block_size)?;
+    run_pack(py, progress, threads, |bar| {
+        oavm::build::pack(&mesh, &out, &opts, bar)
+    })
+}
+
+/// Packs a mesh given as a `(V, 3)` float32 vertex array and a `(F, 3)` uint32 face array;
+/// the report as JSON.
+#[pyfunction]
+#[pyo3(signature = (vertices, faces, out, leaf="cluster", leaf_size=None, max_depth=None,
+                    compress=None, block_size=None, progress=true, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn pack_arrays(
+    py: Python<'_>,
+    vertices: PyReadonlyArray2<'_, f32>,
+    faces: PyReadonlyArray2<'_, u32>,
+    out: PathBuf,
+    leaf: &str,
+    leaf_size: Option<u32>,
+    max_depth: Option<u32>,
+    compress: Option<i32>,
+    block_size: Option<u64>,
+    progress: bool,
+    threads: Option<usize>,
+) -> PyResult<String> {
+    let opts = pack_options(leaf, leaf_size, max_depth, compress, None, block_size)?;
+    let three = |name: &str, shape: &[usize]| {
+        if shape[1] == 3 {
+            Ok(())
+        } else {
+            Err(PyValueError::new_err(format!(
+                "{name}: expected shape ({}, 3), got ({}, {})",
+                if name == "vertices" { "V" } else { "F" },
+                shape[0],
+                shape[1]
+            )))
+        }
+    };
+    three("vertices", vertices.shape())?;
+    three("faces", faces.shape())?;
+    let v = vertices
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(format!("vertices: {e}")))?;
+    let f = faces
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(format!("faces: {e}")))?;
+    let mesh = Mesh {
+        positions: v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        triangles: f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+    };
+    let name = format!(
+        "arrays ({} vertices, {} faces)",
+        mesh.positions.len(),
+        mesh.triangles.len()
+    );
+    run_pack(py, progress, threads, |bar| {
+        // The options were checked above: what is invalid now is the mesh (an index out of
+        // range, a non-finite corner, no triangles), reported as for a mesh file.
+        oavm::build::pack_mesh(mesh, &name, &out, &opts, bar).map_err(|e| match e {
+            Error::Invalid(what) => {
+                Error::Mesh(oavm::error::MeshError::Arrays(format!("{name}: {what}")))
+            }
+            e => e,
+        })
+    })
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<NativeScene>()?;
+    m.add_function(wrap_pyfunction!(open, m)?)?;
+    m.add_function(wrap_pyfunction!(pack_file, m)?)?;
+    m.add_function(wrap_pyfunction!(pack_arrays, m)?)?;
+    m.add("OavmError", m.py().get_type::<OavmError>())?;
+    m.add("FormatError", m.py().get_type::<FormatError>())?;
+    m.add("MeshError", m.py().get_type::<MeshError>())?;
+    m.add("FORMAT_VERSION", VERSION)?;
+    m.add("IO_THREADS_PER_CORE", IO_THREADS_PER_CORE)?;
+    Ok(())
+}
