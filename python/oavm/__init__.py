@@ -250,6 +250,34 @@ class Scene:
         arr = _ray_array(rays, directions, tmin, tmax)
         return self._scene().occluded(arr, _count("threads", threads, 1, 1 << 16))
 
+    def camera_rays(
+        self,
+        width: int,
+        height: int,
+        *,
+        eye: Any = None,
+        target: Any = None,
+        up: Any = None,
+        fov: Optional[float] = None,
+        start: int = 0,
+        stop: Optional[int] = None,
+    ) -> np.ndarray:
+        """The primary rays of a ``width`` x ``height`` pinhole camera, one through the centre of
+        each pixel, row by row from the top left, as an ``(N, 8)`` float32 array (unit
+        directions): bit for bit the rays ``oavm-trace`` renders and benchmarks with. By default
+        the camera frames the mesh as ``oavm-trace`` does; ``eye``, ``target``, ``up`` (default
+        ``(0, 1, 0)``) and ``fov`` (vertical, degrees, default 40) replace what they name.
+        ``start``, ``stop``: only the pixels ``start..stop`` (row-major index), for a slice of
+        the image."""
+        info = self.info
+        vec = lambda name, x: None if x is None else tuple(float(c) for c in _real_array(name, x).reshape(3))
+        return _native.camera_rays(
+            info["mesh_min"], info["mesh_max"], _count("width", width, 1, 1 << 20),
+            _count("height", height, 1, 1 << 20), vec("eye", eye), vec("target", target), vec("up", up),
+            None if fov is None else float(fov), _count("start", start, 0, 1 << 40),
+            _count("stop", stop, 0, 1 << 40),
+        )
+
     def close(self) -> None:
         """Unmaps the file; the scene cannot trace afterwards. Idempotent."""
         self._native = None

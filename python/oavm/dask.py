@@ -31,7 +31,7 @@ except ImportError as e:  # pragma: no cover - depends on the environment
 from . import Hits, HitsWithAttributes, Scene, _bytes, _count
 from . import open as _open
 
-__all__ = ["intersect", "occluded", "scene", "cache_info", "HIT_DTYPE", "ATTRIBUTES_DTYPE"]
+__all__ = ["camera_rays", "intersect", "occluded", "scene", "cache_info", "HIT_DTYPE", "ATTRIBUTES_DTYPE"]
 
 #: The record of one closest hit (the ``HITS`` record of RAYS.md).
 HIT_DTYPE = np.dtype([("t", "<f4"), ("prim", "<u4")])
@@ -147,3 +147,31 @@ def occluded(path: Union[str, "os.PathLike[str]"], rays: Any, *, mem_budget: Uni
         dtype=bool, drop_axis=1, meta=np.empty((0,), bool), token="oavm-occluded",
     )
 
+
+
+def _camera_block(path: str, mem_budget: Optional[int], width: int, height: int, block_info=None,
+                  **camera: Any) -> np.ndarray:
+    start, stop = block_info[None]["array-location"][0]
+    return scene(path, mem_budget).camera_rays(width, height, start=start, stop=stop, **camera)
+
+
+def camera_rays(path: Union[str, "os.PathLike[str]"], width: int, height: int, *, chunk: Optional[int] = None,
+                mem_budget: Union[None, int, str] = None, eye: Any = None, target: Any = None, up: Any = None,
+                fov: Optional[float] = None) -> "da.Array":
+    """The primary rays of a ``width`` x ``height`` camera framing the file's mesh
+    (:meth:`oavm.Scene.camera_rays`), as a lazy ``(width * height, 8)`` dask array of chunks of
+    ``chunk`` rays (default 2^20), each made by the worker that traces it: nothing is sent to
+    the workers but the camera."""
+    _count("width", width, 1, 1 << 20)
+    _count("height", height, 1, 1 << 20)
+    size = _count("chunk", chunk, 1, 1 << 40) or DEFAULT_CHUNK
+    path = _check_file(path)
+    n = int(width) * int(height)
+    chunks = (tuple(min(size, n - i) for i in range(0, n, size)), (8,))
+    camera = {k: v for k, v in dict(eye=eye, target=target, up=up, fov=fov).items() if v is not None}
+    # Fail on the client for a camera that cannot be made.
+    scene(path, _bytes("mem_budget", mem_budget)).camera_rays(width, height, stop=1, **camera)
+    return da.map_blocks(
+        _camera_block, path, _bytes("mem_budget", mem_budget), int(width), int(height), chunks=chunks,
+        dtype=np.float32, meta=np.empty((0, 8), np.float32), token="oavm-camera", **camera,
+    )

@@ -14,11 +14,12 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use oavm::build::{BuildOptions, LeafKind, PackOptions, PackReport};
 use oavm::logical::{IO_THREADS_PER_CORE, Order, SceneOptions};
 use oavm::mesh::Mesh;
 use oavm::physical::BlockOptions;
+use oavm::rays::{Bounds, Camera};
 use oavm::physical::DEFAULT_BLOCK_SIZE;
 use oavm::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_MERGED, VERSION};
 use oavm::{Error, Hit, HitAttributes, Ray, Scene};
@@ -454,12 +455,66 @@ fn pack_arrays(
     })
 }
 
+/// The rays of pixels `start..stop` (row-major from the top left) of a `width` x `height`
+/// image, as a `(stop - start, 8)` float32 array: bit for bit `oavm-trace`'s primary rays. The
+/// camera frames the box `[mesh_min, mesh_max]` as `oavm-trace` does, then `eye`, `target`,
+/// `up`, `fov` (degrees, vertical) replace what they name.
+#[pyfunction]
+#[pyo3(signature = (mesh_min, mesh_max, width, height, eye=None, target=None, up=None, fov=None,
+                    start=0, stop=None))]
+#[allow(clippy::too_many_arguments)]
+fn camera_rays<'py>(
+    py: Python<'py>,
+    mesh_min: [f32; 3],
+    mesh_max: [f32; 3],
+    width: u32,
+    height: u32,
+    eye: Option<[f64; 3]>,
+    target: Option<[f64; 3]>,
+    up: Option<[f64; 3]>,
+    fov: Option<f64>,
+    start: u64,
+    stop: Option<u64>,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let pixels = width as u64 * height as u64;
+    let stop = stop.unwrap_or(pixels);
+    if width == 0 || height == 0 || start > stop || stop > pixels {
+        return Err(PyValueError::new_err(format!(
+            "pixels {start}..{stop} of a {width} x {height} image: need 0 < width, height and \
+             start <= stop <= width * height"
+        )));
+    }
+    let framing = Camera::framing(&Bounds {
+        min: mesh_min,
+        max: mesh_max,
+    });
+    let camera = Camera::look_at(
+        eye.unwrap_or(framing.eye),
+        target.unwrap_or(framing.target),
+        up.unwrap_or(framing.up),
+        fov.unwrap_or(framing.fov_y),
+    )
+    .map_err(|e| PyValueError::new_err(format!("camera: {e}")))?;
+    let view = camera.pixels(width, height);
+    let n = (stop - start) as usize;
+    let flat: Vec<f32> = py.detach(|| {
+        (start..stop)
+            .flat_map(|i| {
+                let r = view.ray((i % width as u64) as u32, (i / width as u64) as u32);
+                bytemuck::cast::<Ray, [f32; 8]>(r)
+            })
+            .collect()
+    });
+    Ok(PyArray1::from_vec(py, flat).reshape([n, 8])?)
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<NativeScene>()?;
     m.add_function(wrap_pyfunction!(open, m)?)?;
     m.add_function(wrap_pyfunction!(pack_file, m)?)?;
     m.add_function(wrap_pyfunction!(pack_arrays, m)?)?;
+    m.add_function(wrap_pyfunction!(camera_rays, m)?)?;
     m.add("OavmError", m.py().get_type::<OavmError>())?;
     m.add("FormatError", m.py().get_type::<FormatError>())?;
     m.add("MeshError", m.py().get_type::<MeshError>())?;

@@ -105,3 +105,13 @@ def test_errors_arrive_at_the_client(tmp_path, rays):
         oavm.dask.intersect(tmp_path / "missing.oavm", rays)
     with pytest.raises(ValueError, match=r"expected shape \(N, 8\)"):
         oavm.dask.intersect(tmp_path / "x.oavm", da.zeros((10, 7)))
+
+
+def test_camera_rays_made_on_the_workers(dragon):
+    with oavm.open(dragon) as s:
+        want = s.camera_rays(200, 150, fov=30)
+    r = oavm.dask.camera_rays(dragon, 200, 150, chunk=7000, fov=30)
+    assert r.shape == (30000, 8) and r.numblocks == (5, 1)
+    assert np.array_equal(r.compute(scheduler="processes"), want)
+    with pytest.raises(ValueError, match="camera"):
+        oavm.dask.camera_rays(dragon, 20, 20, fov=0)
