@@ -5,7 +5,8 @@
 //! never trusts them with an index.
 //!
 //! Every call that traces, packs or verifies releases the GIL and runs on a rayon pool of the
-//! threads asked for (one pool per thread count, made on first use and kept). A long batch is
+//! threads asked for (one pool per thread count, made on first use and kept). Calls on one
+//! scene from several Python threads take turns (see `NativeScene::busy`). A long batch is
 //! traced in slices of [`SLICE`] rays, taking the GIL back between slices to let Python deliver
 //! signals: Ctrl-C interrupts it with `KeyboardInterrupt`.
 
@@ -133,6 +134,10 @@ fn rays_of<'a>(a: &'a PyReadonlyArray2<'_, f32>) -> PyResult<std::borrow::Cow<'a
 #[pyclass(frozen, module = "oavm._native")]
 struct NativeScene {
     scene: Scene,
+    /// Held while a batch traces: the pager is sized for `scene.threads()` threads at once, and
+    /// each batch may use them all, so batches of several Python threads take turns (each
+    /// would use every core anyway).
+    busy: Mutex<()>,
     path: PathBuf,
     mem_budget: Option<u64>,
 }
@@ -160,8 +165,11 @@ impl NativeScene {
         let pool = pool(self.threads(threads)?)?;
         let order = self.scene.default_order();
         for (rays, out) in rays.chunks(SLICE).zip(out.chunks_mut(SLICE)) {
-            py.detach(|| pool.install(|| answer(&self.scene, rays, out, order)))
-                .map_err(to_py)?;
+            py.detach(|| {
+                let _turn = self.busy.lock().unwrap_or_else(|e| e.into_inner());
+                pool.install(|| answer(&self.scene, rays, out, order))
+            })
+            .map_err(to_py)?;
             py.check_signals()?;
         }
         Ok(())
@@ -243,7 +251,10 @@ impl NativeScene {
         let pool = pool(cores())?;
         let t = std::time::Instant::now();
         let report = py
-            .detach(|| pool.install(|| self.scene.verify()))
+            .detach(|| {
+                let _turn = self.busy.lock().unwrap_or_else(|e| e.into_inner());
+                pool.install(|| self.scene.verify())
+            })
             .map_err(to_py)?;
         Ok(serde_json::json!({
             "path": self.path,
@@ -308,6 +319,7 @@ fn open(py: Python<'_>, path: PathBuf, mem_budget: Option<u64>) -> PyResult<Nati
         .map_err(to_py)?;
     Ok(NativeScene {
         scene,
+        busy: Mutex::new(()),
         path,
         mem_budget,
     })

@@ -272,3 +272,22 @@ def test_camera_rays(packed, oavm_trace, tmp_path):
             scene.camera_rays(8, 8, start=10, stop=100)
         with pytest.raises(ValueError, match="width"):
             scene.camera_rays(0, 8)
+
+
+def test_python_threads_share_a_scene(packed):
+    """Eight Python threads trace one scene at once, under a budget that makes it page: the
+    GIL is released (they overlap) and every thread gets the single-threaded answers."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with oavm.open(packed["dragon_res2"], mem_budget="2M") as scene:
+        info = scene.info
+        assert not info["fits_in_budget"]
+        rays = ray_sets(info["mesh_min"], info["mesh_max"], 20000, seed=31)["random"]
+        want = scene.intersect(rays, threads=1)
+        with ThreadPoolExecutor(8) as ex:
+            got = list(ex.map(lambda k: scene.intersect(rays[k::3]) if k % 2 else scene.occluded(rays[k::3]), range(24)))
+        for k, g in enumerate(got):
+            if k % 2:
+                assert np.array_equal(g.t, want.t[k::3]) and np.array_equal(g.prim, want.prim[k::3])
+            else:
+                assert np.array_equal(g, want.prim[k::3] != oavm.MISS)
