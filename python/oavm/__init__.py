@@ -248,7 +248,7 @@ class Scene:
         """Any-hit answers (a bool array: some triangle is hit with ``tmin <= t <= tmax``), for
         the same arguments as :meth:`intersect`."""
         arr = _ray_array(rays, directions, tmin, tmax)
-        return self._scene().occluded(arr, _count("threads", threads, 1, 1 << 16))
+        return self._scene().occluded(arr, _count("threads", threads, 1, 1 << 16)).view(np.bool_)
 
     def camera_rays(
         self,

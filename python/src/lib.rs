@@ -20,9 +20,9 @@ use oavm::build::{BuildOptions, LeafKind, PackOptions, PackReport};
 use oavm::logical::{IO_THREADS_PER_CORE, Order, SceneOptions};
 use oavm::mesh::Mesh;
 use oavm::physical::BlockOptions;
-use oavm::rays::{Bounds, Camera};
 use oavm::physical::DEFAULT_BLOCK_SIZE;
 use oavm::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_MERGED, VERSION};
+use oavm::rays::{Bounds, Camera};
 use oavm::{Error, Hit, HitAttributes, Ray, Scene};
 use pyo3::create_exception;
 use pyo3::exceptions::{
@@ -49,6 +49,10 @@ create_exception!(
     OavmError,
     "A mesh file or mesh arrays that cannot be read or packed."
 );
+
+/// Rays per call into the library when the scene is held whole in memory: their answers (at
+/// most 28 bytes each) fit in the cache before they are copied into the numpy arrays.
+const PIECE: usize = 1 << 16;
 
 /// Rays traced per release of the GIL: about a second of work, so Ctrl-C answers quickly
 /// while the hand-out and (under a budget) the sort by block stay amortised.
@@ -153,27 +157,65 @@ impl NativeScene {
         }
     }
 
-    /// Answers `rays` into `out` slice by slice with `answer`, the GIL released during each.
+    /// Answers `rays` with `answer`, piece by piece into a buffer of `fill`s that stays in
+    /// the cache, each piece's answers handed to `sink` with the index of its first ray (to
+    /// copy them into the numpy arrays); the GIL is released for each slice of [`SLICE`] rays.
+    /// A scene that pages traces whole slices at once instead of pieces, so that
+    /// [`Order::Blocks`] sorts as many rays together as it can.
     fn traced<T: Send + Sync + Copy>(
         &self,
         py: Python<'_>,
         rays: &[Ray],
-        out: &mut [T],
         threads: Option<usize>,
+        fill: T,
         answer: impl Fn(&Scene, &[Ray], &mut [T], Order) -> Result<(), Error> + Sync,
+        mut sink: impl FnMut(usize, &[T]) + Send,
     ) -> PyResult<()> {
         let pool = pool(self.threads(threads)?)?;
         let order = self.scene.default_order();
-        for (rays, out) in rays.chunks(SLICE).zip(out.chunks_mut(SLICE)) {
+        let piece = if self.scene.fits_in_budget() {
+            PIECE
+        } else {
+            SLICE
+        };
+        let mut buf = vec![fill; piece.min(rays.len())];
+        for (i, slice) in rays.chunks(SLICE).enumerate() {
             py.detach(|| {
                 let _turn = self.busy.lock().unwrap_or_else(|e| e.into_inner());
-                pool.install(|| answer(&self.scene, rays, out, order))
+                pool.install(|| {
+                    for (j, rays) in slice.chunks(piece).enumerate() {
+                        let out = &mut buf[..rays.len()];
+                        answer(&self.scene, rays, out, order)?;
+                        sink(i * SLICE + j * piece, out);
+                    }
+                    Ok(())
+                })
             })
             .map_err(to_py)?;
             py.check_signals()?;
         }
         Ok(())
     }
+}
+
+/// A C-ordered numpy array of zeros (`calloc`: pages the kernel zeroes as they are first
+/// written, so the answers are written once).
+fn zeros<'py, T: numpy::Element>(py: Python<'py>, dims: [usize; 2]) -> Bound<'py, PyArray2<T>> {
+    PyArray2::<T>::zeros(py, dims, false)
+}
+
+/// The contents of a freshly made (so contiguous) array, to fill.
+fn slice_mut<'a, T: numpy::Element>(
+    a: &'a mut numpy::PyReadwriteArray<'_, T, numpy::Ix2>,
+) -> PyResult<&'a mut [T]> {
+    a.as_slice_mut()
+        .map_err(|e| OavmError::new_err(format!("answer array: {e}")))
+}
+
+/// An `(n, 1)` array as the `(n,)` array of its column (a view, no copy).
+fn flat<'py, T: numpy::Element>(a: Bound<'py, PyArray2<T>>) -> PyResult<Bound<'py, PyAny>> {
+    let n = a.shape()[0];
+    Ok(a.reshape([n])?.into_any())
 }
 
 #[pymethods]
@@ -199,51 +241,83 @@ impl NativeScene {
     ) -> PyResult<Vec<Bound<'py, PyAny>>> {
         let rays = rays_of(&rays)?;
         let n = rays.len();
+        let (t, prim) = (zeros::<f32>(py, [n, 1]), zeros::<u32>(py, [n, 1]));
+        let (mut tw, mut pw) = (t.readwrite(), prim.readwrite());
+        let (ts, ps) = (slice_mut(&mut tw)?, slice_mut(&mut pw)?);
         if !attributes {
-            let mut hits = vec![Hit::MISS; n];
-            self.traced(py, &rays, &mut hits, threads, |s, r, o, order| {
-                s.intersect_batch_ordered(r, o, order).map(drop)
-            })?;
-            let t: Vec<f32> = hits.iter().map(|h| h.t).collect();
-            let prim: Vec<u32> = hits.iter().map(|h| h.prim).collect();
-            return Ok(vec![
-                PyArray1::from_vec(py, t).into_any(),
-                PyArray1::from_vec(py, prim).into_any(),
-            ]);
+            self.traced(
+                py,
+                &rays,
+                threads,
+                Hit::MISS,
+                |s, r, o, order| s.intersect_batch_ordered(r, o, order).map(drop),
+                |at, hits| {
+                    for (k, h) in hits.iter().enumerate() {
+                        ts[at + k] = h.t;
+                        ps[at + k] = h.prim;
+                    }
+                },
+            )?;
+            drop((tw, pw));
+            return Ok(vec![flat(t)?, flat(prim)?]);
         }
-        let mut hits = vec![HitAttributes::MISS; n];
-        self.traced(py, &rays, &mut hits, threads, |s, r, o, order| {
-            s.intersect_attributes_ordered(r, o, order).map(drop)
-        })?;
-        let column = |f: fn(&HitAttributes) -> f32| hits.iter().map(f).collect::<Vec<f32>>();
-        let normal: Vec<f32> = hits.iter().flat_map(|h| h.normal).collect();
-        let normal = PyArray1::from_vec(py, normal).reshape([n, 3])?;
+        let (u, v, normal) = (
+            zeros::<f32>(py, [n, 1]),
+            zeros::<f32>(py, [n, 1]),
+            zeros::<f32>(py, [n, 3]),
+        );
+        let (mut uw, mut vw, mut nw) = (u.readwrite(), v.readwrite(), normal.readwrite());
+        let (us, vs, ns) = (
+            slice_mut(&mut uw)?,
+            slice_mut(&mut vw)?,
+            slice_mut(&mut nw)?,
+        );
+        self.traced(
+            py,
+            &rays,
+            threads,
+            HitAttributes::MISS,
+            |s, r, o, order| s.intersect_attributes_ordered(r, o, order).map(drop),
+            |at, hits| {
+                for (k, h) in hits.iter().enumerate() {
+                    let i = at + k;
+                    (ts[i], ps[i], us[i], vs[i]) = (h.t, h.prim, h.u, h.v);
+                    ns[3 * i..3 * i + 3].copy_from_slice(&h.normal);
+                }
+            },
+        )?;
+        drop((tw, pw, uw, vw, nw));
         Ok(vec![
-            PyArray1::from_vec(py, column(|h| h.t)).into_any(),
-            PyArray1::from_vec(py, hits.iter().map(|h| h.prim).collect::<Vec<u32>>()).into_any(),
-            PyArray1::from_vec(py, column(|h| h.u)).into_any(),
-            PyArray1::from_vec(py, column(|h| h.v)).into_any(),
+            flat(t)?,
+            flat(prim)?,
+            flat(u)?,
+            flat(v)?,
             normal.into_any(),
         ])
     }
 
-    /// Any-hit answers, as a bool array.
+    /// Any-hit answers, as a uint8 array of 0 and 1 (viewed as bool by the Python half).
     #[pyo3(signature = (rays, threads=None))]
     fn occluded<'py>(
         &self,
         py: Python<'py>,
         rays: PyReadonlyArray2<'py, f32>,
         threads: Option<usize>,
-    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+    ) -> PyResult<Bound<'py, PyAny>> {
         let rays = rays_of(&rays)?;
-        let mut occl = vec![0u8; rays.len()];
-        self.traced(py, &rays, &mut occl, threads, |s, r, o, order| {
-            s.occluded_batch_ordered(r, o, order).map(drop)
-        })?;
-        Ok(PyArray1::from_vec(
+        let occl = zeros::<u8>(py, [rays.len(), 1]);
+        let mut ow = occl.readwrite();
+        let os = slice_mut(&mut ow)?;
+        self.traced(
             py,
-            occl.into_iter().map(|o| o != 0).collect(),
-        ))
+            &rays,
+            threads,
+            0u8,
+            |s, r, o, order| s.occluded_batch_ordered(r, o, order).map(drop),
+            |at, answers| os[at..at + answers.len()].copy_from_slice(answers),
+        )?;
+        drop(ow);
+        flat(occl)
     }
 
     /// Checks every byte, checksum and invariant; the report as JSON (`ok`, `defects`, ...).
