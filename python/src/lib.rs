@@ -591,7 +591,7 @@ fn camera_rays<'py>(
             })
             .collect()
     });
-    Ok(PyArray1::from_vec(py, flat).reshape([n, 8])?)
+    PyArray1::from_vec(py, flat).reshape([n, 8])
 }
 
 #[pymodule]
