@@ -233,7 +233,7 @@ class Scene:
         disk). A contiguous float32 ray array is traced in place, not copied; do not write to
         it from another thread meanwhile."""
         arr = _ray_array(rays, directions, tmin, tmax)
-        out = self._scene().intersect(arr, _count("threads", threads, 1, 1 << 16), bool(attributes))
+        out = self._scene().intersect(arr, _count("threads", threads, 1, 1024), bool(attributes))
         return HitsWithAttributes(*out) if attributes else Hits(*out)
 
     def occluded(
@@ -248,7 +248,7 @@ class Scene:
         """Any-hit answers (a bool array: some triangle is hit with ``tmin <= t <= tmax``), for
         the same arguments as :meth:`intersect`."""
         arr = _ray_array(rays, directions, tmin, tmax)
-        return self._scene().occluded(arr, _count("threads", threads, 1, 1 << 16)).view(np.bool_)
+        return self._scene().occluded(arr, _count("threads", threads, 1, 1024)).view(np.bool_)
 
     def camera_rays(
         self,
@@ -358,7 +358,7 @@ def pack(
         compress=level,
         block_size=_bytes("block_size", block_size),
         progress=bool(progress),
-        threads=_count("threads", threads, 1, 1 << 16),
+        threads=_count("threads", threads, 1, 1024),
     )
     out = os.fspath(out_path)
     if isinstance(mesh, (str, bytes, os.PathLike)):

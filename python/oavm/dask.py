@@ -128,7 +128,7 @@ def intersect(path: Union[str, "os.PathLike[str]"], rays: Any, *, attributes: bo
     path = _check_file(path)
     dtype = ATTRIBUTES_DTYPE if attributes else HIT_DTYPE
     records = rays.map_blocks(
-        _intersect_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1 << 16),
+        _intersect_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1024),
         bool(attributes), dtype=dtype, drop_axis=1, meta=np.empty((0,), dtype),
         token="oavm-intersect",
     )
@@ -143,7 +143,7 @@ def occluded(path: Union[str, "os.PathLike[str]"], rays: Any, *, mem_budget: Uni
     rays = _as_rays(rays, chunk)
     path = _check_file(path)
     return rays.map_blocks(
-        _occluded_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1 << 16),
+        _occluded_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1024),
         dtype=bool, drop_axis=1, meta=np.empty((0,), bool), token="oavm-occluded",
     )
 

@@ -91,8 +91,15 @@ fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// A rayon pool of `threads` threads, made on first use and kept for the process.
+/// Thread pools kept at once.
+const MAX_POOLS: usize = 4;
+
+/// The most threads a call may ask for.
+const MAX_THREADS: usize = 1024;
+
+/// A rayon pool of `threads` threads (at most [`MAX_THREADS`]), made on first use and kept.
 fn pool(threads: usize) -> PyResult<Arc<rayon::ThreadPool>> {
+    let threads = threads.clamp(1, MAX_THREADS);
     static POOLS: OnceLock<Mutex<HashMap<usize, Arc<rayon::ThreadPool>>>> = OnceLock::new();
     let mut pools = POOLS
         .get_or_init(Default::default)
@@ -100,6 +107,11 @@ fn pool(threads: usize) -> PyResult<Arc<rayon::ThreadPool>> {
         .unwrap_or_else(|e| e.into_inner());
     if let Some(p) = pools.get(&threads) {
         return Ok(p.clone());
+    }
+    // A program that asks for many different counts keeps a few pools, not one per count
+    // (a pool still in use lives on in its callers' handles and ends with the last of them).
+    if pools.len() >= MAX_POOLS {
+        pools.clear();
     }
     let p = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)

@@ -59,7 +59,7 @@ def test_integer_and_bool_like_rays_convert_or_refuse(scene):
 
 def test_bad_thread_counts(scene):
     rays = np.zeros((3, 8), np.float32)
-    for bad in (0, -1, 1.5, "2"):
+    for bad in (0, -1, 1.5, "2", 5000):
         with pytest.raises(ValueError, match="threads"):
             scene.intersect(rays, threads=bad)
 
