@@ -130,7 +130,6 @@ def intersect(path: Union[str, "os.PathLike[str]"], rays: Any, *, attributes: bo
     records = rays.map_blocks(
         _intersect_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1024),
         bool(attributes), dtype=dtype, drop_axis=1, meta=np.empty((0,), dtype),
-        token="oavm-intersect",
     )
     fields = [records[name] for name in dtype.names]
     return HitsWithAttributes(*fields) if attributes else Hits(*fields)
@@ -144,7 +143,7 @@ def occluded(path: Union[str, "os.PathLike[str]"], rays: Any, *, mem_budget: Uni
     path = _check_file(path)
     return rays.map_blocks(
         _occluded_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1024),
-        dtype=bool, drop_axis=1, meta=np.empty((0,), bool), token="oavm-occluded",
+        dtype=bool, drop_axis=1, meta=np.empty((0,), bool),
     )
 
 
@@ -173,5 +172,5 @@ def camera_rays(path: Union[str, "os.PathLike[str]"], width: int, height: int, *
     scene(path, _bytes("mem_budget", mem_budget)).camera_rays(width, height, stop=1, **camera)
     return da.map_blocks(
         _camera_block, path, _bytes("mem_budget", mem_budget), int(width), int(height), chunks=chunks,
-        dtype=np.float32, meta=np.empty((0, 8), np.float32), token="oavm-camera", **camera,
+        dtype=np.float32, meta=np.empty((0, 8), np.float32), **camera,
     )
