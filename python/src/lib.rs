@@ -58,6 +58,17 @@ const PIECE: usize = 1 << 16;
 /// while the hand-out and (under a budget) the sort by block stay amortised.
 const SLICE: usize = 1 << 22;
 
+/// The command-line spelling of an option in the library's messages, and the keyword argument
+/// that sets it here.
+const OPTION_NAMES: [(&str, &str); 6] = [
+    ("--max-depth", "max_depth"),
+    ("--leaf-size", "leaf_size"),
+    ("--block-size", "block_size"),
+    ("--compress", "compress"),
+    ("--mem-budget", "mem_budget"),
+    ("--threads", "threads"),
+];
+
 /// The library's error as a Python exception, with the whole chain of causes in its message
 /// (as `oavm-trace` prints it).
 fn to_py(e: Error) -> PyErr {
@@ -69,6 +80,12 @@ fn to_py(e: Error) -> PyErr {
             msg.push_str(&format!(": {text}"));
         }
         src = s.source();
+    }
+    if matches!(e, Error::Invalid(_) | Error::Budget { .. }) {
+        // The library names its options as the command-line tools spell them.
+        for (flag, arg) in OPTION_NAMES {
+            msg = msg.replace(flag, arg);
+        }
     }
     let io_kind = match &e {
         Error::Io { source, .. } => Some(source.kind()),

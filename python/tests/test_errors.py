@@ -101,7 +101,7 @@ def test_a_damaged_block_is_an_error_not_a_crash(tmp_path, bunny):
 
 
 def test_budget_too_small(bunny):
-    with pytest.raises(ValueError, match="too small for this file"):
+    with pytest.raises(ValueError, match=r"too small for this file.*\(mem_budget\)"):
         oavm.open(bunny, mem_budget=4096)
     for bad in ("lots", -5, 0, 2.5, True):
         with pytest.raises(ValueError, match="mem_budget"):
@@ -146,8 +146,10 @@ def test_bad_pack_options_and_outputs(tmp_path):
         oavm.pack(mesh, tmp_path / "o.oavm", compress=99)
     with pytest.raises(ValueError, match="max_depth"):
         oavm.pack(mesh, tmp_path / "o.oavm", max_depth=-1)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="^max_depth 40 is too deep"):
         oavm.pack(mesh, tmp_path / "o.oavm", max_depth=40)
+    with pytest.raises(ValueError, match="^block_size 100 must be between"):
+        oavm.pack(mesh, tmp_path / "o.oavm", block_size=100)
     with pytest.raises(OSError, match="directory"):
         oavm.pack(mesh, tmp_path)
     with pytest.raises(OSError):
