@@ -73,13 +73,8 @@ const OPTION_NAMES: [(&str, &str); 6] = [
 /// (as `oavm-trace` prints it).
 fn to_py(e: Error) -> PyErr {
     let mut msg = e.to_string();
-    let mut src = std::error::Error::source(&e);
-    while let Some(s) = src {
-        let text = s.to_string();
-        if !msg.contains(&text) {
-            msg.push_str(&format!(": {text}"));
-        }
-        src = s.source();
+    for cause in e.causes() {
+        msg.push_str(&format!(": {cause}"));
     }
     if matches!(e, Error::Invalid(_) | Error::Budget { .. }) {
         // The library names its options as the command-line tools spell them.
@@ -171,8 +166,6 @@ struct NativeScene {
     /// each batch may use them all, so batches of several Python threads take turns (each
     /// would use every core anyway).
     busy: Mutex<()>,
-    path: PathBuf,
-    mem_budget: Option<u64>,
 }
 
 impl NativeScene {
@@ -249,16 +242,6 @@ fn flat<'py, T: numpy::Element>(a: Bound<'py, PyArray2<T>>) -> PyResult<Bound<'p
 
 #[pymethods]
 impl NativeScene {
-    #[getter]
-    fn path(&self) -> PathBuf {
-        self.path.clone()
-    }
-
-    #[getter]
-    fn mem_budget(&self) -> Option<u64> {
-        self.mem_budget
-    }
-
     /// Closest hits: `(t, prim)`, or with `attributes` `(t, prim, u, v, normal)`.
     #[pyo3(signature = (rays, threads=None, attributes=false))]
     fn intersect<'py>(
@@ -360,7 +343,7 @@ impl NativeScene {
             })
             .map_err(to_py)?;
         Ok(serde_json::json!({
-            "path": self.path,
+            "path": self.scene.path(),
             "ok": report.is_ok(),
             "seconds": t.elapsed().as_secs_f64(),
             "bytes_checked": report.bytes_checked,
@@ -375,7 +358,7 @@ impl NativeScene {
         let h = self.scene.file().header();
         let s = self.scene.info();
         serde_json::json!({
-            "path": self.path,
+            "path": self.scene.path(),
             "format_version": h.version,
             "file_bytes": s.file_bytes,
             "leaf": if h.flags & FLAG_CLUSTERS != 0 { "cluster" } else { "list" },
@@ -423,8 +406,6 @@ fn open(py: Python<'_>, path: PathBuf, mem_budget: Option<u64>) -> PyResult<Nati
     Ok(NativeScene {
         scene,
         busy: Mutex::new(()),
-        path,
-        mem_budget,
     })
 }
 
@@ -460,8 +441,7 @@ fn pack_options(
         time: None,
         mem_budget,
     };
-    opts.build.validate().map_err(to_py)?;
-    opts.blocks.validate().map_err(to_py)?;
+    opts.validate().map_err(to_py)?;
     Ok(opts)
 }
 
@@ -634,6 +614,5 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("FormatError", m.py().get_type::<FormatError>())?;
     m.add("MeshError", m.py().get_type::<MeshError>())?;
     m.add("FORMAT_VERSION", VERSION)?;
-    m.add("IO_THREADS_PER_CORE", IO_THREADS_PER_CORE)?;
     Ok(())
 }

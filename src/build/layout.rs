@@ -196,15 +196,15 @@ fn leaf_bounds(lattice: &[LatticeTri], tris: &[u32], code: u64, level: u32) -> L
     let mut bhi = [f64::NEG_INFINITY; 3];
     for &t in tris {
         let tri = &lattice[t as usize];
-        // The exact clip (`build::clip`: what `geom::tribox::clipped_bounds` gives, skipping
-        // the planes that cut nothing; a triangle wholly inside is its own bounds); if rounding
+        // The exact clip (`geom::tribox::clipped_bounds`; a triangle wholly inside is its own
+        // bounds); if rounding
         // leaves nothing of a triangle the exact test kept, fall back to its bounding box (still
         // conservative).
         let inside = (0..3).all(|k| tri.lo[k] >= lo[k] && tri.hi[k] <= hi[k]);
         let clipped = if inside {
             Some((tri.lo, tri.hi))
         } else {
-            super::clip::clipped_bounds(&tri.v, &lo, &hi)
+            crate::geom::tribox::clipped_bounds(&tri.v, lo, hi)
         };
         let (a, b) = clipped.unwrap_or((
             std::array::from_fn(|k| tri.lo[k].max(lo[k])),

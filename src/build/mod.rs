@@ -15,7 +15,6 @@
 #[cfg(feature = "progress")]
 pub mod bar;
 pub(crate) mod blocks;
-mod clip;
 mod cluster;
 mod layout;
 mod merge;

@@ -24,6 +24,14 @@ pub struct PackOptions {
     pub mem_budget: Option<u64>,
 }
 
+impl PackOptions {
+    /// Whether the build and block options are valid (the error says which is not).
+    pub fn validate(&self) -> Result<(), Error> {
+        self.build.validate()?;
+        self.blocks.validate()
+    }
+}
+
 /// What [`pack`] did, for `oavm-pack`'s report.
 #[derive(Clone, Debug, Serialize)]
 pub struct PackReport {
@@ -78,8 +86,7 @@ pub fn pack(
     opts: &PackOptions,
     progress: &dyn Progress,
 ) -> Result<PackReport, Error> {
-    opts.build.validate()?;
-    opts.blocks.validate()?;
+    opts.validate()?;
     if opts.mem_budget.is_some() && opts.time.is_some() {
         return Err(Error::Invalid(
             "--time poses an .aff scene, which --mem-budget cannot stream (binary PLY only)".into(),
@@ -120,8 +127,7 @@ pub fn pack_mesh(
     opts: &PackOptions,
     progress: &dyn Progress,
 ) -> Result<PackReport, Error> {
-    opts.build.validate()?;
-    opts.blocks.validate()?;
+    opts.validate()?;
     if opts.time.is_some() {
         return Err(Error::Invalid(
             "a scene time poses an .aff scene file, not a mesh given as arrays".into(),

@@ -91,6 +91,22 @@ pub enum Error {
 }
 
 impl Error {
+    /// The messages of the error's sources that its own message does not already carry,
+    /// outermost first: what a program prints after the error itself.
+    pub fn causes(&self) -> Vec<String> {
+        let text = self.to_string();
+        let mut out: Vec<String> = Vec::new();
+        let mut src = std::error::Error::source(self);
+        while let Some(s) = src {
+            let s_text = s.to_string();
+            if !text.contains(&s_text) && !out.iter().any(|o| o.contains(&s_text)) {
+                out.push(s_text);
+            }
+            src = s.source();
+        }
+        out
+    }
+
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Error {
         Error::Io {
             path: path.into(),

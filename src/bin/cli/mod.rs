@@ -22,13 +22,8 @@ pub fn main_with(program: &str, run: impl FnOnce() -> Result<(), Error>) -> Exit
         }
         Err(e) => {
             let mut msg = format!("{program}: error: {e}");
-            let mut src = std::error::Error::source(&e);
-            while let Some(s) = src {
-                let s_text = s.to_string();
-                if !msg.contains(&s_text) {
-                    msg.push_str(&format!("\n  caused by: {s_text}"));
-                }
-                src = s.source();
+            for cause in e.causes() {
+                msg.push_str(&format!("\n  caused by: {cause}"));
             }
             eprintln!("{msg}");
             ExitCode::FAILURE

@@ -86,7 +86,6 @@ mod wide;
 #[cfg(test)]
 mod tests;
 
-use super::clip;
 use crate::physical::format::{ClusterNode, GROUP_LANES, MAX_CLUSTER_DEPTH, TriGroup};
 pub use check::{ClusterShape, check_cluster};
 
@@ -390,8 +389,8 @@ pub fn build_cluster(
 
 /// The box every box on the way to triangle `v` must contain, in f32: the bounds of the part of
 /// the triangle inside the closed box `clip`, rounded outward to f32 and cut to the triangle's
-/// own bounds. The part is found by Sutherland–Hodgman clipping in f64 (`build::clip`, which
-/// gives what `geom::tribox::clipped_bounds` gives, faster). A
+/// own bounds. The part is found by Sutherland–Hodgman clipping in f64
+/// (`geom::tribox::clipped_bounds`). A
 /// triangle that only touches `clip` (clipping leaves nothing, or rounding leaves an empty box)
 /// gets its bounds cut to `clip`, possibly flat; `None` if even those miss `clip` (nothing of it
 /// is inside).
@@ -409,7 +408,7 @@ pub fn triangle_box(
         return Some((tlo, thi));
     }
     let w: [[f64; 3]; 3] = v.map(|p| p.map(f64::from));
-    if let Some((a, b)) = clip::clipped_bounds(&w, lo, hi) {
+    if let Some((a, b)) = crate::geom::tribox::clipped_bounds(&w, *lo, *hi) {
         let blo: [f32; 3] = std::array::from_fn(|k| down(a[k]).max(tlo[k]));
         let bhi: [f32; 3] = std::array::from_fn(|k| up(b[k]).min(thi[k]));
         if (0..3).all(|k| blo[k] <= bhi[k]) {
