@@ -153,7 +153,18 @@ fn check_counters(what: &str, c: &Counters, raw: bool, rays: u64, misses: bool) 
     let p = &c.page;
     assert_eq!(c.rays, rays, "{what}");
     assert_eq!(p.requested, p.hits + p.misses, "{what}: {p:?}");
-    assert!(p.requested >= rays / 10, "{what}: {p:?}");
+    // Rays reach blocks: each asks the pager for every block it moves into, or (streamed) is
+    // parked at it, and each block served is asked for once.
+    if c.blocks_served > 0 {
+        assert!(c.walks_parked >= rays / 10, "{what}: {c:?}");
+        // (Readers' admissions are gets too, each a miss.)
+        assert!(
+            p.requested >= c.blocks_served && p.requested <= c.blocks_served + p.misses,
+            "{what}: {c:?}"
+        );
+    } else {
+        assert!(p.requested >= rays / 10, "{what}: {p:?}");
+    }
     assert_eq!(p.misses > 0, p.bytes_read > 0, "{what}: {p:?}");
     if misses {
         assert!(p.misses > 0, "{what}: {p:?}");
@@ -193,7 +204,7 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
     // admitted, one to evict), without block checks; nine, four threads' worth.
     for budget in [u64::MAX, 3 * max, 9 * max] {
         for threads in [1, 4] {
-            for order in [Order::None, Order::Morton, Order::Blocks] {
+            for order in [Order::None, Order::Morton, Order::Blocks, Order::Stream] {
                 if budget == u64::MAX && threads == 1 && order == Order::None {
                     continue;
                 }
@@ -207,6 +218,11 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
                     panic!("{what}: answers differ, first at ray {first:?}");
                 }
                 let tight = budget != u64::MAX;
+                // A stream parks walks and serves blocks; a direct walk does neither.
+                for c in [&r.closest, &r.any] {
+                    let streamed = c.walks_parked > 0 && c.blocks_served > 0;
+                    assert_eq!(streamed, order == Order::Stream, "{what}: {c:?}");
+                }
                 check_counters(&format!("{what}, closest"), &r.closest, raw, rays, true);
                 check_counters(&format!("{what}, any"), &r.any, raw, rays, tight);
                 // The work of the walks does not depend on paging.
@@ -228,7 +244,7 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
                         r.closest.page
                     );
                 }
-                if threads == 1 && budget == 3 * max {
+                if threads == 1 && budget == 3 * max && order != Order::Stream {
                     misses.push((order, r.closest.page.misses + r.any.page.misses));
                 }
             }

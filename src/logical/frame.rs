@@ -60,7 +60,10 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             frame.primary.seconds = t.elapsed().as_secs_f64();
             return Ok(frame);
         };
+        // A stream is not cut into waves: it orders the blocks itself, and the more rays it
+        // holds, the more share each block read.
         let wave = match opts.wave {
+            _ if opts.order == Order::Stream => rays.len().max(1),
             0 => rays.len().max(1),
             n => n,
         };

@@ -11,6 +11,7 @@ mod order;
 mod pager;
 mod report;
 mod scene;
+mod stream;
 mod top_bounds;
 mod trace;
 mod verify;
@@ -24,5 +25,6 @@ pub use scene::{
     BYTES_PER_RAY, FALLBACK_MEM_BUDGET, IO_THREADS_PER_CORE, Scene, SceneInfo, SceneOptions,
     default_mem_budget, max_rays,
 };
+pub use stream::StreamStats;
 pub use trace::{Counters, HitInfo, TraceError, Tree};
 pub use verify::VerifyReport;

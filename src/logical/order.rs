@@ -23,6 +23,11 @@ pub enum Order {
     /// file order. Costs a walk of the top tree per ray; pays under a budget smaller than what
     /// the rays need.
     Blocks,
+    /// Streamed: each ray's walk is parked at every block it needs that is not the one being
+    /// traced, and blocks are read ahead and served with all the walks parked at them
+    /// (`super::stream`); rays are started in [`Order::Morton`]'s order. For a budget smaller
+    /// than the file. Files of leaf lists are traced as [`Order::Blocks`].
+    Stream,
     /// As given, handed to the threads in chunks in that order (like the sorted orders): for
     /// rays the caller has already sorted, e.g. a slice of [`Scene::block_order`]'s order.
     Given,
@@ -35,8 +40,9 @@ impl std::str::FromStr for Order {
             "none" => Ok(Order::None),
             "morton" => Ok(Order::Morton),
             "blocks" => Ok(Order::Blocks),
+            "stream" => Ok(Order::Stream),
             _ => Err(format!(
-                "unknown order {s:?}: expected none, morton or blocks"
+                "unknown order {s:?}: expected none, morton, blocks or stream"
             )),
         }
     }
@@ -48,6 +54,7 @@ impl std::fmt::Display for Order {
             Order::None => "none",
             Order::Morton => "morton",
             Order::Blocks => "blocks",
+            Order::Stream => "stream",
             Order::Given => "given",
         })
     }

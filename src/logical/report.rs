@@ -56,7 +56,20 @@ pub struct SetReport {
     pub cluster_nodes_visited_per_ray: f64,
     pub boxes_tested_per_ray: f64,
     pub groups_tested_per_ray: f64,
+    /// Streamed sets ([`super::Order::Stream`]): walks parked at a block and resumed, times a
+    /// block's queue was served, and the most bytes the parked walks took at once.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stream: Option<StreamReport>,
     pub page: PageReport,
+}
+
+/// What a stream did (see [`SetReport::stream`]).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct StreamReport {
+    pub walks_parked: u64,
+    pub walks_parked_per_ray: f64,
+    pub blocks_served: u64,
+    pub peak_parked_bytes: u64,
 }
 
 /// What a set's rays answered: how many hit (closest hit) or were occluded (any hit).
@@ -101,6 +114,12 @@ impl SetReport {
             cluster_nodes_visited_per_ray: per_ray(c.cluster_nodes_visited),
             boxes_tested_per_ray: per_ray(c.boxes_tested),
             groups_tested_per_ray: per_ray(c.groups_tested),
+            stream: (c.blocks_served > 0).then(|| StreamReport {
+                walks_parked: c.walks_parked,
+                walks_parked_per_ray: per_ray(c.walks_parked),
+                blocks_served: c.blocks_served,
+                peak_parked_bytes: c.peak_parked_bytes,
+            }),
             page: PageReport::new(c),
         }
     }

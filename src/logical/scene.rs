@@ -12,7 +12,8 @@ use super::held::ReadyMap;
 use super::order::{Order, RayKeys};
 use super::pager::{BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions};
 use super::top_bounds::{LatticeBox, top_bounds};
-use super::trace::{BlockFetch, Counters, Direct, TraceError, Tree};
+use super::stream::{Stream, StreamOptions};
+use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree};
 use super::verify::VerifyReport;
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, HitAttributes, Ray};
@@ -347,12 +348,11 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         out: &mut [Hit],
         order: Order,
     ) -> Result<Counters, Error> {
-        let tree = self.tree();
-        self.batch(rays, out, order, |ray, c| {
-            Ok(tree.intersect(ray, c)?.map_or(Hit::MISS, |h| Hit {
+        self.answers::<false, _>(rays, out, order, |_, h| {
+            h.map_or(Hit::MISS, |h| Hit {
                 t: h.t,
                 prim: h.prim,
-            }))
+            })
         })
     }
 
@@ -365,11 +365,10 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         out: &mut [HitAttributes],
         order: Order,
     ) -> Result<Counters, Error> {
-        let tree = self.tree();
-        self.batch(rays, out, order, |ray, c| {
-            Ok(tree.intersect(ray, c)?.map_or(HitAttributes::MISS, |h| {
+        self.answers::<false, _>(rays, out, order, |ray, h| {
+            h.map_or(HitAttributes::MISS, |h| {
                 HitAttributes::new(ray, h.t, h.prim, &h.v)
-            }))
+            })
         })
     }
 
@@ -380,8 +379,96 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         out: &mut [u8],
         order: Order,
     ) -> Result<Counters, Error> {
+        self.answers::<true, _>(rays, out, order, |_, h| h.is_some() as u8)
+    }
+
+    /// The closest (`ANY`: any) hit of each of `rays`, as `map` makes it an answer, into `out`,
+    /// traced in `order`: streamed ([`Order::Stream`], for a file of clusters), or ray by ray.
+    fn answers<const ANY: bool, T: Send + Sync + Copy>(
+        &self,
+        rays: &[Ray],
+        out: &mut [T],
+        order: Order,
+        map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
+    ) -> Result<Counters, Error> {
         let tree = self.tree();
-        self.batch(rays, out, order, |ray, c| Ok(tree.occluded(ray, c)? as u8))
+        if order == Order::Stream && tree.has_clusters() {
+            return self.stream::<ANY, T>(&tree, rays, out, map);
+        }
+        let order = match order {
+            Order::Stream => Order::Blocks,
+            o => o,
+        };
+        self.batch(rays, out, order, |ray, c| {
+            Ok(map(ray, tree.answer::<ANY>(ray, c)?))
+        })
+    }
+
+    /// [`Self::answers`] streamed ([`super::stream`]): the workers are the current rayon
+    /// pool's size (at most [`Self::threads`]), the other threads read ahead; the parked walks
+    /// get an eighth of the budget (taken from the pager's for the stream's duration, so the
+    /// blocks and the walks together stay within it).
+    fn stream<const ANY: bool, T: Send + Sync + Copy>(
+        &self,
+        tree: &Tree<'_>,
+        rays: &[Ray],
+        out: &mut [T],
+        map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
+    ) -> Result<Counters, Error> {
+        if rays.len() != out.len() {
+            return Err(Error::Invalid(format!(
+                "{} rays but room for {} answers",
+                rays.len(),
+                out.len()
+            )));
+        }
+        if u32::try_from(rays.len()).is_err() {
+            return Err(Error::Invalid(format!(
+                "{} rays: a batch holds at most 2^32 - 1",
+                rays.len()
+            )));
+        }
+        if rays.is_empty() {
+            return Ok(Counters::default());
+        }
+        let start_order = self.morton_order(rays);
+        let workers = rayon::current_num_threads().min(self.threads).max(1);
+        let readers = self.threads - workers;
+        let largest = self.file.header().max_block_raw_len.max(1);
+        let pager_budget = self.pager.budget();
+        // The pager keeps `threads + 1` blocks at least; the walks get an eighth of the budget
+        // or what is left above that.
+        let floor = (self.threads as u64 + 1).saturating_mul(largest);
+        let parked = match pager_budget {
+            u64::MAX => u64::MAX,
+            b => (self.budget / 8).min(b.saturating_sub(floor)),
+        };
+        let cache = pager_budget.saturating_sub(parked);
+        // Blocks read ahead and not yet served must not be evicted before they are: a quarter
+        // of the cache at most.
+        let read_ahead = (2 * readers)
+            .min(usize::try_from(cache / largest / 4).unwrap_or(usize::MAX))
+            .max(1);
+        if pager_budget != u64::MAX {
+            self.pager.set_budget(cache);
+        }
+        let stream = Stream {
+            tree,
+            opts: StreamOptions {
+                workers,
+                readers,
+                read_ahead,
+                parked_bytes: parked,
+            },
+        };
+        let ran = stream.run::<ANY, T>(rays, &start_order, out, map);
+        self.pager.set_budget(pager_budget);
+        let (mut c, stats) = ran.map_err(|e| self.corrupt(e))?;
+        c.walks_parked = stats.walks_parked;
+        c.blocks_served = stats.blocks_served;
+        c.peak_parked_bytes = stats.peak_parked_bytes;
+        self.check_unchanged()?;
+        Ok(c)
     }
 
     /// The permutation in which `order` traces `rays` (`None` for [`Order::None`]: as given,
@@ -396,7 +483,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         Ok(match order {
             Order::None => None,
             Order::Given => Some((0..rays.len() as u32).collect()),
-            Order::Morton => Some(self.morton_order(rays)),
+            Order::Morton | Order::Stream => Some(self.morton_order(rays)),
             Order::Blocks => Some(self.block_order(rays)?),
         })
     }

@@ -83,6 +83,11 @@ pub struct Counters {
     /// misses and bytes.
     #[serde(flatten)]
     pub page: PageCounters,
+    /// Streamed batches ([`super::Order::Stream`]): walks parked at a block, times a block's
+    /// queue was served, and the most bytes the parked walks took at once.
+    pub walks_parked: u64,
+    pub blocks_served: u64,
+    pub peak_parked_bytes: u64,
 }
 
 impl std::ops::AddAssign for Counters {
@@ -100,6 +105,9 @@ impl std::ops::AddAssign for Counters {
         self.boxes_tested += o.boxes_tested;
         self.groups_tested += o.groups_tested;
         self.page += o.page;
+        self.walks_parked += o.walks_parked;
+        self.blocks_served += o.blocks_served;
+        self.peak_parked_bytes = self.peak_parked_bytes.max(o.peak_parked_bytes);
     }
 }
 
@@ -175,7 +183,7 @@ pub(crate) struct Direct<'a> {
 }
 
 /// A block's bytes, from the file or from the pager.
-enum Fetched<'a> {
+pub(super) enum Fetched<'a> {
     Direct(&'a [u8]),
     Paged(BlockBytes<'a>),
 }
@@ -211,7 +219,7 @@ pub struct Tree<'a> {
 }
 
 /// The ray in lattice space, and what the walk derives from it once.
-struct RayCtx {
+pub(super) struct RayCtx {
     o: [f64; 3],
     d: [f64; 3],
     inv: [f64; 3],
@@ -247,11 +255,12 @@ struct WalkState {
 }
 
 /// A walk's closest hit so far, and where it stops looking.
-struct Best {
-    best: Option<HitInfo>,
-    t_best: f32,
+#[derive(Clone, Copy)]
+pub(super) struct Best {
+    pub(super) best: Option<HitInfo>,
+    pub(super) t_best: f32,
     /// `min(t1, t_best)`: no cell entered at or past it can hold a closer hit.
-    t_stop: f64,
+    pub(super) t_stop: f64,
 }
 
 /// What a walk through the blocks it holds ends with.
@@ -387,7 +396,7 @@ impl<'a> Tree<'a> {
     /// Block `b`'s bytes and map: straight from the file if it was admitted and the pager never
     /// evicts, else from the pager (counted alike).
     #[inline(always)]
-    fn fetch(
+    pub(super) fn fetch(
         &self,
         b: u32,
         c: &mut PageCounters,
@@ -766,16 +775,35 @@ impl<'a> Tree<'a> {
         w: &mut Best,
         k: &mut Counters,
     ) -> Result<(), TraceError> {
-        const NONE: u32 = u32::MAX;
+        let Some(root) = self.root_entry(r, w.t_best, k)? else {
+            return Ok(());
+        };
+        let mut stacks = STACKS.take();
+        let stack = &mut stacks.octree;
+        stack.clear();
+        stack.push(root);
+        let result = self.descend_stack::<ANY, S>(isa, r, w, k, stack, &mut stacks.cluster);
+        STACKS.set(stacks);
+        result
+    }
 
-        // The root: internal, a link to a block (a tree small enough to be one block), or
-        // empty (a file without triangles).
+    /// The first entry of a top-down walk: the root, internal, a link to a block (a tree small
+    /// enough to be one block), or empty (a file without triangles: `None`, as for a ray that
+    /// misses the root's box).
+    #[inline(always)]
+    fn root_entry(
+        &self,
+        r: &RayCtx,
+        t_best: f32,
+        k: &mut Counters,
+    ) -> Result<Option<Entry>, TraceError> {
+        const NONE: u32 = u32::MAX;
         let root = self.top.node(0, 0)?;
         let (kind, block, index) = match root.kind_bits() {
             KIND_INTERNAL => {
-                if !self.top_node_may_hit(r, w.t_best, 0) {
+                if !self.top_node_may_hit(r, t_best, 0) {
                     k.top_nodes_culled += 1;
-                    return Ok(());
+                    return Ok(None);
                 }
                 (EntryKind::Internal, NONE, 0)
             }
@@ -784,7 +812,7 @@ impl<'a> Tree<'a> {
                 self.check_link(b, 0, 0)?;
                 (EntryKind::Root, b, i)
             }
-            KIND_EMPTY => return Ok(()),
+            KIND_EMPTY => return Ok(None),
             _ => {
                 return Err(TraceError::Corrupt(Corruption {
                     what: "invalid root record",
@@ -794,20 +822,122 @@ impl<'a> Tree<'a> {
                 }));
             }
         };
-        let mut stacks = STACKS.take();
-        let stack = &mut stacks.octree;
-        stack.clear();
-        stack.push(Entry {
+        Ok(Some(Entry {
             t: r.t0,
             lo: [0; 3],
             index,
             level: 0,
             block,
             kind,
-        });
-        let result = self.descend_stack::<ANY, S>(isa, r, w, k, stack, &mut stacks.cluster);
-        STACKS.set(stacks);
-        result
+        }))
+    }
+
+    /// The blocks in the file's directory.
+    pub(super) fn block_count(&self) -> usize {
+        self.directory.len()
+    }
+
+    /// Admits block `b` (reads, checks and decodes it through the pager, as a walk's first
+    /// need of it would) and lets it go: [`super::stream`]'s readers.
+    pub(super) fn admit(&self, b: u32, c: &mut PageCounters) -> Result<(), TraceError> {
+        self.fetch(b, c).map(|_| ())
+    }
+
+    /// Closest hit (any hit with `ANY`) of `ray`, walked directly.
+    pub(super) fn answer<const ANY: bool>(
+        &self,
+        ray: &Ray,
+        c: &mut Counters,
+    ) -> Result<Option<HitInfo>, TraceError> {
+        self.dispatch::<ANY>(ray, c)
+    }
+
+    /// Whether solid leaves are clusters: the top-down walk, which [`super::stream`] parks
+    /// between blocks (files of leaf lists are walked by neighbour steps, one ray at a time).
+    pub(super) fn has_clusters(&self) -> bool {
+        self.clusters
+    }
+
+    /// Starts `ray`'s top-down walk for [`super::stream`]: counts the ray, and gives its
+    /// context and best hit so far with its root pushed on `stack` (cleared first); `None` if
+    /// the ray needs no node (invalid, missing the root cube or the mesh's box): its answer is
+    /// no hit. Exactly what [`Self::descend_all`] does before its first step.
+    pub(super) fn begin(
+        &self,
+        ray: &Ray,
+        stack: &mut Vec<Entry>,
+        k: &mut Counters,
+    ) -> Result<Option<(RayCtx, Best)>, TraceError> {
+        k.rays += 1;
+        stack.clear();
+        let Some(r) = self.ray_ctx(ray) else {
+            return Ok(None);
+        };
+        let w = Best {
+            best: None,
+            t_best: ray.tmax,
+            t_stop: r.t1,
+        };
+        let Some(root) = self.root_entry(&r, w.t_best, k)? else {
+            return Ok(None);
+        };
+        stack.push(root);
+        Ok(Some((r, w)))
+    }
+
+    /// The context of a ray whose walk [`Self::begin`] started (the same, recomputed: a parked
+    /// walk does not keep it).
+    pub(super) fn context(&self, ray: &Ray) -> Option<RayCtx> {
+        self.ray_ctx(ray)
+    }
+
+    /// [`Self::run_held`] for [`super::stream`], compiled for the CPU's best instruction set.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn resume<const ANY: bool>(
+        &self,
+        r: &RayCtx,
+        w: &mut Best,
+        k: &mut Counters,
+        stack: &mut Vec<Entry>,
+        cluster_stack: &mut Vec<(u32, f32, u8)>,
+        view: Option<&Held<'_>>,
+    ) -> Result<Option<u32>, TraceError> {
+        struct Job<'t, 'a, 'r, 'v, const ANY: bool> {
+            tree: &'t Tree<'a>,
+            r: &'r RayCtx,
+            w: &'r mut Best,
+            k: &'r mut Counters,
+            stack: &'r mut Vec<Entry>,
+            cluster_stack: &'r mut Vec<(u32, f32, u8)>,
+            view: Option<&'r Held<'v>>,
+        }
+        impl<const ANY: bool> WithAvx2 for Job<'_, '_, '_, '_, ANY> {
+            type Output = Result<Option<u32>, TraceError>;
+            #[inline(always)]
+            fn run(self, isa: Avx2) -> Self::Output {
+                self.tree.run_held::<ANY, Avx2>(
+                    isa,
+                    self.r,
+                    self.w,
+                    self.k,
+                    self.stack,
+                    self.cluster_stack,
+                    self.view,
+                )
+            }
+        }
+        match self.avx2 {
+            Some(isa) => isa.vectorize(Job::<ANY> {
+                tree: self,
+                r,
+                w,
+                k,
+                stack,
+                cluster_stack,
+                view,
+            }),
+            None => self.run_held::<ANY, _>(baseline(), r, w, k, stack, cluster_stack, view),
+        }
     }
 
     /// [`Self::descend_in`] with its stacks (kept per thread, so that a ray costs no
@@ -822,8 +952,6 @@ impl<'a> Tree<'a> {
         stack: &mut Vec<Entry>,
         cluster_stack: &mut Vec<(u32, f32, u8)>,
     ) -> Result<(), TraceError> {
-        const NONE: u32 = u32::MAX;
-        const STACK: usize = 7 * (MAX_LEVEL as usize + 1) + 1;
         // Each turn holds one block (none at first) and its view, made once: it pops nodes of
         // the top tree and of that block until one needs another block, which the next turn
         // fetches after this turn's is let go.
@@ -836,6 +964,33 @@ impl<'a> Tree<'a> {
             let view = fetched
                 .as_ref()
                 .map(|(b, bytes, ready)| Held::new(*b, ready, bytes));
+            need = self.run_held::<ANY, S>(isa, r, w, k, stack, cluster_stack, view.as_ref())?;
+            if need.is_none() {
+                return Ok(());
+            }
+        }
+    }
+
+    /// Pops the nodes of `stack` (of the top tree and of the block `view`, if any) until the
+    /// ray is answered (`None`: its answer is in `w`) or the next node is in another block
+    /// (`Some(block)`, that node left on top of the stack). What a walk is between two blocks
+    /// is exactly `(r, w, stack)`: [`super::stream`] parks it there and resumes it later with
+    /// the same result as if it had waited.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(super) fn run_held<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        r: &RayCtx,
+        w: &mut Best,
+        k: &mut Counters,
+        stack: &mut Vec<Entry>,
+        cluster_stack: &mut Vec<(u32, f32, u8)>,
+        view: Option<&Held<'_>>,
+    ) -> Result<Option<u32>, TraceError> {
+        const NONE: u32 = u32::MAX;
+        const STACK: usize = 7 * (MAX_LEVEL as usize + 1) + 1;
+        {
             while let Some(e) = stack.pop() {
                 if e.t > w.t_stop {
                     continue;
@@ -843,12 +998,11 @@ impl<'a> Tree<'a> {
                 let held = if e.block == NONE {
                     None
                 } else {
-                    match &view {
+                    match view {
                         Some(h) if h.id == e.block => Some(h),
                         _ => {
-                            need = Some(e.block);
                             stack.push(e);
-                            break;
+                            return Ok(Some(e.block));
                         }
                     }
                 };
@@ -901,7 +1055,7 @@ impl<'a> Tree<'a> {
                         trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k, cluster_stack)
                             .map_err(bad)?;
                     if ANY && found {
-                        return Ok(());
+                        return Ok(None);
                     }
                     w.t_stop = r.t1.min(w.t_best as f64);
                     continue;
@@ -1031,10 +1185,8 @@ impl<'a> Tree<'a> {
                     });
                 }
             }
-            if need.is_none() {
-                return Ok(());
-            }
         }
+        Ok(None)
     }
 
     /// Whether the ray may hit anything below top-tree node record `at` over `[tmin, t_best]`:
@@ -1133,7 +1285,7 @@ thread_local! {
 
 /// What a stack entry of [`Tree::descend_in`] is.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-enum EntryKind {
+pub(super) enum EntryKind {
     #[default]
     Internal,
     /// A solid leaf whose bounds the ray meets.
@@ -1145,7 +1297,7 @@ enum EntryKind {
 /// A node waiting on the stack of [`Tree::descend_in`]: where the ray enters its cell, the
 /// cell, and the node's place.
 #[derive(Clone, Copy, Debug, Default)]
-struct Entry {
+pub(super) struct Entry {
     t: f64,
     lo: [u32; 3],
     index: u32,

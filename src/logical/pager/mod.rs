@@ -296,7 +296,9 @@ pub struct Pager {
     check_raw: bool,
     /// How blocks are checked and decoded.
     reader: BlockReader,
-    budget: u64,
+    /// The budget ([`Self::set_budget`] lowers it while a stream's parked walks take part of
+    /// it).
+    budget: AtomicU64,
     /// Per block: COLD, BUSY, RESIDENT, REFERENCED or BAD.
     state: Vec<AtomicU8>,
     /// Why each bad block is bad (filled on the error path only).
@@ -362,7 +364,7 @@ impl Pager {
         Pager {
             check_raw: opts.check_raw,
             reader,
-            budget: opts.budget,
+            budget: AtomicU64::new(opts.budget),
             state: directory.iter().map(|_| AtomicU8::new(COLD)).collect(),
             bad: Mutex::new(HashMap::new()),
             resident: AtomicU64::new(0),
@@ -477,9 +479,15 @@ impl Pager {
     }
 
     /// The budget (see the module docs for what it bounds).
-    #[cfg(test)]
     pub fn budget(&self) -> u64 {
-        self.budget
+        self.budget.load(Ordering::Relaxed)
+    }
+
+    /// Sets the budget (never above the one the pager was made with, which the
+    /// scene sized for its threads): [`super::stream`] lowers it by the memory its parked
+    /// walks may take, and gives it back after. Evicts at the next admission, not now.
+    pub fn set_budget(&self, budget: u64) {
+        self.budget.store(budget, Ordering::Relaxed);
     }
 
     /// The number of zstd cache slots.
@@ -582,7 +590,7 @@ impl Pager {
     /// what is still over (so that no thread returns with the budget exceeded by more than the
     /// blocks other threads are admitting).
     fn evict_raw<S: BlockSource>(&self, src: Src<'_, S>) {
-        if self.resident.load(Ordering::SeqCst) <= self.budget {
+        if self.resident.load(Ordering::SeqCst) <= self.budget() {
             return;
         }
         let _evicting = lock(&self.evicting);
@@ -591,7 +599,7 @@ impl Pager {
         // round for ever. Blocks queued meanwhile are evicted by their own threads, or here.
         let first_pass = lock(&self.ring).len();
         let mut step = 0;
-        while self.resident.load(Ordering::SeqCst) > self.budget {
+        while self.resident.load(Ordering::SeqCst) > self.budget() {
             let Some(b) = lock(&self.ring).pop_front() else {
                 break;
             };
@@ -715,13 +723,13 @@ impl Pager {
     /// an admission, holding at most the read lock of the slot just filled (which `try_write`
     /// then skips); under the clock mutex, which waits on nothing.
     fn evict_zstd(&self) {
-        if self.slots.is_empty() || self.resident.load(Ordering::SeqCst) <= self.budget {
+        if self.slots.is_empty() || self.resident.load(Ordering::SeqCst) <= self.budget() {
             return;
         }
         let mut hand = lock(&self.hand);
         let n = self.slots.len();
         for _ in 0..2 * n {
-            if self.resident.load(Ordering::SeqCst) <= self.budget {
+            if self.resident.load(Ordering::SeqCst) <= self.budget() {
                 break;
             }
             let i = hand.at;
