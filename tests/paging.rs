@@ -18,7 +18,7 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
 use oavm::build::encode_with;
-use oavm::logical::{Order, SceneOptions};
+use oavm::logical::{FrameOptions, Order, SceneOptions};
 use oavm::physical::BlockOptions;
 use oavm::physical::format::CODEC_RAW;
 use oavm::physical::{AlignedBytes, BlockView};
@@ -272,6 +272,94 @@ fn zstd_blocks_give_the_same_answers_under_any_budget() {
 
 /// The file with every link's bounds (format-spec §8.1) widened to its whole cell, the
 /// section's checksum recomputed: a tracer can then pass no block by.
+/// A frame (primary rays and their shadow rays) streamed in one stream, where a shadow walk
+/// begins in the block its primary walk ends in, against the same frame traced directly with
+/// the batch calls (unlimited, one thread): the same hits and shadow answers, for raw and zstd
+/// blocks, under budgets of a few blocks, on one and four threads; and under a budget of a
+/// few blocks the one stream reads fewer blocks than the two direct batches.
+#[test]
+fn streamed_frames_give_the_direct_answers() {
+    let b = bounds();
+    let rays = Camera::framing(&b).primary_rays(320, 240);
+    let light = rays::default_light(&b);
+    for compress in [None, Some(3)] {
+        let bytes = packed(compress);
+        let open = |budget: u64, threads: usize| {
+            Scene::from_bytes_with(
+                bytes.clone(),
+                "bunny.oavm",
+                &SceneOptions {
+                    mem_budget: Some(budget),
+                    threads,
+                    check_blocks: true,
+                },
+            )
+            .expect("open")
+        };
+        // The reference: the batch calls, ray by ray.
+        let reference = open(u64::MAX, 1);
+        let mut hits = vec![Hit::MISS; rays.len()];
+        reference.intersect_batch(&rays, &mut hits).unwrap();
+        let shadow = rays::shadow_rays(&rays, &hits, light);
+        let mut occluded = vec![0u8; shadow.len()];
+        reference.occluded_batch(&shadow, &mut occluded).unwrap();
+        let lit = occluded.iter().filter(|&&o| o == 0).count();
+        assert!(
+            shadow.len() > 20_000 && lit > 1_000 && lit < shadow.len() - 1_000,
+            "{} hits, {lit} lit: the frame must have hits, lit points and shadows",
+            shadow.len()
+        );
+        let max = reference.file().header().max_block_raw_len;
+        for budget in [u64::MAX, 3 * max, 9 * max, 64 * max] {
+            for threads in [1, 4] {
+                let what = format!("{compress:?}, budget {budget}, {threads} threads");
+                let scene = open(budget, threads);
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let frame = |order| {
+                    pool.install(|| {
+                        scene.trace_frame(
+                            &rays,
+                            &FrameOptions {
+                                light: Some(light),
+                                wave: 0,
+                                order,
+                            },
+                        )
+                    })
+                    .unwrap()
+                };
+                let f = frame(Order::Stream);
+                assert!(f.hits == hits, "{what}: hits differ");
+                assert!(f.occluded == occluded, "{what}: shadow answers differ");
+                assert_eq!(f.primary.counters.rays, rays.len() as u64, "{what}");
+                assert_eq!(f.shadow.counters.rays, shadow.len() as u64, "{what}");
+                assert!(f.primary.counters.walks_parked > 0, "{what}");
+                assert!(f.primary.seconds > 0.0 && f.shadow.seconds > 0.0, "{what}");
+                if budget == 64 * max && threads == 1 {
+                    // A shadow walk starts in the block held: one stream reads fewer blocks
+                    // than a batch of primary rays then one of shadow rays.
+                    let direct = frame(Order::Blocks);
+                    let misses = |f: &oavm::logical::Frame| {
+                        f.primary.counters.page.misses + f.shadow.counters.page.misses
+                    };
+                    assert!(
+                        misses(&f) < misses(&direct),
+                        "{what}: streamed {} misses, direct {}",
+                        misses(&f),
+                        misses(&direct)
+                    );
+                }
+                if budget != u64::MAX {
+                    assert!(scene.peak_resident_bytes() <= budget, "{what}");
+                }
+            }
+        }
+    }
+}
+
 fn without_link_culling(bytes: &AlignedBytes) -> AlignedBytes {
     use oavm::physical::format::{LinkBounds, NodeKind, NodeRecord, SectionKind, checksum};
     let scene = Scene::from_bytes(bytes.clone(), "bunny.oavm").expect("open");

@@ -69,6 +69,27 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         };
         // Per primary ray: its shadow ray's answer (for those with a hit).
         let mut occ_of = vec![0u8; rays.len()];
+        if opts.order == Order::Stream {
+            // One stream for both sets: a shadow walk begins where its primary walk ends, in
+            // the block held. The time is split between the sets in proportion to the time
+            // the workers spent walking each.
+            let t = Instant::now();
+            if let Some(([primary, shadow], share)) =
+                self.stream_frame(rays, light, &mut frame.hits, &mut occ_of)?
+            {
+                let seconds = t.elapsed().as_secs_f64();
+                frame.primary = SetStats {
+                    counters: primary,
+                    seconds: seconds * (1.0 - share),
+                };
+                frame.shadow = SetStats {
+                    counters: shadow,
+                    seconds: seconds * share,
+                };
+                frame.occluded = shadow_answers(&frame.hits, &occ_of);
+                return Ok(frame);
+            }
+        }
         if wave >= rays.len() {
             let t = Instant::now();
             frame.primary.counters =
@@ -104,13 +125,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 frame.shadow.seconds += s.seconds;
             }
         }
-        frame.occluded = frame
-            .hits
-            .iter()
-            .zip(&occ_of)
-            .filter(|(h, _)| h.is_hit())
-            .map(|(_, &o)| o)
-            .collect();
+        frame.occluded = shadow_answers(&frame.hits, &occ_of);
         Ok(frame)
     }
 
@@ -143,4 +158,14 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             seconds: t.elapsed().as_secs_f64(),
         })
     }
+}
+
+/// The shadow answers in the order of [`crate::rays::shadow_rays`] (the primary rays with a
+/// hit), from the answers by primary ray.
+fn shadow_answers(hits: &[Hit], occ_of: &[u8]) -> Vec<u8> {
+    hits.iter()
+        .zip(occ_of)
+        .filter(|(h, _)| h.is_hit())
+        .map(|(_, &o)| o)
+        .collect()
 }

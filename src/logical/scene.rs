@@ -12,7 +12,7 @@ use super::held::ReadyMap;
 use super::order::{Order, RayKeys};
 use super::pager::{BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions};
 use super::top_bounds::{LatticeBox, top_bounds};
-use super::stream::{Stream, StreamOptions};
+use super::stream::{Job, Stream, StreamOptions, StreamStats, Streamed};
 use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree};
 use super::verify::VerifyReport;
 use crate::error::{Error, FormatError};
@@ -404,10 +404,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         })
     }
 
-    /// [`Self::answers`] streamed ([`super::stream`]): the workers are the current rayon
-    /// pool's size (at most [`Self::threads`]), the other threads read ahead; the parked walks
-    /// get an eighth of the budget (taken from the pager's for the stream's duration, so the
-    /// blocks and the walks together stay within it).
+    /// [`Self::answers`] streamed ([`super::stream`]).
     fn stream<const ANY: bool, T: Send + Sync + Copy>(
         &self,
         tree: &Tree<'_>,
@@ -415,6 +412,68 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         out: &mut [T],
         map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
     ) -> Result<Counters, Error> {
+        let job = Job {
+            rays,
+            any: ANY,
+            light: None,
+            map,
+        };
+        let (s, _) = self.stream_job(tree, &job, out, &mut [])?;
+        Ok(s.counters[0])
+    }
+
+    /// Closest hits of `rays` into `hits` and, for each hit, whether its shadow ray toward
+    /// `light` ([`crate::rays::shadow_ray`]) is occluded into `occluded` (at the primary ray's
+    /// index; 0 for rays without a hit), in one stream ([`super::stream`]): a shadow walk
+    /// begins where its primary walk ends, in the block held. The counters of the primary and
+    /// of the shadow rays, and the share of the time spent on shadow rays. `None` for a file
+    /// of leaf lists (which is not streamed).
+    pub(crate) fn stream_frame(
+        &self,
+        rays: &[Ray],
+        light: [f32; 3],
+        hits: &mut [Hit],
+        occluded: &mut [u8],
+    ) -> Result<Option<([Counters; 2], f64)>, Error> {
+        let tree = self.tree();
+        if !tree.has_clusters() {
+            return Ok(None);
+        }
+        if occluded.len() != rays.len() {
+            return Err(Error::Invalid(format!(
+                "{} rays but room for {} shadow answers",
+                rays.len(),
+                occluded.len()
+            )));
+        }
+        let job = Job {
+            rays,
+            any: false,
+            light: Some(light),
+            map: |_: &Ray, h: Option<HitInfo>| {
+                h.map_or(Hit::MISS, |h| Hit {
+                    t: h.t,
+                    prim: h.prim,
+                })
+            },
+        };
+        occluded.fill(0);
+        let (s, _) = self.stream_job(&tree, &job, hits, occluded)?;
+        Ok(Some((s.counters, s.shadow_share)))
+    }
+
+    /// Runs a stream: one worker per core (at most [`Self::threads`]), the other threads
+    /// read ahead; the parked walks get an eighth of the budget (taken from the pager's for
+    /// the stream's duration, so that the blocks and the walks together stay within it). Rays
+    /// start in [`Order::Morton`]'s order.
+    fn stream_job<T: Send + Sync + Copy, M: Fn(&Ray, Option<HitInfo>) -> T + Sync>(
+        &self,
+        tree: &Tree<'_>,
+        job: &Job<'_, M>,
+        out: &mut [T],
+        shadows: &mut [u8],
+    ) -> Result<(Streamed, StreamStats), Error> {
+        let rays = job.rays;
         if rays.len() != out.len() {
             return Err(Error::Invalid(format!(
                 "{} rays but room for {} answers",
@@ -428,11 +487,9 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 rays.len()
             )));
         }
-        if rays.is_empty() {
-            return Ok(Counters::default());
-        }
         let start_order = self.morton_order(rays);
-        let workers = rayon::current_num_threads().min(self.threads).max(1);
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let workers = cores.min(self.threads).max(1);
         let readers = self.threads - workers;
         let largest = self.file.header().max_block_raw_len.max(1);
         let pager_budget = self.pager.budget();
@@ -461,14 +518,16 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 parked_bytes: parked,
             },
         };
-        let ran = stream.run::<ANY, T>(rays, &start_order, out, map);
+        let ran = stream.run(job, &start_order, out, shadows);
         self.pager.set_budget(pager_budget);
-        let (mut c, stats) = ran.map_err(|e| self.corrupt(e))?;
+        let mut s = ran.map_err(|e| self.corrupt(e))?;
+        let stats = s.stats;
+        let c = &mut s.counters[0];
         c.walks_parked = stats.walks_parked;
         c.blocks_served = stats.blocks_served;
         c.peak_parked_bytes = stats.peak_parked_bytes;
         self.check_unchanged()?;
-        Ok(c)
+        Ok((s, stats))
     }
 
     /// The permutation in which `order` traces `rays` (`None` for [`Order::None`]: as given,
@@ -582,5 +641,9 @@ impl<D: AsRef<[u8]> + BlockSource> BlockFetch for Scene<D> {
         })?;
         let ready = self.pager.ready(block, entry, &bytes)?;
         Ok((bytes, ready))
+    }
+
+    fn resident(&self, block: u32) -> bool {
+        self.pager.is_resident(block)
     }
 }

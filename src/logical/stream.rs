@@ -13,20 +13,25 @@
 //! walk's, bit for bit (and a closest hit is the smallest `(t, primitive id)` over the
 //! triangles tested in any order).
 //!
-//! **Scheduling.** Parked walks are counted per block, and blocks are bucketed by
-//! `floor(log2(count))`. The block served next is one of the fullest bucket, the first at or
-//! after the last one chosen in file order (a sweep: neighbouring blocks are neighbouring
-//! regions and neighbouring bytes). *Readers* (the threads beyond the workers, which sleep on
-//! the disk) claim blocks that way, admit them through the pager (read, checksum, decode: the
-//! pager's admission, so a bad block is the same error as in a direct walk), and hand them to
-//! the workers in a ready queue, at most `read_ahead` of them ahead; walks that park at a
-//! claimed block join its queue and are served with it. *Workers* (one per core) serve ready
-//! blocks first; otherwise they start new rays (in Morton order of their entry point and
-//! direction, [`super::RayKeys`]: rays started together need the same blocks) while the
-//! parked walks' memory is under its limit; with no reader, a worker claims and reads the next
-//! block itself.
+//! **Scheduling.** All the rays are started first (as many as the parked walks' memory holds;
+//! more as walks end), in Morton order of their entry point and direction
+//! ([`super::RayKeys`]), each walking the top tree to its first block. Blocks with parked walks
+//! are then served in two ways. A block that was resident when its first walk was parked is
+//! *hot*: served first, at no cost if it still is. The others are served in a *sweep* in file
+//! order (the next block with parked walks at or after the last one, wrapping to the start for
+//! the next pass): neighbouring blocks are neighbouring regions and neighbouring bytes, a walk
+//! that moves on to a later block is served in the same pass, and one that moves back finds
+//! its block resident if the sweep passed it recently (else the next pass reads it once for
+//! every walk parked there meanwhile). *Readers* (the threads beyond the workers, which mostly
+//! sleep on the disk) claim the sweep's next blocks, admit them through the pager (read,
+//! checksum, decode: the pager's admission, so a bad block is the same error as in a direct
+//! walk) and hand them to the workers, at most `read_ahead` of them ahead; walks that park at a
+//! claimed block join its queue and are served with it. *Workers* (one per core) serve blocks
+//! the readers made ready, then hot ones, then start rays; with no reader, a worker claims and
+//! reads the sweep's next block itself. A frame's shadow walk begins where its primary walk
+//! ends, in the block being served ([`Job::light`]).
 //!
-//! **Memory.** The parked walks (their queues' capacity: 72 bytes a walk and 32 a stack entry)
+//! **Memory.** The parked walks (their queues' capacity: 80 bytes a walk and 32 a stack entry)
 //! are kept under `parked_bytes` (or one start chunk's walks, if that is larger: a limit too
 //! small for one walk still traces, one ray at a time), which the caller takes out of the pager's budget for the
 //! stream's duration; a worker's outbox (walks it parked, flushed every
@@ -47,6 +52,8 @@ use super::held::Held;
 use super::pager::PageCounters;
 use super::trace::{Best, Counters, Entry, HitInfo, TraceError, Tree};
 use crate::geom::Ray;
+use crate::rays::shadow_ray;
+use std::time::Instant;
 
 /// Walks a worker parks before it hands them to the schedule (and so to the readers).
 pub(crate) const FLUSH: usize = 1024;
@@ -85,12 +92,27 @@ pub struct StreamStats {
     pub parked_bytes_limit: u64,
 }
 
-/// A parked walk: its ray, its best hit so far and the length of its stack (whose entries
-/// follow those of the walks before it in the queue's `entries`).
+/// What a walk answers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    /// The closest hit of a ray of the batch.
+    Closest,
+    /// Whether a ray of the batch hits anything.
+    Any,
+    /// Whether the shadow ray of a ray of the batch (from its closest hit toward the light)
+    /// hits anything.
+    Shadow,
+}
+
+/// A parked walk: its ray (a shadow walk's is made again from its primary ray and `aux`, the
+/// primary hit's `t`), its best hit so far and the length of its stack (whose entries follow
+/// those of the walks before it in the queue's `entries`).
 #[derive(Clone, Copy)]
 struct Head {
     ray: u32,
     len: u32,
+    kind: Kind,
+    aux: f32,
     w: Best,
 }
 
@@ -107,16 +129,21 @@ impl Queue {
     }
 }
 
-/// The schedule: every queue, the buckets of blocks by queue length, what is claimed, read
-/// and being traced.
+/// The schedule: every queue, which blocks have walks parked and whether they are believed
+/// resident, what is claimed, read and being traced.
 struct Sched {
     queues: Vec<Queue>,
-    /// Per block: claimed by a reader or a worker (being read, or ready): walks parked there
-    /// join its queue, and it is in no bucket.
+    /// Per block: claimed by a reader or a worker (being read, ready, or being served): walks
+    /// parked there join its queue, and it is in neither `hot` nor `sweep`.
     claimed: Vec<bool>,
-    /// Blocks with parked walks and not claimed, by `floor(log2(walks))`.
-    buckets: Vec<BTreeSet<u32>>,
-    /// The last block chosen (the sweep's position).
+    /// Per block: in `hot`.
+    is_hot: Vec<bool>,
+    /// Blocks with parked walks that were resident when their first walk was parked: served
+    /// first, at no cost if still resident.
+    hot: Vec<u32>,
+    /// The other blocks with parked walks, read in file order from `pos`.
+    sweep: BTreeSet<u32>,
+    /// The sweep's position: the last block claimed from it.
     pos: u32,
     /// Blocks admitted by readers, waiting for a worker.
     ready: VecDeque<u32>,
@@ -131,29 +158,28 @@ struct Sched {
     failed: Option<TraceError>,
 }
 
-fn bucket(walks: usize) -> usize {
-    (usize::BITS - 1 - walks.leading_zeros()) as usize
-}
-
 impl Sched {
-    /// Parks the walks of `out` (a worker's outbox) at their blocks.
-    fn park(&mut self, out: &mut Outbox) {
+    /// Parks the walks of `out` (a worker's outbox) at their blocks; `resident` says whether
+    /// a block is resident now.
+    fn park(&mut self, out: &mut Outbox, resident: impl Fn(u32) -> bool) {
         let mut at = 0;
         for &(block, head) in &out.heads {
             let b = block as usize;
             let q = &mut self.queues[b];
-            let (before, walks) = (q.bytes(), q.heads.len());
+            let (before, first) = (q.bytes(), q.heads.is_empty());
             q.heads.push(head);
             q.entries
                 .extend_from_slice(&out.entries[at..at + head.len as usize]);
             at += head.len as usize;
             let after = q.bytes();
             self.parked = self.parked + after - before;
-            if !self.claimed[b] {
-                if walks > 0 {
-                    self.buckets[bucket(walks)].remove(&block);
+            if first && !self.claimed[b] {
+                if resident(block) {
+                    self.is_hot[b] = true;
+                    self.hot.push(block);
+                } else {
+                    self.sweep.insert(block);
                 }
-                self.buckets[bucket(walks + 1)].insert(block);
             }
         }
         self.stats.walks_parked += out.heads.len() as u64;
@@ -162,15 +188,22 @@ impl Sched {
         out.entries.clear();
     }
 
-    /// Claims the next block to read: in the fullest bucket, the first at or after the last
-    /// one chosen (wrapping).
-    fn claim(&mut self) -> Option<u32> {
-        let set = self.buckets.iter_mut().rev().find(|s| !s.is_empty())?;
-        let b = match set.range(self.pos..).next() {
+    /// Claims a block with parked walks that was resident when they came.
+    fn claim_hot(&mut self) -> Option<u32> {
+        let b = self.hot.pop()?;
+        self.is_hot[b as usize] = false;
+        self.claimed[b as usize] = true;
+        Some(b)
+    }
+
+    /// Claims the next block of the sweep: the first at or after its position, in file order
+    /// (wrapping to the start: the next pass).
+    fn claim_next(&mut self) -> Option<u32> {
+        let b = match self.sweep.range(self.pos..).next() {
             Some(&b) => b,
-            None => *set.iter().next()?,
+            None => *self.sweep.iter().next()?,
         };
-        set.remove(&b);
+        self.sweep.remove(&b);
         self.claimed[b as usize] = true;
         self.pos = b;
         Some(b)
@@ -185,13 +218,18 @@ impl Sched {
         q
     }
 
+    /// Whether no walk is parked at a block that is not claimed.
+    fn nothing_parked(&self) -> bool {
+        self.hot.is_empty() && self.sweep.is_empty()
+    }
+
     fn done(&self, n: usize) -> bool {
         self.failed.is_some()
             || (self.started == n
                 && self.busy == 0
                 && self.reading == 0
                 && self.ready.is_empty()
-                && self.buckets.iter().all(BTreeSet::is_empty))
+                && self.nothing_parked())
     }
 }
 
@@ -211,6 +249,56 @@ enum Task {
     Exit,
 }
 
+/// What a stream traces: the batch's rays, closest or any hit, and for a frame the light its
+/// closest hits cast shadow rays toward.
+pub(crate) struct Job<'j, M> {
+    pub rays: &'j [Ray],
+    /// Any hit (else closest hit).
+    pub any: bool,
+    /// With closest hits: the shadow ray of each hit, toward this light, is traced in the
+    /// same stream ([`crate::rays::shadow_ray`]).
+    pub light: Option<[f32; 3]>,
+    /// The answer of ray `i` from its hit.
+    pub map: M,
+}
+
+/// What one thread found: its walks' counters (the batch's rays, and the shadow rays), the
+/// batch's answers and the shadow answers (by primary ray), and the time it spent walking
+/// each kind (for a frame's split of its time).
+struct Found<T> {
+    k: [Counters; 2],
+    answers: Vec<(u32, T)>,
+    shadows: Vec<(u32, u8)>,
+    nanos: [u64; 2],
+}
+
+impl<T> Default for Found<T> {
+    fn default() -> Self {
+        Found {
+            k: [Counters::default(); 2],
+            answers: Vec::new(),
+            shadows: Vec::new(),
+            nanos: [0; 2],
+        }
+    }
+}
+
+/// What a stream answered (see [`Stream::run`]).
+pub(crate) struct Streamed {
+    /// The walks' counters: the batch's rays, and the shadow rays.
+    pub counters: [Counters; 2],
+    /// The share of the time spent walking shadow rays (0 without a light).
+    pub shadow_share: f64,
+    pub stats: StreamStats,
+}
+
+/// A worker's scratch: the stacks of the walk being resumed.
+#[derive(Default)]
+struct Scratch {
+    stack: Vec<Entry>,
+    cluster: Vec<(u32, f32, u8)>,
+}
+
 /// Where a stream gets blocks and how it answers.
 pub(crate) struct Stream<'t, 'a> {
     pub tree: &'t Tree<'a>,
@@ -218,22 +306,25 @@ pub(crate) struct Stream<'t, 'a> {
 }
 
 impl Stream<'_, '_> {
-    /// Traces `rays` (closest hit, or with `ANY` any hit), starting them in `start_order`;
-    /// returns each ray's answer (`None`: no hit) as `map(ray, answer)` in `out`, the walks'
-    /// counters and the stream's statistics.
-    pub fn run<const ANY: bool, T: Send + Copy>(
+    /// Traces `job`'s rays, starting them in `start_order`: each ray's answer `map(ray, hit)`
+    /// goes to `out` (at its index), and with a light each hit's shadow answer (1: occluded)
+    /// to `shadows` (at its primary ray's index; rays without a hit keep what `shadows`
+    /// held).
+    pub fn run<T: Send + Copy, M: Fn(&Ray, Option<HitInfo>) -> T + Sync>(
         &self,
-        rays: &[Ray],
+        job: &Job<'_, M>,
         start_order: &[u32],
         out: &mut [T],
-        map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
-    ) -> Result<(Counters, StreamStats), TraceError> {
+        shadows: &mut [u8],
+    ) -> Result<Streamed, TraceError> {
         let n = start_order.len();
         let blocks = self.tree.block_count();
         let sched = Mutex::new(Sched {
             queues: (0..blocks).map(|_| Queue::default()).collect(),
             claimed: vec![false; blocks],
-            buckets: (0..usize::BITS).map(|_| BTreeSet::new()).collect(),
+            is_hot: vec![false; blocks],
+            hot: Vec::new(),
+            sweep: BTreeSet::new(),
             pos: 0,
             ready: VecDeque::new(),
             reading: 0,
@@ -249,38 +340,54 @@ impl Stream<'_, '_> {
         let wake = Condvar::new();
         let workers = self.opts.workers.max(1);
         let readers = self.opts.readers;
-        let results: Vec<Result<(Counters, Vec<(u32, T)>), TraceError>> =
-            std::thread::scope(|s| {
-                let mut handles = Vec::new();
-                for _ in 0..readers {
-                    handles.push(s.spawn(|| {
-                        self.reader(&sched, &wake, n)
-                            .map(|page| (Counters { page, ..Counters::default() }, Vec::new()))
-                    }));
-                }
-                for _ in 0..workers {
-                    handles.push(s.spawn(|| {
-                        self.worker::<ANY, T>(&sched, &wake, n, rays, start_order, &map)
-                    }));
-                }
-                handles
-                    .into_iter()
-                    .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
-                    .collect()
-            });
+        let results: Vec<Result<Found<T>, TraceError>> = std::thread::scope(|s| {
+            let mut handles = Vec::new();
+            for _ in 0..readers {
+                handles.push(s.spawn(|| {
+                    self.reader(&sched, &wake, n).map(|page| {
+                        let mut f = Found::default();
+                        f.k[0].page = page;
+                        f
+                    })
+                }));
+            }
+            for _ in 0..workers {
+                handles.push(s.spawn(|| self.worker(&sched, &wake, job, start_order)));
+            }
+            handles
+                .into_iter()
+                .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+                .collect()
+        });
         let sched = sched.into_inner().unwrap_or_else(|p| p.into_inner());
         if let Some(e) = sched.failed {
             return Err(e);
         }
-        let mut total = Counters::default();
+        let mut counters = [Counters::default(); 2];
+        let mut nanos = [0u64; 2];
         for r in results {
-            let (c, answers) = r?;
-            total += c;
-            for (i, a) in answers {
+            let f = r?;
+            for j in 0..2 {
+                counters[j] += f.k[j];
+                nanos[j] += f.nanos[j];
+            }
+            for (i, a) in f.answers {
                 out[i as usize] = a;
             }
+            for (i, o) in f.shadows {
+                shadows[i as usize] = o;
+            }
         }
-        Ok((total, sched.stats))
+        let total = (nanos[0] + nanos[1]).max(1);
+        Ok(Streamed {
+            counters,
+            shadow_share: nanos[1] as f64 / total as f64,
+            stats: sched.stats,
+        })
+    }
+
+    fn lock<'s>(&self, m: &'s Mutex<Sched>) -> MutexGuard<'s, Sched> {
+        m.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// Rays started at a time: [`START_CHUNK`], fewer if the parked walks' limit is small
@@ -297,11 +404,7 @@ impl Stream<'_, '_> {
         self.start_chunk() as u64 * (HEAD_BYTES + 16 * ENTRY_BYTES)
     }
 
-    fn lock<'s>(&self, m: &'s Mutex<Sched>) -> MutexGuard<'s, Sched> {
-        m.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    /// A reader: claims blocks, admits them, hands them to the workers.
+    /// A reader: claims blocks in the sweep's order, admits them, hands them to the workers.
     fn reader(&self, m: &Mutex<Sched>, wake: &Condvar, n: usize) -> Result<PageCounters, TraceError> {
         let mut page = PageCounters::default();
         let mut s = self.lock(m);
@@ -313,7 +416,7 @@ impl Stream<'_, '_> {
             // block claimed earlier would be served with the few walks parked there so far.
             let filling = s.started < n && s.parked + self.start_reserve() <= self.opts.parked_bytes;
             let room = !filling && s.ready.len() + s.reading < self.opts.read_ahead;
-            let Some(b) = room.then(|| s.claim()).flatten() else {
+            let Some(b) = room.then(|| s.claim_next()).flatten() else {
                 s = wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 continue;
             };
@@ -332,22 +435,19 @@ impl Stream<'_, '_> {
         }
     }
 
-    /// A worker: serves ready blocks, starts rays, and (without readers) reads blocks.
-    #[allow(clippy::too_many_arguments)]
-    fn worker<const ANY: bool, T: Send + Copy>(
+    /// A worker: serves ready blocks (then those believed resident), starts rays, and
+    /// (without readers) reads blocks in the sweep's order.
+    fn worker<T: Send + Copy, M: Fn(&Ray, Option<HitInfo>) -> T + Sync>(
         &self,
         m: &Mutex<Sched>,
         wake: &Condvar,
-        n: usize,
-        rays: &[Ray],
+        job: &Job<'_, M>,
         start_order: &[u32],
-        map: &(impl Fn(&Ray, Option<HitInfo>) -> T + Sync),
-    ) -> Result<(Counters, Vec<(u32, T)>), TraceError> {
-        let mut k = Counters::default();
-        let mut answers: Vec<(u32, T)> = Vec::new();
+    ) -> Result<Found<T>, TraceError> {
+        let n = start_order.len();
+        let mut f = Found::default();
         let mut out = Outbox::default();
-        let mut stack: Vec<Entry> = Vec::new();
-        let mut cluster_stack = Vec::new();
+        let mut x = Scratch::default();
         let start_reserve = self.start_reserve();
         let chunk = self.start_chunk();
         loop {
@@ -358,7 +458,7 @@ impl Stream<'_, '_> {
                         wake.notify_all();
                         break Task::Exit;
                     }
-                    if let Some(b) = s.ready.pop_front() {
+                    if let Some(b) = s.ready.pop_front().or_else(|| s.claim_hot()) {
                         break Task::Serve(b);
                     }
                     if s.started < n && s.parked + start_reserve <= self.opts.parked_bytes {
@@ -367,7 +467,7 @@ impl Stream<'_, '_> {
                         break Task::Start(from, s.started);
                     }
                     if self.opts.readers == 0
-                        && let Some(b) = s.claim()
+                        && let Some(b) = s.claim_next()
                     {
                         break Task::Serve(b);
                     }
@@ -375,7 +475,7 @@ impl Stream<'_, '_> {
                         && s.busy == 0
                         && s.reading == 0
                         && s.ready.is_empty()
-                        && s.buckets.iter().all(BTreeSet::is_empty)
+                        && s.nothing_parked()
                     {
                         // Nothing parked and the limit too small for a chunk (a chunk of one
                         // walk whose stack is deeper than most): start it anyway.
@@ -386,55 +486,26 @@ impl Stream<'_, '_> {
                     s = wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
             };
-            let queue = match task {
-                Task::Exit => return Ok((k, answers)),
+            let result = match task {
+                Task::Exit => return Ok(f),
                 Task::Serve(b) => {
-                    let mut s = self.lock(m);
-                    s.busy += 1;
-                    Some((b, s.take(b)))
+                    let q = {
+                        let mut s = self.lock(m);
+                        s.busy += 1;
+                        s.take(b)
+                    };
+                    self.serve(b, q, job, &mut f, &mut out, &mut x, m, wake)
                 }
-                Task::Start(..) => {
+                Task::Start(from, to) => {
                     self.lock(m).busy += 1;
-                    None
+                    start_order[from..to].iter().try_for_each(|&i| {
+                        let kind = if job.any { Kind::Any } else { Kind::Closest };
+                        self.begin(kind, i, 0.0, job, &mut f, &mut out, &mut x, None)
+                    })
                 }
-            };
-            let result = match (&task, queue) {
-                (Task::Serve(b), Some((_, q))) => self.serve::<ANY, T>(
-                    *b,
-                    q,
-                    rays,
-                    map,
-                    &mut k,
-                    &mut answers,
-                    &mut out,
-                    &mut stack,
-                    &mut cluster_stack,
-                    m,
-                    wake,
-                ),
-                (Task::Start(from, to), _) => {
-                    let mut r = Ok(());
-                    for &i in &start_order[*from..*to] {
-                        r = self.start::<ANY, T>(
-                            i,
-                            rays,
-                            map,
-                            &mut k,
-                            &mut answers,
-                            &mut out,
-                            &mut stack,
-                            &mut cluster_stack,
-                        );
-                        if r.is_err() {
-                            break;
-                        }
-                    }
-                    r
-                }
-                _ => Ok(()),
             };
             let mut s = self.lock(m);
-            s.park(&mut out);
+            s.park(&mut out, |b| self.tree.resident(b));
             s.busy -= 1;
             if let Err(e) = result {
                 s.failed.get_or_insert(e);
@@ -443,90 +514,141 @@ impl Stream<'_, '_> {
         }
     }
 
-    /// Starts ray `i`: walks the top tree until it is answered or parks.
-    #[allow(clippy::too_many_arguments)]
-    fn start<const ANY: bool, T: Copy>(
-        &self,
-        i: u32,
-        rays: &[Ray],
-        map: &impl Fn(&Ray, Option<HitInfo>) -> T,
-        k: &mut Counters,
-        answers: &mut Vec<(u32, T)>,
-        out: &mut Outbox,
-        stack: &mut Vec<Entry>,
-        cluster_stack: &mut Vec<(u32, f32, u8)>,
-    ) -> Result<(), TraceError> {
-        let ray = &rays[i as usize];
-        let Some((r, mut w)) = self.tree.begin(ray, stack, k)? else {
-            answers.push((i, map(ray, None)));
-            return Ok(());
-        };
-        match self
-            .tree
-            .resume::<ANY>(&r, &mut w, k, stack, cluster_stack, None)?
-        {
-            None => answers.push((i, map(ray, w.best))),
-            Some(b) => park(out, b, i, w, stack),
-        }
-        Ok(())
-    }
-
     /// Serves block `b`: resumes every walk of its queue with the block's bytes.
     #[allow(clippy::too_many_arguments)]
-    fn serve<const ANY: bool, T: Copy>(
+    fn serve<T: Copy, M: Fn(&Ray, Option<HitInfo>) -> T>(
         &self,
         b: u32,
         q: Queue,
-        rays: &[Ray],
-        map: &impl Fn(&Ray, Option<HitInfo>) -> T,
-        k: &mut Counters,
-        answers: &mut Vec<(u32, T)>,
+        job: &Job<'_, M>,
+        f: &mut Found<T>,
         out: &mut Outbox,
-        stack: &mut Vec<Entry>,
-        cluster_stack: &mut Vec<(u32, f32, u8)>,
+        x: &mut Scratch,
         m: &Mutex<Sched>,
         wake: &Condvar,
     ) -> Result<(), TraceError> {
-        let (_, bytes, ready) = self.tree.fetch(b, &mut k.page)?;
+        let (_, bytes, ready) = self.tree.fetch(b, &mut f.k[0].page)?;
         let held = Held::new(b, ready, &bytes);
         let mut at = 0;
         for head in &q.heads {
-            let ray = &rays[head.ray as usize];
             let len = head.len as usize;
-            stack.clear();
-            stack.extend_from_slice(&q.entries[at..at + len]);
+            x.stack.clear();
+            x.stack.extend_from_slice(&q.entries[at..at + len]);
             at += len;
-            let mut w = head.w;
-            let Some(r) = self.tree.context(ray) else {
-                // Not reached: a walk was parked only for a ray with a context.
-                answers.push((head.ray, map(ray, w.best)));
-                continue;
-            };
-            match self
-                .tree
-                .resume::<ANY>(&r, &mut w, k, stack, cluster_stack, Some(&held))?
-            {
-                None => answers.push((head.ray, map(ray, w.best))),
-                Some(next) => park(out, next, head.ray, w, stack),
-            }
+            self.advance(head.kind, head.ray, head.aux, head.w, job, f, out, x, Some(&held))?;
             if out.heads.len() >= FLUSH {
-                self.lock(m).park(out);
+                self.lock(m).park(out, |b| self.tree.resident(b));
                 wake.notify_all();
             }
         }
         Ok(())
     }
-}
 
-/// Parks a walk at block `b` in the outbox.
-fn park(out: &mut Outbox, b: u32, ray: u32, w: Best, stack: &[Entry]) {
-    out.heads.push((
-        b,
-        Head {
-            ray,
-            len: stack.len() as u32,
-            w,
-        },
-    ));
-    out.entries.extend_from_slice(stack);
+    /// The ray a walk of `kind` for ray `i` traces.
+    fn ray_of<M>(&self, kind: Kind, i: u32, aux: f32, job: &Job<'_, M>) -> Ray {
+        let ray = &job.rays[i as usize];
+        match (kind, job.light) {
+            (Kind::Shadow, Some(light)) => shadow_ray(ray, aux, light),
+            _ => *ray,
+        }
+    }
+
+    /// Starts a walk of `kind` for ray `i` (with `held`, the block being served, if any): it
+    /// walks the top tree and that block until it is answered or parks.
+    #[allow(clippy::too_many_arguments)]
+    fn begin<T: Copy, M: Fn(&Ray, Option<HitInfo>) -> T>(
+        &self,
+        kind: Kind,
+        i: u32,
+        aux: f32,
+        job: &Job<'_, M>,
+        f: &mut Found<T>,
+        out: &mut Outbox,
+        x: &mut Scratch,
+        held: Option<&Held<'_>>,
+    ) -> Result<(), TraceError> {
+        let ray = self.ray_of(kind, i, aux, job);
+        let set = (kind == Kind::Shadow) as usize;
+        match self.tree.begin(&ray, &mut x.stack, &mut f.k[set])? {
+            None => self.finish(kind, i, None, job, f, out, x, held),
+            Some((_, w)) => self.advance(kind, i, aux, w, job, f, out, x, held),
+        }
+    }
+
+    /// Resumes a walk (its stack in `x.stack`) with `held`: answered, or parked at its next
+    /// block.
+    #[allow(clippy::too_many_arguments)]
+    fn advance<T: Copy, M: Fn(&Ray, Option<HitInfo>) -> T>(
+        &self,
+        kind: Kind,
+        i: u32,
+        aux: f32,
+        mut w: Best,
+        job: &Job<'_, M>,
+        f: &mut Found<T>,
+        out: &mut Outbox,
+        x: &mut Scratch,
+        held: Option<&Held<'_>>,
+    ) -> Result<(), TraceError> {
+        let ray = self.ray_of(kind, i, aux, job);
+        let set = (kind == Kind::Shadow) as usize;
+        let Some(r) = self.tree.context(&ray) else {
+            // Not reached: a walk is begun only for a ray with a context.
+            return self.finish(kind, i, w.best, job, f, out, x, held);
+        };
+        let timed = job.light.map(|_| Instant::now());
+        let (k, stack, cluster) = (&mut f.k[set], &mut x.stack, &mut x.cluster);
+        let next = match kind {
+            Kind::Closest => self.tree.resume::<false>(&r, &mut w, k, stack, cluster, held)?,
+            Kind::Any | Kind::Shadow => {
+                self.tree.resume::<true>(&r, &mut w, k, stack, cluster, held)?
+            }
+        };
+        if let Some(t) = timed {
+            f.nanos[set] += t.elapsed().as_nanos() as u64;
+        }
+        match next {
+            Some(b) => {
+                out.heads.push((
+                    b,
+                    Head {
+                        ray: i,
+                        len: x.stack.len() as u32,
+                        kind,
+                        aux,
+                        w,
+                    },
+                ));
+                out.entries.extend_from_slice(&x.stack);
+                Ok(())
+            }
+            None => self.finish(kind, i, w.best, job, f, out, x, held),
+        }
+    }
+
+    /// A walk's answer; a closest hit with a light begins its shadow walk at once (it starts
+    /// where the hit is, most often in the block held).
+    #[allow(clippy::too_many_arguments)]
+    fn finish<T: Copy, M: Fn(&Ray, Option<HitInfo>) -> T>(
+        &self,
+        kind: Kind,
+        i: u32,
+        best: Option<HitInfo>,
+        job: &Job<'_, M>,
+        f: &mut Found<T>,
+        out: &mut Outbox,
+        x: &mut Scratch,
+        held: Option<&Held<'_>>,
+    ) -> Result<(), TraceError> {
+        match kind {
+            Kind::Shadow => f.shadows.push((i, best.is_some() as u8)),
+            Kind::Closest | Kind::Any => {
+                f.answers.push((i, (job.map)(&job.rays[i as usize], best)));
+                if let (Kind::Closest, Some(_), Some(h)) = (kind, job.light, best) {
+                    return self.begin(Kind::Shadow, i, h.t, job, f, out, x, held);
+                }
+            }
+        }
+        Ok(())
+    }
 }

@@ -170,6 +170,9 @@ pub(crate) trait BlockFetch: Sync {
         block: u32,
         c: &mut PageCounters,
     ) -> Result<(BlockBytes<'_>, &ReadyMap), PageError>;
+
+    /// Whether block `block` is resident now (a hint).
+    fn resident(&self, block: u32) -> bool;
 }
 
 /// The blocks of a file whose pager never evicts (every block raw, the budget holding them
@@ -830,6 +833,11 @@ impl<'a> Tree<'a> {
             block,
             kind,
         }))
+    }
+
+    /// Whether block `b` is resident now (a hint: it may be evicted the next moment).
+    pub(super) fn resident(&self, b: u32) -> bool {
+        self.blocks.resident(b)
     }
 
     /// The blocks in the file's directory.

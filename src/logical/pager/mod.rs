@@ -467,6 +467,23 @@ impl Pager {
         Ok(bytes)
     }
 
+    /// Whether `block` is resident now (a hint: it may be evicted the next moment): a raw
+    /// block admitted and not evicted, a zstd block with a slot.
+    pub fn is_resident(&self, block: u32) -> bool {
+        let b = block as usize;
+        if self.keeps_everything {
+            return true;
+        }
+        match self.state.get(b).map(|s| s.load(Ordering::Relaxed)) {
+            Some(RESIDENT | REFERENCED) => true,
+            Some(COLD) if !self.slots.is_empty() => self
+                .block_slot
+                .get(b)
+                .is_some_and(|s| s.load(Ordering::Relaxed) != NO_SLOT),
+            _ => false,
+        }
+    }
+
     /// Bytes of decoded blocks resident now.
     #[cfg(test)]
     pub fn resident_bytes(&self) -> u64 {
