@@ -222,7 +222,7 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         return verify(args);
     }
     let t = Instant::now();
-    let scene = Scene::open_with(
+    let mut scene = Scene::open_with(
         &args.file,
         &SceneOptions {
             mem_budget: args.trace.mem_budget,
@@ -234,6 +234,9 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         },
     )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
+    // Streamed batches draw their rays done and blocks read (on a terminal, after a second).
+    let bar = std::sync::Arc::new(cli::Progress::new(std::io::IsTerminal::is_terminal(&std::io::stderr())));
+    scene.set_progress(Some(bar.clone()));
     let threads = match args.trace.threads {
         Some(n) if n > scene.threads() => {
             eprintln!(

@@ -1,5 +1,5 @@
-//! A progress bar on stderr for the builder's phases: what `oavm-pack` and the Python
-//! bindings' `oavm.pack` draw (feature `progress`, on with `cli`). The library itself never
+//! A progress bar on stderr for the builder's phases and a stream's rays: what `oavm-pack`,
+//! `oavm-trace` and the Python bindings' `oavm.pack` draw (feature `progress`, on with `cli`). The library itself never
 //! draws: [`super::Progress`] only reports.
 
 use std::sync::Arc;
@@ -15,6 +15,8 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 pub struct Progress {
     bar: ProgressBar,
     done: Arc<AtomicBool>,
+    /// The phase's name, which a note follows.
+    name: std::sync::Mutex<String>,
 }
 
 impl Progress {
@@ -32,7 +34,11 @@ impl Progress {
                 }
             });
         }
-        Progress { bar, done }
+        Progress {
+            bar,
+            done,
+            name: std::sync::Mutex::new(String::new()),
+        }
     }
 
     pub fn finish(&self) {
@@ -68,6 +74,12 @@ impl super::Progress for Progress {
         self.bar.set_position(0);
         self.bar.reset_eta();
         self.bar.set_message(name.to_string());
+        *self.name.lock().unwrap_or_else(|p| p.into_inner()) = name.to_string();
+    }
+
+    fn note(&self, text: &str) {
+        let name = self.name.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        self.bar.set_message(format!("{name}, {text}"));
     }
 
     fn at(&self, done: u64) {

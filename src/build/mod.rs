@@ -134,6 +134,8 @@ impl BuildOptions {
 pub trait Progress: Sync {
     fn phase(&self, _name: &str, _total: Option<u64>, _bytes: bool) {}
     fn at(&self, _done: u64) {}
+    /// A note on the phase (what else it has done: blocks read, say).
+    fn note(&self, _text: &str) {}
 }
 
 /// No progress reporting.

@@ -2,7 +2,7 @@
 //! the batch calls (closest hit, any hit, in an order).
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -15,6 +15,7 @@ use super::top_bounds::{LatticeBox, top_bounds};
 use super::stream::{Job, Stream, StreamOptions, StreamStats, Streamed};
 use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree};
 use super::verify::VerifyReport;
+use crate::build::Progress;
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, HitAttributes, Ray};
 use crate::mapping::{Corruption, LevelInfos, TreeMap};
@@ -87,6 +88,8 @@ pub struct Scene<D = MappedFile> {
     threads: usize,
     /// The boxes of the top tree's nodes, made on first use (`top_bounds`).
     top_boxes: OnceLock<Vec<LatticeBox>>,
+    /// Where streamed batches report the rays done and the blocks read.
+    progress: Option<Arc<dyn Progress + Send + Sync>>,
 }
 
 /// What an opened scene is and holds, for reports.
@@ -178,7 +181,14 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             budget,
             threads,
             top_boxes: OnceLock::new(),
+            progress: None,
         })
+    }
+
+    /// Reports streamed batches' progress (rays answered, blocks read) to `progress`
+    /// (`None`: to nobody, the default).
+    pub fn set_progress(&mut self, progress: Option<Arc<dyn Progress + Send + Sync>>) {
+        self.progress = progress;
     }
 
     pub fn file(&self) -> &OavmFile<D> {
@@ -511,6 +521,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         }
         let stream = Stream {
             tree,
+            progress: self.progress.as_deref().map(|p| p as &dyn Progress),
             opts: StreamOptions {
                 workers,
                 readers,

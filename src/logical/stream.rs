@@ -46,9 +46,11 @@
 //! started and nothing is parked, claimed, ready or being traced.
 
 use std::collections::{BTreeSet, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Condvar, Mutex, MutexGuard};
 
 use super::held::Held;
+use crate::build::Progress;
 use super::pager::PageCounters;
 use super::trace::{Best, Counters, Entry, HitInfo, TraceError, Tree};
 use crate::geom::Ray;
@@ -303,6 +305,17 @@ struct Scratch {
 pub(crate) struct Stream<'t, 'a> {
     pub tree: &'t Tree<'a>,
     pub opts: StreamOptions,
+    /// Told the rays answered and the blocks read as they go.
+    pub progress: Option<&'t dyn Progress>,
+}
+
+/// Rays answered and blocks read so far, for the progress report.
+#[derive(Default)]
+struct Tally {
+    answered: AtomicU64,
+    read: AtomicU64,
+    /// `answered` when the report was last updated.
+    reported: AtomicU64,
 }
 
 impl Stream<'_, '_> {
@@ -338,13 +351,17 @@ impl Stream<'_, '_> {
             failed: None,
         });
         let wake = Condvar::new();
+        let tally = Tally::default();
+        if let Some(p) = self.progress {
+            p.phase("tracing", Some(n as u64), false);
+        }
         let workers = self.opts.workers.max(1);
         let readers = self.opts.readers;
         let results: Vec<Result<Found<T>, TraceError>> = std::thread::scope(|s| {
             let mut handles = Vec::new();
             for _ in 0..readers {
                 handles.push(s.spawn(|| {
-                    self.reader(&sched, &wake, n).map(|page| {
+                    self.reader(&sched, &wake, n, &tally).map(|page| {
                         let mut f = Found::default();
                         f.k[0].page = page;
                         f
@@ -352,7 +369,7 @@ impl Stream<'_, '_> {
                 }));
             }
             for _ in 0..workers {
-                handles.push(s.spawn(|| self.worker(&sched, &wake, job, start_order)));
+                handles.push(s.spawn(|| self.worker(&sched, &wake, job, start_order, &tally)));
             }
             handles
                 .into_iter()
@@ -405,7 +422,13 @@ impl Stream<'_, '_> {
     }
 
     /// A reader: claims blocks in the sweep's order, admits them, hands them to the workers.
-    fn reader(&self, m: &Mutex<Sched>, wake: &Condvar, n: usize) -> Result<PageCounters, TraceError> {
+    fn reader(
+        &self,
+        m: &Mutex<Sched>,
+        wake: &Condvar,
+        n: usize,
+        tally: &Tally,
+    ) -> Result<PageCounters, TraceError> {
         let mut page = PageCounters::default();
         let mut s = self.lock(m);
         loop {
@@ -422,7 +445,9 @@ impl Stream<'_, '_> {
             };
             s.reading += 1;
             drop(s);
+            let misses = page.misses;
             let got = self.tree.admit(b, &mut page);
+            tally.read.fetch_add(page.misses - misses, Ordering::Relaxed);
             s = self.lock(m);
             s.reading -= 1;
             match got {
@@ -443,6 +468,7 @@ impl Stream<'_, '_> {
         wake: &Condvar,
         job: &Job<'_, M>,
         start_order: &[u32],
+        tally: &Tally,
     ) -> Result<Found<T>, TraceError> {
         let n = start_order.len();
         let mut f = Found::default();
@@ -486,6 +512,7 @@ impl Stream<'_, '_> {
                     s = wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
             };
+            let (answers, misses) = (f.answers.len(), f.k[0].page.misses);
             let result = match task {
                 Task::Exit => return Ok(f),
                 Task::Serve(b) => {
@@ -504,6 +531,9 @@ impl Stream<'_, '_> {
                     })
                 }
             };
+            tally.answered.fetch_add((f.answers.len() - answers) as u64, Ordering::Relaxed);
+            tally.read.fetch_add(f.k[0].page.misses - misses, Ordering::Relaxed);
+            self.report(tally, n);
             let mut s = self.lock(m);
             s.park(&mut out, |b| self.tree.resident(b));
             s.busy -= 1;
@@ -511,6 +541,18 @@ impl Stream<'_, '_> {
                 s.failed.get_or_insert(e);
             }
             wake.notify_all();
+        }
+    }
+
+    /// Updates the progress report every 1/1000 of the rays (or at the end).
+    fn report(&self, tally: &Tally, n: usize) {
+        let Some(p) = self.progress else { return };
+        let done = tally.answered.load(Ordering::Relaxed);
+        let last = tally.reported.load(Ordering::Relaxed);
+        if (done - last.min(done)) * 1000 >= n as u64 || done == n as u64 {
+            tally.reported.store(done, Ordering::Relaxed);
+            p.at(done);
+            p.note(&format!("{} blocks read", tally.read.load(Ordering::Relaxed)));
         }
     }
 
