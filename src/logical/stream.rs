@@ -41,8 +41,10 @@
 //! **No deadlock.** One mutex guards the whole schedule; nobody holds it while reading a block
 //! or tracing. Each thread holds at most one block at a time (a worker its served block, a
 //! reader the block it admits, dropped at once), as the pager requires. Every wait is on the
-//! condition variable, and whoever changes what others wait for (a block made ready, walks
-//! parked, a task finished, a failure) notifies all; the stream ends when every ray has been
+//! condition variable of its kind (readers, workers), and whoever changes the schedule (a
+//! block claimed or made ready, walks parked, a task taken or finished, a failure) wakes one
+//! reader and one worker if each has something to do, all of them once the stream is done (a
+//! thread woken for nothing waits again; one that takes work wakes the next); the stream ends when every ray has been
 //! started and nothing is parked, claimed, ready or being traced.
 
 use std::collections::{BTreeSet, VecDeque};
@@ -309,6 +311,13 @@ pub(crate) struct Stream<'t, 'a> {
     pub progress: Option<&'t dyn Progress>,
 }
 
+/// Where readers and workers wait for something to do.
+#[derive(Default)]
+struct Wake {
+    readers: Condvar,
+    workers: Condvar,
+}
+
 /// Rays answered and blocks read so far, for the progress report.
 #[derive(Default)]
 struct Tally {
@@ -350,7 +359,7 @@ impl Stream<'_, '_> {
             },
             failed: None,
         });
-        let wake = Condvar::new();
+        let wake = Wake::default();
         let tally = Tally::default();
         if let Some(p) = self.progress {
             p.phase("tracing", Some(n as u64), false);
@@ -425,7 +434,7 @@ impl Stream<'_, '_> {
     fn reader(
         &self,
         m: &Mutex<Sched>,
-        wake: &Condvar,
+        wake: &Wake,
         n: usize,
         tally: &Tally,
     ) -> Result<PageCounters, TraceError> {
@@ -435,15 +444,12 @@ impl Stream<'_, '_> {
             if s.done(n) {
                 return Ok(page);
             }
-            // Blocks are read once the walks fill their memory (or every ray is started): a
-            // block claimed earlier would be served with the few walks parked there so far.
-            let filling = s.started < n && s.parked + self.start_reserve() <= self.opts.parked_bytes;
-            let room = !filling && s.ready.len() + s.reading < self.opts.read_ahead;
-            let Some(b) = room.then(|| s.claim_next()).flatten() else {
-                s = wake.wait(s).unwrap_or_else(|p| p.into_inner());
+            let Some(b) = self.reader_can(&s, n).then(|| s.claim_next()).flatten() else {
+                s = wake.readers.wait(s).unwrap_or_else(|p| p.into_inner());
                 continue;
             };
             s.reading += 1;
+            self.kick(&s, n, wake);
             drop(s);
             let misses = page.misses;
             let got = self.tree.admit(b, &mut page);
@@ -456,7 +462,58 @@ impl Stream<'_, '_> {
                     s.failed.get_or_insert(e);
                 }
             }
-            wake.notify_all();
+            self.kick(&s, n, wake);
+        }
+    }
+
+    /// Whether the rays still to start fit in the parked walks' memory: then workers start
+    /// them, and readers wait (a block claimed earlier would be served with the few walks
+    /// parked there so far).
+    fn filling(&self, s: &Sched, n: usize) -> bool {
+        s.started < n && s.parked + self.start_reserve() <= self.opts.parked_bytes
+    }
+
+    /// Whether a reader has a block to claim.
+    fn reader_can(&self, s: &Sched, n: usize) -> bool {
+        !self.filling(s, n)
+            && s.ready.len() + s.reading < self.opts.read_ahead
+            && !s.sweep.is_empty()
+    }
+
+    /// Whether a worker has something to do (see [`Self::worker`]).
+    fn worker_can(&self, s: &Sched, n: usize) -> bool {
+        !s.ready.is_empty()
+            || !s.hot.is_empty()
+            || self.filling(s, n)
+            || (self.opts.readers == 0 && !s.sweep.is_empty())
+            || self.stalled(s, n)
+    }
+
+    /// Nothing is parked, read or traced, and rays are left that the parked walks' limit
+    /// holds no chunk of (a chunk of one walk whose stack is deeper than most): one is
+    /// started anyway.
+    fn stalled(&self, s: &Sched, n: usize) -> bool {
+        s.started < n
+            && s.busy == 0
+            && s.reading == 0
+            && s.ready.is_empty()
+            && s.nothing_parked()
+    }
+
+    /// Wakes a reader and a worker if each has something to do (all of them when the
+    /// stream is done). Called, holding the schedule's lock, after every change to it: a
+    /// thread woken for nothing waits again, and one that takes work kicks the next.
+    fn kick(&self, s: &Sched, n: usize, wake: &Wake) {
+        if s.done(n) {
+            wake.readers.notify_all();
+            wake.workers.notify_all();
+            return;
+        }
+        if self.opts.readers > 0 && self.reader_can(s, n) {
+            wake.readers.notify_one();
+        }
+        if self.worker_can(s, n) {
+            wake.workers.notify_one();
         }
     }
 
@@ -465,7 +522,7 @@ impl Stream<'_, '_> {
     fn worker<T: Send + Copy, M: Fn(&Ray, Option<HitInfo>) -> T + Sync>(
         &self,
         m: &Mutex<Sched>,
-        wake: &Condvar,
+        wake: &Wake,
         job: &Job<'_, M>,
         start_order: &[u32],
         tally: &Tally,
@@ -474,57 +531,42 @@ impl Stream<'_, '_> {
         let mut f = Found::default();
         let mut out = Outbox::default();
         let mut x = Scratch::default();
-        let start_reserve = self.start_reserve();
         let chunk = self.start_chunk();
         loop {
             let task = {
                 let mut s = self.lock(m);
                 loop {
                     if s.done(n) {
-                        wake.notify_all();
+                        self.kick(&s, n, wake);
                         break Task::Exit;
                     }
-                    if let Some(b) = s.ready.pop_front().or_else(|| s.claim_hot()) {
-                        break Task::Serve(b);
-                    }
-                    if s.started < n && s.parked + start_reserve <= self.opts.parked_bytes {
+                    let task = if let Some(b) = s.ready.pop_front().or_else(|| s.claim_hot()) {
+                        Some(Task::Serve(b))
+                    } else if self.filling(&s, n) || self.stalled(&s, n) {
                         let from = s.started;
                         s.started = (from + chunk).min(n);
-                        break Task::Start(from, s.started);
+                        Some(Task::Start(from, s.started))
+                    } else if self.opts.readers == 0 {
+                        s.claim_next().map(Task::Serve)
+                    } else {
+                        None
+                    };
+                    if let Some(t) = task {
+                        s.busy += 1;
+                        self.kick(&s, n, wake);
+                        break t;
                     }
-                    if self.opts.readers == 0
-                        && let Some(b) = s.claim_next()
-                    {
-                        break Task::Serve(b);
-                    }
-                    if s.started < n
-                        && s.busy == 0
-                        && s.reading == 0
-                        && s.ready.is_empty()
-                        && s.nothing_parked()
-                    {
-                        // Nothing parked and the limit too small for a chunk (a chunk of one
-                        // walk whose stack is deeper than most): start it anyway.
-                        let from = s.started;
-                        s.started = (from + chunk).min(n);
-                        break Task::Start(from, s.started);
-                    }
-                    s = wake.wait(s).unwrap_or_else(|p| p.into_inner());
+                    s = wake.workers.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
             };
             let (answers, misses) = (f.answers.len(), f.k[0].page.misses);
             let result = match task {
                 Task::Exit => return Ok(f),
                 Task::Serve(b) => {
-                    let q = {
-                        let mut s = self.lock(m);
-                        s.busy += 1;
-                        s.take(b)
-                    };
-                    self.serve(b, q, job, &mut f, &mut out, &mut x, m, wake)
+                    let q = self.lock(m).take(b);
+                    self.serve(b, q, job, &mut f, &mut out, &mut x, m, wake, n)
                 }
                 Task::Start(from, to) => {
-                    self.lock(m).busy += 1;
                     start_order[from..to].iter().try_for_each(|&i| {
                         let kind = if job.any { Kind::Any } else { Kind::Closest };
                         self.begin(kind, i, 0.0, job, &mut f, &mut out, &mut x, None)
@@ -540,7 +582,7 @@ impl Stream<'_, '_> {
             if let Err(e) = result {
                 s.failed.get_or_insert(e);
             }
-            wake.notify_all();
+            self.kick(&s, n, wake);
         }
     }
 
@@ -567,7 +609,8 @@ impl Stream<'_, '_> {
         out: &mut Outbox,
         x: &mut Scratch,
         m: &Mutex<Sched>,
-        wake: &Condvar,
+        wake: &Wake,
+        n: usize,
     ) -> Result<(), TraceError> {
         let (_, bytes, ready) = self.tree.fetch(b, &mut f.k[0].page)?;
         let held = Held::new(b, ready, &bytes);
@@ -579,8 +622,9 @@ impl Stream<'_, '_> {
             at += len;
             self.advance(head.kind, head.ray, head.aux, head.w, job, f, out, x, Some(&held))?;
             if out.heads.len() >= FLUSH {
-                self.lock(m).park(out, |b| self.tree.resident(b));
-                wake.notify_all();
+                let mut s = self.lock(m);
+                s.park(out, |b| self.tree.resident(b));
+                self.kick(&s, n, wake);
             }
         }
         Ok(())
