@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::error::Error;
 use crate::geom::Ray;
-use crate::logical::{BlockSource, Counters, Order, Scene, TraceError, Tree, in_order};
+use crate::logical::{BlockSource, Counters, HitInfo, Order, Scene, TraceError, Tree, in_order};
 use crate::mapping::morton;
 use glam::DVec3;
 
@@ -24,7 +24,9 @@ pub struct RenderOptions {
     /// [`Order::None`]: tiles of [`TILE`] x [`TILE`] pixels row by row, top to bottom.
     /// [`Order::Morton`]: tiles in the Morton order of their positions, so that the rays traced
     /// together look at neighbouring parts of the model and need the same blocks
-    /// ([`Order::Blocks`] renders the same way). The image is the same, byte for byte.
+    /// ([`Order::Blocks`] renders the same way). [`Order::Stream`]: bands of rows, each
+    /// band's primary rays and the shadow rays of its lit hits in one stream. The image is
+    /// the same, byte for byte.
     pub order: Order,
 }
 
@@ -62,6 +64,18 @@ pub fn render<D: AsRef<[u8]> + BlockSource>(
             "image size {}x{} must be between 1x1 and 16384x16384",
             opts.width, opts.height
         )));
+    }
+    if opts.order == Order::Stream
+        && let Some((rgb, stats)) = render_streamed(scene, opts)?
+    {
+        return Ok((
+            Image {
+                width: opts.width,
+                height: opts.height,
+                rgb,
+            },
+            stats,
+        ));
     }
     let start = Instant::now();
     let tree = scene.tree();
@@ -141,14 +155,7 @@ fn shade(
         return Ok(None);
     };
     s.hits += 1;
-    let v = hit.v.map(|p| DVec3::from(p.map(f64::from)));
-    let mut n = unit((v[1] - v[0]).cross(v[2] - v[0]));
-    if n.dot(DVec3::from(ray.dir.map(f64::from))) > 0.0 {
-        n = -n; // two-sided: face the viewer
-    }
-    let p = DVec3::from(ray.at(hit.t as f64));
-    let l = unit(DVec3::from(light.map(f64::from)) - p);
-    let lambert = n.dot(l).max(0.0);
+    let (n, lambert) = surface(ray, hit.t, &hit.v, light);
     let lit = if lambert > 0.0 {
         let shadowed = tree.occluded(&shadow_ray(ray, hit.t, light), &mut s.shadow)?;
         s.shadowed += shadowed as u64;
@@ -156,12 +163,88 @@ fn shade(
     } else {
         0.0
     };
+    Ok(Some(colour(n, lit)))
+}
+
+/// The surface `ray` hits at `t` on the triangle `v`: its normal, turned to face the viewer
+/// (two-sided), and its Lambert term toward `light` (0: facing away, no shadow ray cast).
+fn surface(ray: &Ray, t: f32, v: &[[f32; 3]; 3], light: [f32; 3]) -> (DVec3, f64) {
+    let v = v.map(|p| DVec3::from(p.map(f64::from)));
+    let mut n = unit((v[1] - v[0]).cross(v[2] - v[0]));
+    if n.dot(DVec3::from(ray.dir.map(f64::from))) > 0.0 {
+        n = -n; // two-sided: face the viewer
+    }
+    let p = DVec3::from(ray.at(t as f64));
+    let l = unit(DVec3::from(light.map(f64::from)) - p);
+    (n, n.dot(l).max(0.0))
+}
+
+/// Whether a hit casts its shadow ray: its surface faces the light.
+fn casts(ray: &Ray, hit: &HitInfo, light: [f32; 3]) -> bool {
+    surface(ray, hit.t, &hit.v, light).1 > 0.0
+}
+
+/// The linear colour of a surface with normal `n` lit by `lit` (the Lambert term, 0 in
+/// shadow).
+fn colour(n: DVec3, lit: f64) -> [f64; 3] {
     let albedo = [0.80, 0.74, 0.66];
     // Ambient term from a hemisphere light, so shadowed parts keep their shape.
     let sky = 0.10 + 0.12 * (0.5 + 0.5 * n.y);
-    Ok(Some(std::array::from_fn(|k| {
-        albedo[k] * (0.85 * lit + sky)
-    })))
+    std::array::from_fn(|k| albedo[k] * (0.85 * lit + sky))
+}
+
+/// Pixels a streamed render traces at once (bands of whole rows): the rays, their hits and
+/// shadow answers of a band take about 100 bytes a pixel.
+const BAND_PIXELS: usize = 1 << 22;
+
+/// [`render`] with [`Order::Stream`]: bands of rows, each band's primary rays and the
+/// shadow rays of its lit hits in one stream ([`Scene::trace_frame`]'s), then shaded as
+/// [`shade`] does. `None` for a file that is not streamed (leaf lists).
+fn render_streamed<D: AsRef<[u8]> + BlockSource>(
+    scene: &Scene<D>,
+    opts: &RenderOptions,
+) -> Result<Option<(Vec<u8>, RenderStats)>, Error> {
+    let start = Instant::now();
+    let (w, h) = (opts.width as usize, opts.height as usize);
+    let pixels = opts.camera.pixels(opts.width, opts.height);
+    let rows = (BAND_PIXELS / w).max(1);
+    let mut rgb = vec![0u8; w * h * 3];
+    let mut stats = RenderStats::default();
+    for y0 in (0..h).step_by(rows) {
+        let y1 = (y0 + rows).min(h);
+        let rays: Vec<Ray> = (y0..y1)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| pixels.ray(x as u32, y as u32))
+            .collect();
+        let mut hits: Vec<Option<(f32, [[f32; 3]; 3])>> = vec![None; rays.len()];
+        let mut occluded = vec![0u8; rays.len()];
+        let map = |_: &Ray, h: Option<HitInfo>| h.map(|h| (h.t, h.v));
+        let Some(([primary, shadow], _)) =
+            scene.stream_shaded(&rays, opts.light, casts, map, &mut hits, &mut occluded)?
+        else {
+            return Ok(None);
+        };
+        stats.primary += primary;
+        stats.shadow += shadow;
+        for (i, ((ray, hit), &occ)) in rays.iter().zip(&hits).zip(&occluded).enumerate() {
+            let y = y0 + i / w;
+            let c = match hit {
+                None => background(y as f64 / h as f64),
+                Some((t, v)) => {
+                    stats.hits += 1;
+                    stats.shadowed += occ as u64;
+                    let (n, lambert) = surface(ray, *t, v, opts.light);
+                    colour(n, if occ == 1 { 0.0 } else { lambert })
+                }
+            };
+            let at = (y0 * w + i) * 3;
+            rgb[at..at + 3].copy_from_slice(&c.map(to_srgb8));
+        }
+    }
+    stats.width = opts.width;
+    stats.height = opts.height;
+    stats.seconds = start.elapsed().as_secs_f64();
+    Ok(Some((rgb, stats)))
 }
 
 fn background(v: f64) -> [f64; 3] {

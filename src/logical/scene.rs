@@ -12,7 +12,7 @@ use super::held::ReadyMap;
 use super::order::{Order, RayKeys};
 use super::pager::{BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions};
 use super::top_bounds::{LatticeBox, top_bounds};
-use super::stream::{Job, Stream, StreamOptions, StreamStats, Streamed};
+use super::stream::{Job, Stream, StreamOptions, StreamStats, Streamed, every_hit};
 use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree};
 use super::verify::VerifyReport;
 use crate::build::Progress;
@@ -235,19 +235,20 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         self.decoded_bytes() <= self.budget()
     }
 
-    /// The order to trace in when none is asked for: [`Order::Blocks`] when the budget is
-    /// smaller than the file's decoded blocks (rays binned by their first block, so a block is
-    /// read once for its bin: on the 130M-triangle file in a 1.5 GiB cgroup, zstd, 10^6 random
-    /// rays ran at 0.38 of the unlimited speed sorted by Morton key, 0.80 binned), else
-    /// [`Order::None`]: in memory, sorting costs more than the coherence it buys (format 4,
-    /// 2 threads, `tools/ab_speed.sh`: the dragon's primary / random / shadow rays ran 1.17x /
-    /// 1.23x / 1.07x faster as given than sorted by Morton key, Sibenik's 1.08x / 1.33x /
-    /// 1.28x).
+    /// The order to trace in when none is asked for: [`Order::Stream`] when the budget is
+    /// smaller than the file's decoded blocks (walks parked at the blocks they need, each
+    /// block read about once for all of them: on the 130M-triangle file in a 1.5 GiB cgroup
+    /// with a 1 GiB budget, raw, warm, 1.25x the speed of [`Order::Blocks`] on a 1024x768
+    /// frame with its shadow rays and 1.10x on 10^6 random rays, README "Out of core"), else
+    /// [`Order::None`]: in memory, a stream costs more than the coherence it buys (the dragon,
+    /// 0.6x to 0.75x of the direct walk), and so does sorting (format 4, 2 threads,
+    /// `tools/ab_speed.sh`: the dragon's primary / random / shadow rays ran 1.17x / 1.23x /
+    /// 1.07x faster as given than sorted by Morton key, Sibenik's 1.08x / 1.33x / 1.28x).
     pub fn default_order(&self) -> Order {
         if self.fits_in_budget() {
             Order::None
         } else {
-            Order::Blocks
+            Order::Stream
         }
     }
 
@@ -426,6 +427,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             rays,
             any: ANY,
             light: None,
+            casts: every_hit,
             map,
         };
         let (s, _) = self.stream_job(tree, &job, out, &mut [])?;
@@ -445,6 +447,26 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         hits: &mut [Hit],
         occluded: &mut [u8],
     ) -> Result<Option<([Counters; 2], f64)>, Error> {
+        let map = |_: &Ray, h: Option<HitInfo>| {
+            h.map_or(Hit::MISS, |h| Hit {
+                t: h.t,
+                prim: h.prim,
+            })
+        };
+        self.stream_shaded(rays, light, every_hit, map, hits, occluded)
+    }
+
+    /// [`Self::stream_frame`] with the hits made answers by `map`, and only the hits `casts`
+    /// picks casting their shadow rays (the others' `occluded` is 0): a renderer's.
+    pub(crate) fn stream_shaded<T: Send + Sync + Copy>(
+        &self,
+        rays: &[Ray],
+        light: [f32; 3],
+        casts: fn(&Ray, &HitInfo, [f32; 3]) -> bool,
+        map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
+        out: &mut [T],
+        occluded: &mut [u8],
+    ) -> Result<Option<([Counters; 2], f64)>, Error> {
         let tree = self.tree();
         if !tree.has_clusters() {
             return Ok(None);
@@ -460,15 +482,11 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             rays,
             any: false,
             light: Some(light),
-            map: |_: &Ray, h: Option<HitInfo>| {
-                h.map_or(Hit::MISS, |h| Hit {
-                    t: h.t,
-                    prim: h.prim,
-                })
-            },
+            casts,
+            map,
         };
         occluded.fill(0);
-        let (s, _) = self.stream_job(&tree, &job, hits, occluded)?;
+        let (s, _) = self.stream_job(&tree, &job, out, occluded)?;
         Ok(Some((s.counters, s.shadow_share)))
     }
 

@@ -262,8 +262,15 @@ pub(crate) struct Job<'j, M> {
     /// With closest hits: the shadow ray of each hit, toward this light, is traced in the
     /// same stream ([`crate::rays::shadow_ray`]).
     pub light: Option<[f32; 3]>,
+    /// Which hits cast their shadow ray (all of a frame's; a renderer's lit side only).
+    pub casts: fn(&Ray, &HitInfo, [f32; 3]) -> bool,
     /// The answer of ray `i` from its hit.
     pub map: M,
+}
+
+/// [`Job::casts`] for a frame: every hit casts its shadow ray.
+pub(crate) fn every_hit(_: &Ray, _: &HitInfo, _: [f32; 3]) -> bool {
+    true
 }
 
 /// What one thread found: its walks' counters (the batch's rays, and the shadow rays), the
@@ -730,7 +737,9 @@ impl Stream<'_, '_> {
             Kind::Shadow => f.shadows.push((i, best.is_some() as u8)),
             Kind::Closest | Kind::Any => {
                 f.answers.push((i, (job.map)(&job.rays[i as usize], best)));
-                if let (Kind::Closest, Some(_), Some(h)) = (kind, job.light, best) {
+                if let (Kind::Closest, Some(light), Some(h)) = (kind, job.light, best)
+                    && (job.casts)(&job.rays[i as usize], &h, light)
+                {
                     return self.begin(Kind::Shadow, i, h.t, job, f, out, x, held);
                 }
             }
