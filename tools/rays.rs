@@ -6,12 +6,15 @@
 //! writes `OUT_PREFIX.random.rays` (N random rays, default 10^6), `OUT_PREFIX.primary.rays`
 //! (the default camera of `oavm-trace`, W x H, default 1024x768) and `OUT_PREFIX.shadow.rays`
 //! (toward the default light from every primary ray's closest hit, found by brute force-checked
-//! OAVM tracing of the mesh packed in memory with default options).
+//! OAVM tracing of the mesh packed in memory with default options). MESH may be a packed
+//! `.oavm` file instead (a mesh too large to pack in memory): then the model's bounds come from
+//! its header, as `oavm-trace --random` and `--primary` take them, and the primary hits from
+//! tracing it within the default memory budget.
 
 use std::path::PathBuf;
 
 use oavm::rays::{self, Bounds, Camera};
-use oavm::{BuildOptions, Hit, Scene};
+use oavm::{BuildOptions, Hit, Ray, Scene};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
@@ -24,6 +27,22 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// The random rays, the primary rays and their hits (traced in the scene's default order).
+fn sets<D: AsRef<[u8]> + oavm::logical::BlockSource>(
+    scene: &Scene<D>,
+    b: &Bounds,
+    n: usize,
+    seed: u64,
+    w: u32,
+    h: u32,
+) -> Result<(Vec<Ray>, Vec<Ray>, Vec<Hit>)> {
+    let random = rays::random_rays(b, n, seed);
+    let primary = Camera::framing(b).primary_rays(w, h);
+    let mut hits = vec![Hit::MISS; primary.len()];
+    scene.intersect_batch_ordered(&primary, &mut hits, scene.default_order())?;
+    Ok((random, primary, hits))
 }
 
 fn run() -> Result<()> {
@@ -50,14 +69,26 @@ fn run() -> Result<()> {
     if n > max || (w as u64) * (h as u64) > max as u64 {
         return Err(format!("at most {max} rays a set").into());
     }
-    let mesh = oavm::mesh::load(&mesh_path)?;
-    let b = Bounds::of_points(mesh.positions.iter().copied());
-    let random = rays::random_rays(&b, n, seed);
-    let primary = Camera::framing(&b).primary_rays(w, h);
-    let (parts, _) = oavm::build::build(&mesh, &BuildOptions::default(), &oavm::build::Quiet)?;
-    let scene = Scene::from_bytes(oavm::build::encode(&parts)?, "memory")?;
-    let mut hits = vec![Hit::MISS; primary.len()];
-    scene.intersect_batch(&primary, &mut hits)?;
+    // A mesh is packed in memory; a packed file (too large a mesh for that) is opened, with
+    // the model's bounds from its header, as oavm-trace takes them.
+    let (b, random, primary, hits) = if mesh_path.extension().is_some_and(|e| e == "oavm") {
+        let scene = Scene::open(&mesh_path)?;
+        let hd = scene.file().header();
+        let b = Bounds {
+            min: hd.mesh_min,
+            max: hd.mesh_max,
+        };
+        let (random, primary, hits) = sets(&scene, &b, n, seed, w, h)?;
+        (b, random, primary, hits)
+    } else {
+        let mesh = oavm::mesh::load(&mesh_path)?;
+        let b = Bounds::of_points(mesh.positions.iter().copied());
+        let (parts, _) =
+            oavm::build::build(&mesh, &BuildOptions::default(), &oavm::build::Quiet)?;
+        let scene = Scene::from_bytes(oavm::build::encode(&parts)?, "memory")?;
+        let (random, primary, hits) = sets(&scene, &b, n, seed, w, h)?;
+        (b, random, primary, hits)
+    };
     let shadow = rays::shadow_rays(&primary, &hits, rays::default_light(&b));
     for (name, set) in [
         ("random", &random),
