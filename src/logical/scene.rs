@@ -238,10 +238,11 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     /// The order to trace in when none is asked for: [`Order::Stream`] when the budget is
     /// smaller than the file's decoded blocks (walks parked at the blocks they need, each
     /// block read about once for all of them: on the 130M-triangle file in a 1.5 GiB cgroup
-    /// with a 1 GiB budget, raw, warm, 1.25x the speed of [`Order::Blocks`] on a 1024x768
-    /// frame with its shadow rays and 1.10x on 10^6 random rays, README "Out of core"), else
+    /// with a 1 GiB budget, raw, warm, 1.17x the speed of [`Order::Blocks`] on a 1024x768
+    /// frame with its shadow rays and 1.08x on 10^6 random rays; zstd, 1.04x and 0.97x: README
+    /// "Out of core"), else
     /// [`Order::None`]: in memory, a stream costs more than the coherence it buys (the dragon,
-    /// 0.6x to 0.75x of the direct walk), and so does sorting (format 4, 2 threads,
+    /// 0.46x to 0.72x of the direct walk), and so does sorting (format 4, 2 threads,
     /// `tools/ab_speed.sh`: the dragon's primary / random / shadow rays ran 1.17x / 1.23x /
     /// 1.07x faster as given than sorted by Morton key, Sibenik's 1.08x / 1.33x / 1.28x).
     pub fn default_order(&self) -> Order {
