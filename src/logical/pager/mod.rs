@@ -352,6 +352,10 @@ impl Pager {
     /// blocks; allocates a few bytes per block, and no slot buffer until a zstd miss needs it.
     pub fn new(directory: &[BlockEntry], reader: BlockReader, opts: PagerOptions) -> Pager {
         let threads = opts.threads.max(1) as u64;
+        if reader.compressed() && opts.budget != u64::MAX {
+            // Slot buffers freed under a budget must leave the process.
+            crate::os::return_large_frees();
+        }
         // (Slot indices are stored as u32s, NO_SLOT excluded.)
         let slot_count = if reader.compressed() {
             (opts.budget / MIN_SLOT_BYTES)
