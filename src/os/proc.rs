@@ -61,20 +61,6 @@ fn field(path: &str, key: &str) -> Option<u64> {
     line[key.len()..].split_whitespace().next()?.parse().ok()
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn readings_are_plausible_on_linux() {
-        let rss = peak_rss_bytes().expect("VmHWM");
-        assert!(rss > 1 << 20, "peak RSS {rss}");
-        assert!(read_bytes().is_some());
-        let avail = available_memory().expect("MemAvailable");
-        assert!(avail > 1 << 20, "available {avail}");
-    }
-}
-
 /// Makes the C allocator give large freed blocks back to the kernel: glibc serves allocations
 /// of 128 KiB or more with their own mappings, unmapped when freed, but raises that threshold
 /// (up to 32 MiB) each time such a block is freed, after which blocks of that size come from
@@ -94,5 +80,19 @@ pub fn return_large_frees() {
                 libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
             }
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn readings_are_plausible_on_linux() {
+        let rss = peak_rss_bytes().expect("VmHWM");
+        assert!(rss > 1 << 20, "peak RSS {rss}");
+        assert!(read_bytes().is_some());
+        let avail = available_memory().expect("MemAvailable");
+        assert!(avail > 1 << 20, "available {avail}");
     }
 }
