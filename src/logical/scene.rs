@@ -339,16 +339,17 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         }
     }
 
-    /// Closest hits of `rays` into `out` (same length), in parallel on the current rayon pool,
-    /// in the order given (see [`Self::intersect_batch_ordered`]).
+    /// Closest hits of `rays` into `out` (same length), in parallel, traced in
+    /// [`Self::default_order`]: as given when the budget holds the file, streamed when it does
+    /// not (see [`Self::intersect_batch_ordered`]; the answers are the same).
     pub fn intersect_batch(&self, rays: &[Ray], out: &mut [Hit]) -> Result<Counters, Error> {
-        self.intersect_batch_ordered(rays, out, Order::None)
+        self.intersect_batch_ordered(rays, out, self.default_order())
     }
 
-    /// Any-hit answers of `rays` into `out` (1: occluded, 0: not), in parallel, in the order
-    /// given.
+    /// Any-hit answers of `rays` into `out` (1: occluded, 0: not), in parallel, traced in
+    /// [`Self::default_order`].
     pub fn occluded_batch(&self, rays: &[Ray], out: &mut [u8]) -> Result<Counters, Error> {
-        self.occluded_batch_ordered(rays, out, Order::None)
+        self.occluded_batch_ordered(rays, out, self.default_order())
     }
 
     /// Closest hits of `rays` into `out`, traced in `order`. The answers do not depend on the
