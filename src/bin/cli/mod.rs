@@ -83,12 +83,15 @@ pub struct TraceArgs {
     /// crash). `--verify` checks everything regardless.
     #[arg(long)]
     pub no_block_checks: bool,
-    /// Order of tracing: morton (rays that enter the model near each other, in the same
-    /// direction octant, together; image tiles in Morton order), blocks (rays binned by the
-    /// first block they need, found in the top tree, then as morton) or none (as given; image
-    /// tiles row by row). The answers are the same; the blocks read again under a small budget
-    /// are not. Default: blocks when the budget is smaller than the file's decoded blocks,
-    /// none otherwise (in memory, sorting costs more than the coherence it buys).
+    /// Order of tracing: stream (each ray's walk parked at every block it needs and resumed
+    /// when that block is served with all the walks parked there; blocks read ahead in file
+    /// order; a frame's shadow rays in the same stream), morton (rays that enter the model near
+    /// each other, in the same direction octant, together; image tiles in Morton order),
+    /// blocks (rays binned by the first block they need, found in the top tree, then as
+    /// morton) or none (as given; image tiles row by row). The answers are the same; the
+    /// blocks read again under a small budget are not. Default: stream when the budget is
+    /// smaller than the file's decoded blocks, none otherwise (in memory, a stream or a sort
+    /// costs more than it buys).
     #[arg(long, value_parser = parse_order)]
     pub order: Option<Order>,
     /// Worker threads. Default: one per core, or eight per core when the budget is smaller
