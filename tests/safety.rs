@@ -155,7 +155,15 @@ fn the_streaming_pack_reports_its_ply_changed_under_it() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(300));
+    // Truncated as soon as the pack has mapped it (it reads it in several passes from then
+    // on), not after a fixed delay: on a fast machine the passes were over within 300 ms,
+    // after which the pack rightly builds from what it read.
+    let maps = format!("/proc/{}/maps", child.id());
+    let start = std::time::Instant::now();
+    while !fs::read_to_string(&maps).is_ok_and(|m| m.contains("dragon.ply")) {
+        assert!(start.elapsed() < Duration::from_secs(20), "the pack never mapped its PLY");
+        std::thread::sleep(Duration::from_micros(200));
+    }
     fs::OpenOptions::new()
         .write(true)
         .open(&ply)
