@@ -457,11 +457,17 @@ fn renders_are_the_same_in_rows_and_in_morton_tiles_under_any_budget() {
     assert_eq!(reference.1, 203 * 150);
     assert!(reference.2 > 1000, "{} hits", reference.2);
     // Shadow rays from the hits facing the light only (a streamed render must pick the same).
-    assert!(reference.3 > 1000 && reference.3 < reference.2, "{reference:?}");
+    assert!(
+        reference.3 > 1000 && reference.3 < reference.2,
+        "{reference:?}"
+    );
     for budget in [u64::MAX, tight, 9 * max] {
         assert!(image(budget, Order::Morton) == reference, "budget {budget}");
         // Streamed: bands of rows, each pixel's shadow walk beginning where its hit is.
-        assert!(image(budget, Order::Stream) == reference, "budget {budget}, stream");
+        assert!(
+            image(budget, Order::Stream) == reference,
+            "budget {budget}, stream"
+        );
     }
     assert!(image(tight, Order::None) == reference);
 }

@@ -161,7 +161,10 @@ fn the_streaming_pack_reports_its_ply_changed_under_it() {
     let maps = format!("/proc/{}/maps", child.id());
     let start = std::time::Instant::now();
     while !fs::read_to_string(&maps).is_ok_and(|m| m.contains("dragon.ply")) {
-        assert!(start.elapsed() < Duration::from_secs(20), "the pack never mapped its PLY");
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "the pack never mapped its PLY"
+        );
         std::thread::sleep(Duration::from_micros(200));
     }
     fs::OpenOptions::new()

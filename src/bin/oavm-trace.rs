@@ -235,7 +235,9 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
     )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
     // Streamed batches draw their rays done and blocks read (on a terminal, after a second).
-    let bar = std::sync::Arc::new(cli::Progress::new(std::io::IsTerminal::is_terminal(&std::io::stderr())));
+    let bar = std::sync::Arc::new(cli::Progress::new(std::io::IsTerminal::is_terminal(
+        &std::io::stderr(),
+    )));
     scene.set_progress(Some(bar.clone()));
     let threads = match args.trace.threads {
         Some(n) if n > scene.threads() => {

@@ -52,9 +52,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Condvar, Mutex, MutexGuard};
 
 use super::held::Held;
-use crate::build::Progress;
 use super::pager::PageCounters;
 use super::trace::{Best, Counters, Entry, HitInfo, TraceError, Tree};
+use crate::build::Progress;
 use crate::geom::Ray;
 use crate::rays::shadow_ray;
 use std::time::Instant;
@@ -460,7 +460,9 @@ impl Stream<'_, '_> {
             drop(s);
             let misses = page.misses;
             let got = self.tree.admit(b, &mut page);
-            tally.read.fetch_add(page.misses - misses, Ordering::Relaxed);
+            tally
+                .read
+                .fetch_add(page.misses - misses, Ordering::Relaxed);
             s = self.lock(m);
             s.reading -= 1;
             match got {
@@ -500,11 +502,7 @@ impl Stream<'_, '_> {
     /// holds no chunk of (a chunk of one walk whose stack is deeper than most): one is
     /// started anyway.
     fn stalled(&self, s: &Sched, n: usize) -> bool {
-        s.started < n
-            && s.busy == 0
-            && s.reading == 0
-            && s.ready.is_empty()
-            && s.nothing_parked()
+        s.started < n && s.busy == 0 && s.reading == 0 && s.ready.is_empty() && s.nothing_parked()
     }
 
     /// Wakes a reader and a worker if each has something to do (all of them when the
@@ -573,15 +571,17 @@ impl Stream<'_, '_> {
                     let q = self.lock(m).take(b);
                     self.serve(b, q, job, &mut f, &mut out, &mut x, m, wake, n)
                 }
-                Task::Start(from, to) => {
-                    start_order[from..to].iter().try_for_each(|&i| {
-                        let kind = if job.any { Kind::Any } else { Kind::Closest };
-                        self.begin(kind, i, 0.0, job, &mut f, &mut out, &mut x, None)
-                    })
-                }
+                Task::Start(from, to) => start_order[from..to].iter().try_for_each(|&i| {
+                    let kind = if job.any { Kind::Any } else { Kind::Closest };
+                    self.begin(kind, i, 0.0, job, &mut f, &mut out, &mut x, None)
+                }),
             };
-            tally.answered.fetch_add((f.answers.len() - answers) as u64, Ordering::Relaxed);
-            tally.read.fetch_add(f.k[0].page.misses - misses, Ordering::Relaxed);
+            tally
+                .answered
+                .fetch_add((f.answers.len() - answers) as u64, Ordering::Relaxed);
+            tally
+                .read
+                .fetch_add(f.k[0].page.misses - misses, Ordering::Relaxed);
             self.report(tally, n);
             let mut s = self.lock(m);
             s.park(&mut out, |b| self.tree.resident(b));
@@ -601,7 +601,10 @@ impl Stream<'_, '_> {
         if (done - last.min(done)) * 1000 >= n as u64 || done == n as u64 {
             tally.reported.store(done, Ordering::Relaxed);
             p.at(done);
-            p.note(&format!("{} blocks read", tally.read.load(Ordering::Relaxed)));
+            p.note(&format!(
+                "{} blocks read",
+                tally.read.load(Ordering::Relaxed)
+            ));
         }
     }
 
@@ -627,7 +630,17 @@ impl Stream<'_, '_> {
             x.stack.clear();
             x.stack.extend_from_slice(&q.entries[at..at + len]);
             at += len;
-            self.advance(head.kind, head.ray, head.aux, head.w, job, f, out, x, Some(&held))?;
+            self.advance(
+                head.kind,
+                head.ray,
+                head.aux,
+                head.w,
+                job,
+                f,
+                out,
+                x,
+                Some(&held),
+            )?;
             if out.heads.len() >= FLUSH {
                 let mut s = self.lock(m);
                 s.park(out, |b| self.tree.resident(b));
@@ -692,10 +705,12 @@ impl Stream<'_, '_> {
         let timed = job.light.map(|_| Instant::now());
         let (k, stack, cluster) = (&mut f.k[set], &mut x.stack, &mut x.cluster);
         let next = match kind {
-            Kind::Closest => self.tree.resume::<false>(&r, &mut w, k, stack, cluster, held)?,
-            Kind::Any | Kind::Shadow => {
-                self.tree.resume::<true>(&r, &mut w, k, stack, cluster, held)?
-            }
+            Kind::Closest => self
+                .tree
+                .resume::<false>(&r, &mut w, k, stack, cluster, held)?,
+            Kind::Any | Kind::Shadow => self
+                .tree
+                .resume::<true>(&r, &mut w, k, stack, cluster, held)?,
         };
         if let Some(t) = timed {
             f.nanos[set] += t.elapsed().as_nanos() as u64;
