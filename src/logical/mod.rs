@@ -25,6 +25,5 @@ pub use scene::{
     BYTES_PER_RAY, FALLBACK_MEM_BUDGET, IO_THREADS_PER_CORE, Scene, SceneInfo, SceneOptions,
     default_mem_budget, max_rays,
 };
-pub use stream::StreamStats;
 pub use trace::{Counters, HitInfo, TraceError, Tree};
 pub use verify::VerifyReport;

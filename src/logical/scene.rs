@@ -11,7 +11,7 @@ use super::batch::{CHUNK, in_order};
 use super::held::ReadyMap;
 use super::order::{Order, RayKeys};
 use super::pager::{BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions};
-use super::stream::{Job, Stream, StreamOptions, StreamStats, Streamed, every_hit};
+use super::stream::{Job, Stream, StreamOptions, Streamed, every_hit};
 use super::top_bounds::{LatticeBox, top_bounds};
 use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree};
 use super::verify::VerifyReport;
@@ -432,7 +432,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             casts: every_hit,
             map,
         };
-        let (s, _) = self.stream_job(tree, &job, out, &mut [])?;
+        let s = self.stream_job(tree, &job, out, &mut [])?;
         Ok(s.counters[0])
     }
 
@@ -488,7 +488,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             map,
         };
         occluded.fill(0);
-        let (s, _) = self.stream_job(&tree, &job, out, occluded)?;
+        let s = self.stream_job(&tree, &job, out, occluded)?;
         Ok(Some((s.counters, s.shadow_share)))
     }
 
@@ -502,22 +502,11 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         job: &Job<'_, M>,
         out: &mut [T],
         shadows: &mut [u8],
-    ) -> Result<(Streamed, StreamStats), Error> {
+    ) -> Result<Streamed, Error> {
         let rays = job.rays;
-        if rays.len() != out.len() {
-            return Err(Error::Invalid(format!(
-                "{} rays but room for {} answers",
-                rays.len(),
-                out.len()
-            )));
-        }
-        if u32::try_from(rays.len()).is_err() {
-            return Err(Error::Invalid(format!(
-                "{} rays: a batch holds at most 2^32 - 1",
-                rays.len()
-            )));
-        }
-        let start_order = self.morton_order(rays);
+        check_room(rays.len(), out.len())?;
+        // (Also refuses a batch too long for 32-bit indices.)
+        let start_order = self.permutation(rays, Order::Stream)?.unwrap_or_default();
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let workers = cores.min(self.threads).max(1);
         let readers = self.threads - workers;
@@ -551,14 +540,9 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         };
         let ran = stream.run(job, &start_order, out, shadows);
         self.pager.set_budget(pager_budget);
-        let mut s = ran.map_err(|e| self.corrupt(e))?;
-        let stats = s.stats;
-        let c = &mut s.counters[0];
-        c.walks_parked = stats.walks_parked;
-        c.blocks_served = stats.blocks_served;
-        c.peak_parked_bytes = stats.peak_parked_bytes;
+        let s = ran.map_err(|e| self.corrupt(e))?;
         self.check_unchanged()?;
-        Ok((s, stats))
+        Ok(s)
     }
 
     /// The permutation in which `order` traces `rays` (`None` for [`Order::None`]: as given,
@@ -620,13 +604,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         order: Order,
         answer: impl Fn(&Ray, &mut Counters) -> Result<T, TraceError> + Sync,
     ) -> Result<Counters, Error> {
-        if rays.len() != out.len() {
-            return Err(Error::Invalid(format!(
-                "{} rays but room for {} answers",
-                rays.len(),
-                out.len()
-            )));
-        }
+        check_room(rays.len(), out.len())?;
         let traced: Result<Counters, TraceError> = match self.permutation(rays, order)? {
             _ if rays.is_empty() => Ok(Counters::default()),
             None => in_order(rays, out, CHUNK, self.threads, |rays, out, c| {
@@ -655,6 +633,16 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         self.check_unchanged()?;
         Ok(c)
     }
+}
+
+/// A batch of `rays` rays must have room for as many answers.
+fn check_room(rays: usize, answers: usize) -> Result<(), Error> {
+    if rays == answers {
+        return Ok(());
+    }
+    Err(Error::Invalid(format!(
+        "{rays} rays but room for {answers} answers"
+    )))
 }
 
 impl<D: AsRef<[u8]> + BlockSource> BlockFetch for Scene<D> {

@@ -53,7 +53,7 @@ use std::sync::{Condvar, Mutex, MutexGuard};
 
 use super::held::Held;
 use super::pager::PageCounters;
-use super::trace::{Best, Counters, Entry, HitInfo, TraceError, Tree};
+use super::trace::{Best, Counters, Entry, HitInfo, RayCtx, TraceError, Tree};
 use crate::build::Progress;
 use crate::geom::Ray;
 use crate::rays::shadow_ray;
@@ -83,17 +83,15 @@ pub(crate) struct StreamOptions {
     pub parked_bytes: u64,
 }
 
-/// What a stream did, beyond the walks' counters.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct StreamStats {
+/// What a stream did, beyond the walks' counters (added to the batch's [`Counters`]).
+#[derive(Clone, Copy, Debug, Default)]
+struct StreamStats {
     /// Walks parked at a block (each resumed once).
     pub walks_parked: u64,
     /// Times a block's queue was served.
     pub blocks_served: u64,
     /// The most bytes the parked walks took at once.
     pub peak_parked_bytes: u64,
-    /// The limit they were kept under.
-    pub parked_bytes_limit: u64,
 }
 
 /// What a walk answers.
@@ -300,7 +298,6 @@ pub(crate) struct Streamed {
     pub counters: [Counters; 2],
     /// The share of the time spent walking shadow rays (0 without a light).
     pub shadow_share: f64,
-    pub stats: StreamStats,
 }
 
 /// A worker's scratch: the stacks of the walk being resumed.
@@ -360,10 +357,7 @@ impl Stream<'_, '_> {
             busy: 0,
             started: 0,
             parked: 0,
-            stats: StreamStats {
-                parked_bytes_limit: self.opts.parked_bytes,
-                ..StreamStats::default()
-            },
+            stats: StreamStats::default(),
             failed: None,
         });
         let wake = Wake::default();
@@ -411,11 +405,14 @@ impl Stream<'_, '_> {
                 shadows[i as usize] = o;
             }
         }
+        let c = &mut counters[0];
+        c.walks_parked = sched.stats.walks_parked;
+        c.blocks_served = sched.stats.blocks_served;
+        c.peak_parked_bytes = sched.stats.peak_parked_bytes;
         let total = (nanos[0] + nanos[1]).max(1);
         Ok(Streamed {
             counters,
             shadow_share: nanos[1] as f64 / total as f64,
-            stats: sched.stats,
         })
     }
 
@@ -630,17 +627,23 @@ impl Stream<'_, '_> {
             x.stack.clear();
             x.stack.extend_from_slice(&q.entries[at..at + len]);
             at += len;
-            self.advance(
-                head.kind,
-                head.ray,
-                head.aux,
-                head.w,
-                job,
-                f,
-                out,
-                x,
-                Some(&held),
-            )?;
+            let ray = self.ray_of(head.kind, head.ray, head.aux, job);
+            let Some(r) = self.tree.context(&ray) else {
+                // Not reached: a walk is parked only for a ray with a context.
+                self.finish(
+                    head.kind,
+                    head.ray,
+                    head.w.best,
+                    job,
+                    f,
+                    out,
+                    x,
+                    Some(&held),
+                )?;
+                continue;
+            };
+            let (kind, i, aux) = (head.kind, head.ray, head.aux);
+            self.advance(kind, i, aux, &r, head.w, job, f, out, x, Some(&held))?;
             if out.heads.len() >= FLUSH {
                 let mut s = self.lock(m);
                 s.park(out, |b| self.tree.resident(b));
@@ -677,18 +680,19 @@ impl Stream<'_, '_> {
         let set = (kind == Kind::Shadow) as usize;
         match self.tree.begin(&ray, &mut x.stack, &mut f.k[set])? {
             None => self.finish(kind, i, None, job, f, out, x, held),
-            Some((_, w)) => self.advance(kind, i, aux, w, job, f, out, x, held),
+            Some((r, w)) => self.advance(kind, i, aux, &r, w, job, f, out, x, held),
         }
     }
 
-    /// Resumes a walk (its stack in `x.stack`) with `held`: answered, or parked at its next
-    /// block.
+    /// Resumes a walk (its ray's context `r`, its stack in `x.stack`) with `held`: answered,
+    /// or parked at its next block.
     #[allow(clippy::too_many_arguments)]
     fn advance<T: Copy, M: Fn(&Ray, Option<HitInfo>) -> T>(
         &self,
         kind: Kind,
         i: u32,
         aux: f32,
+        r: &RayCtx,
         mut w: Best,
         job: &Job<'_, M>,
         f: &mut Found<T>,
@@ -696,21 +700,16 @@ impl Stream<'_, '_> {
         x: &mut Scratch,
         held: Option<&Held<'_>>,
     ) -> Result<(), TraceError> {
-        let ray = self.ray_of(kind, i, aux, job);
         let set = (kind == Kind::Shadow) as usize;
-        let Some(r) = self.tree.context(&ray) else {
-            // Not reached: a walk is begun only for a ray with a context.
-            return self.finish(kind, i, w.best, job, f, out, x, held);
-        };
         let timed = job.light.map(|_| Instant::now());
         let (k, stack, cluster) = (&mut f.k[set], &mut x.stack, &mut x.cluster);
         let next = match kind {
             Kind::Closest => self
                 .tree
-                .resume::<false>(&r, &mut w, k, stack, cluster, held)?,
+                .resume::<false>(r, &mut w, k, stack, cluster, held)?,
             Kind::Any | Kind::Shadow => self
                 .tree
-                .resume::<true>(&r, &mut w, k, stack, cluster, held)?,
+                .resume::<true>(r, &mut w, k, stack, cluster, held)?,
         };
         if let Some(t) = timed {
             f.nanos[set] += t.elapsed().as_nanos() as u64;

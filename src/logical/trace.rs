@@ -998,200 +998,196 @@ impl<'a> Tree<'a> {
     ) -> Result<Option<u32>, TraceError> {
         const NONE: u32 = u32::MAX;
         const STACK: usize = 7 * (MAX_LEVEL as usize + 1) + 1;
-        {
-            while let Some(e) = stack.pop() {
-                if e.t > w.t_stop {
-                    continue;
+        while let Some(e) = stack.pop() {
+            if e.t > w.t_stop {
+                continue;
+            }
+            let held = if e.block == NONE {
+                None
+            } else {
+                match view {
+                    Some(h) if h.id == e.block => Some(h),
+                    _ => {
+                        stack.push(e);
+                        return Ok(Some(e.block));
+                    }
                 }
-                let held = if e.block == NONE {
-                    None
+            };
+            let bad = |what: &'static str| {
+                TraceError::Corrupt(Corruption {
+                    what,
+                    block: (e.block != NONE).then_some(e.block),
+                    level: e.level as u32,
+                    index: e.index as u64,
+                })
+            };
+            let level = e.level as u32;
+            let mut kind = e.kind;
+            if kind == EntryKind::Root {
+                // A block's root, at its link's place: internal, a cluster, or (never written)
+                // empty.
+                let h = held.ok_or_else(|| bad("block not held"))?;
+                if h.root_level != level {
+                    return Err(bad("block roots are not at the level of their link"));
+                }
+                if e.index >= h.root_count {
+                    return Err(bad("link to a root the block does not have"));
+                }
+                let rec = h
+                    .map
+                    .node(level, e.index as u64)
+                    .map_err(|_| bad("block root out of range"))?;
+                kind = match rec.kind_bits() {
+                    _ if rec.is_internal() => EntryKind::Internal,
+                    KIND_SOLID => EntryKind::Solid,
+                    KIND_EMPTY => continue,
+                    _ => return Err(bad("invalid leaf record")),
+                };
+            }
+            if kind == EntryKind::Solid {
+                let h = held
+                    .as_ref()
+                    .ok_or_else(|| bad("cluster outside a block"))?;
+                let rec = h
+                    .map
+                    .node(level, e.index as u64)
+                    .map_err(|_| bad("node record out of range"))?;
+                let (inline, _) = rec.solid_bits();
+                if rec.kind_bits() != KIND_SOLID || inline != 0 {
+                    return Err(bad("invalid leaf record"));
+                }
+                k.leaves_visited += 1;
+                k.clusters_entered += 1;
+                let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k, cluster_stack)
+                    .map_err(bad)?;
+                if ANY && found {
+                    return Ok(None);
+                }
+                w.t_stop = r.t1.min(w.t_best as f64);
+                continue;
+            }
+            // An internal node: its children's cells, nearest first.
+            k.nodes_visited += 1;
+            let map = match held {
+                Some(h) => &h.map,
+                None => &self.top,
+            };
+            if level >= MAX_LEVEL {
+                return Err(bad("internal node on the deepest level"));
+            }
+            let (first, internal, recs) = map
+                .children(level, e.index as u64)
+                .ok_or_else(|| bad("rank directory points past the next level"))?;
+            let size = morton::cell_size(level);
+            let half = size / 2;
+            let m = CELL_MARGIN;
+            // Per axis, where the ray enters and leaves the low and the high half (a half an
+            // axis the ray does not move along does not hold the origin in: entered at +inf).
+            let mut enter_at = [[0f64; 2]; 3];
+            let mut leave_at = [[0f64; 2]; 3];
+            for a in 0..3 {
+                let lo = e.lo[a] as f64;
+                if r.moves[a] {
+                    // The planes (exact: integers below 2^23) by the ray's direction.
+                    let (h, c) = (&r.cell_h[a], &r.cell_m[a]);
+                    let t: [f64; 4] = std::array::from_fn(|i| {
+                        (lo + h[i] * half as f64 + c[i]) * r.inv[a] - r.oi[a]
+                    });
+                    enter_at[a] = [t[0], t[1]];
+                    leave_at[a] = [t[2], t[3]];
                 } else {
-                    match view {
-                        Some(h) if h.id == e.block => Some(h),
-                        _ => {
-                            stack.push(e);
-                            return Ok(Some(e.block));
+                    let (mid, hi) = (lo + half as f64, lo + size as f64);
+                    let o = r.o[a];
+                    let inside = |a: f64, b: f64| {
+                        if o >= a && o <= b {
+                            f64::NEG_INFINITY
+                        } else {
+                            f64::INFINITY
+                        }
+                    };
+                    enter_at[a] = [inside(lo - m, mid + m), inside(mid - m, hi + m)];
+                    leave_at[a] = [f64::INFINITY; 2];
+                }
+            }
+            // The eight children at once; then only those met are looked at.
+            let (met, enters) = isa.cell_hits(&enter_at, &leave_at, r.tmin as f64, w.t_stop);
+            let mut mask = 0u32;
+            let mut scan = met;
+            while scan != 0 {
+                let o = scan.trailing_zeros();
+                scan &= scan - 1;
+                let live = (internal >> o) & 1 == 1 || recs[o as usize].kind_bits() != KIND_EMPTY;
+                mask |= (live as u32) << o;
+            }
+            let mut hits: [(f64, u8); 8] = [(0.0, 0); 8];
+            let mut n = 0usize;
+            while mask != 0 {
+                let o = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                hits[n] = (enters[o], o as u8);
+                n += 1;
+            }
+            // Nearest popped first: pushed farthest first.
+            for i in 1..n {
+                let mut j = i;
+                while j > 0 && hits[j - 1].0 < hits[j].0 {
+                    hits.swap(j - 1, j);
+                    j -= 1;
+                }
+            }
+            for &(t, o) in &hits[..n] {
+                let o = o as usize;
+                let rec = recs[o];
+                let child = first + o as u64;
+                let lo = [
+                    e.lo[0] + half * (o as u32 & 1),
+                    e.lo[1] + half * ((o as u32 >> 1) & 1),
+                    e.lo[2] + half * ((o as u32 >> 2) & 1),
+                ];
+                let is_internal = (internal >> o) & 1 == 1;
+                let (kind, block, index) = if is_internal {
+                    if e.block == NONE {
+                        let at = self.top.node_start(level + 1) + child;
+                        if !self.top_node_may_hit(r, w.t_best, at) {
+                            k.top_nodes_culled += 1;
+                            continue;
                         }
                     }
-                };
-                let bad = |what: &'static str| {
-                    TraceError::Corrupt(Corruption {
-                        what,
-                        block: (e.block != NONE).then_some(e.block),
-                        level: e.level as u32,
-                        index: e.index as u64,
-                    })
-                };
-                let level = e.level as u32;
-                let mut kind = e.kind;
-                if kind == EntryKind::Root {
-                    // A block's root, at its link's place: internal, a cluster, or (never written)
-                    // empty.
-                    let h = held.ok_or_else(|| bad("block not held"))?;
-                    if h.root_level != level {
-                        return Err(bad("block roots are not at the level of their link"));
-                    }
-                    if e.index >= h.root_count {
-                        return Err(bad("link to a root the block does not have"));
-                    }
-                    let rec = h
-                        .map
-                        .node(level, e.index as u64)
-                        .map_err(|_| bad("block root out of range"))?;
-                    kind = match rec.kind_bits() {
-                        _ if rec.is_internal() => EntryKind::Internal,
-                        KIND_SOLID => EntryKind::Solid,
-                        KIND_EMPTY => continue,
-                        _ => return Err(bad("invalid leaf record")),
-                    };
-                }
-                if kind == EntryKind::Solid {
-                    let h = held
-                        .as_ref()
-                        .ok_or_else(|| bad("cluster outside a block"))?;
-                    let rec = h
-                        .map
-                        .node(level, e.index as u64)
-                        .map_err(|_| bad("node record out of range"))?;
-                    let (inline, _) = rec.solid_bits();
-                    if rec.kind_bits() != KIND_SOLID || inline != 0 {
-                        return Err(bad("invalid leaf record"));
-                    }
-                    k.leaves_visited += 1;
-                    k.clusters_entered += 1;
-                    let found =
-                        trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k, cluster_stack)
-                            .map_err(bad)?;
-                    if ANY && found {
-                        return Ok(None);
-                    }
-                    w.t_stop = r.t1.min(w.t_best as f64);
-                    continue;
-                }
-                // An internal node: its children's cells, nearest first.
-                k.nodes_visited += 1;
-                let map = match held {
-                    Some(h) => &h.map,
-                    None => &self.top,
-                };
-                if level >= MAX_LEVEL {
-                    return Err(bad("internal node on the deepest level"));
-                }
-                let (first, internal, recs) = map
-                    .children(level, e.index as u64)
-                    .ok_or_else(|| bad("rank directory points past the next level"))?;
-                let size = morton::cell_size(level);
-                let half = size / 2;
-                let m = CELL_MARGIN;
-                // Per axis, where the ray enters and leaves the low and the high half (a half an
-                // axis the ray does not move along does not hold the origin in: entered at +inf).
-                let mut enter_at = [[0f64; 2]; 3];
-                let mut leave_at = [[0f64; 2]; 3];
-                for a in 0..3 {
-                    let lo = e.lo[a] as f64;
-                    if r.moves[a] {
-                        // The planes (exact: integers below 2^23) by the ray's direction.
-                        let (h, c) = (&r.cell_h[a], &r.cell_m[a]);
-                        let t: [f64; 4] = std::array::from_fn(|i| {
-                            (lo + h[i] * half as f64 + c[i]) * r.inv[a] - r.oi[a]
-                        });
-                        enter_at[a] = [t[0], t[1]];
-                        leave_at[a] = [t[2], t[3]];
-                    } else {
-                        let (mid, hi) = (lo + half as f64, lo + size as f64);
-                        let o = r.o[a];
-                        let inside = |a: f64, b: f64| {
-                            if o >= a && o <= b {
-                                f64::NEG_INFINITY
-                            } else {
-                                f64::INFINITY
-                            }
-                        };
-                        enter_at[a] = [inside(lo - m, mid + m), inside(mid - m, hi + m)];
-                        leave_at[a] = [f64::INFINITY; 2];
-                    }
-                }
-                // The eight children at once; then only those met are looked at.
-                let (met, enters) = isa.cell_hits(&enter_at, &leave_at, r.tmin as f64, w.t_stop);
-                let mut mask = 0u32;
-                let mut scan = met;
-                while scan != 0 {
-                    let o = scan.trailing_zeros();
-                    scan &= scan - 1;
-                    let live =
-                        (internal >> o) & 1 == 1 || recs[o as usize].kind_bits() != KIND_EMPTY;
-                    mask |= (live as u32) << o;
-                }
-                let mut hits: [(f64, u8); 8] = [(0.0, 0); 8];
-                let mut n = 0usize;
-                while mask != 0 {
-                    let o = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    hits[n] = (enters[o], o as u8);
-                    n += 1;
-                }
-                // Nearest popped first: pushed farthest first.
-                for i in 1..n {
-                    let mut j = i;
-                    while j > 0 && hits[j - 1].0 < hits[j].0 {
-                        hits.swap(j - 1, j);
-                        j -= 1;
-                    }
-                }
-                for &(t, o) in &hits[..n] {
-                    let o = o as usize;
-                    let rec = recs[o];
-                    let child = first + o as u64;
-                    let lo = [
-                        e.lo[0] + half * (o as u32 & 1),
-                        e.lo[1] + half * ((o as u32 >> 1) & 1),
-                        e.lo[2] + half * ((o as u32 >> 2) & 1),
-                    ];
-                    let is_internal = (internal >> o) & 1 == 1;
-                    let (kind, block, index) = if is_internal {
-                        if e.block == NONE {
-                            let at = self.top.node_start(level + 1) + child;
-                            if !self.top_node_may_hit(r, w.t_best, at) {
-                                k.top_nodes_culled += 1;
+                    (EntryKind::Internal, e.block, child)
+                } else {
+                    match rec.kind_bits() {
+                        KIND_SOLID if e.block != NONE => {
+                            let (_, b) = rec.solid_bits();
+                            if !leaf_may_hit(r, w.t_best, lo, half, b) {
+                                k.leaves_culled += 1;
                                 continue;
                             }
+                            (EntryKind::Solid, e.block, child)
                         }
-                        (EntryKind::Internal, e.block, child)
-                    } else {
-                        match rec.kind_bits() {
-                            KIND_SOLID if e.block != NONE => {
-                                let (_, b) = rec.solid_bits();
-                                if !leaf_may_hit(r, w.t_best, lo, half, b) {
-                                    k.leaves_culled += 1;
-                                    continue;
-                                }
-                                (EntryKind::Solid, e.block, child)
+                        KIND_LINK if e.block == NONE => {
+                            let at = self.top.node_start(level + 1) + child;
+                            if !self.top_node_may_hit(r, w.t_best, at) {
+                                k.links_culled += 1;
+                                continue;
                             }
-                            KIND_LINK if e.block == NONE => {
-                                let at = self.top.node_start(level + 1) + child;
-                                if !self.top_node_may_hit(r, w.t_best, at) {
-                                    k.links_culled += 1;
-                                    continue;
-                                }
-                                let (b, root) = rec.link_bits();
-                                self.check_link(b, level + 1, child)?;
-                                (EntryKind::Root, b, root as u64)
-                            }
-                            _ => return Err(bad("invalid leaf record")),
+                            let (b, root) = rec.link_bits();
+                            self.check_link(b, level + 1, child)?;
+                            (EntryKind::Root, b, root as u64)
                         }
-                    };
-                    if stack.len() >= STACK {
-                        return Err(bad("traversal deeper than the lattice"));
+                        _ => return Err(bad("invalid leaf record")),
                     }
-                    stack.push(Entry {
-                        t,
-                        lo,
-                        index: index as u32,
-                        level: (level + 1) as u8,
-                        block,
-                        kind,
-                    });
+                };
+                if stack.len() >= STACK {
+                    return Err(bad("traversal deeper than the lattice"));
                 }
+                stack.push(Entry {
+                    t,
+                    lo,
+                    index: index as u32,
+                    level: (level + 1) as u8,
+                    block,
+                    kind,
+                });
             }
         }
         Ok(None)
