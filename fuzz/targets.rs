@@ -348,6 +348,7 @@ fn open_verify_trace(data: &[u8]) {
             mem_budget: Some(1),
             threads: 1,
             check_blocks: false,
+            map_blocks: false,
         };
         if let Ok(scene) =
             Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &tiny)

@@ -1115,6 +1115,7 @@ fn tight_options(fix: &Fixture) -> SceneOptions {
         mem_budget: Some(5 * fix.max_raw),
         threads: 2,
         check_blocks: true,
+        map_blocks: false,
     }
 }
 

@@ -399,6 +399,7 @@ fn open(py: Python<'_>, path: PathBuf, mem_budget: Option<u64>) -> PyResult<Nati
         // each call traces on `Scene::default_threads` of them unless told otherwise.
         threads: cores() * IO_THREADS_PER_CORE,
         check_blocks: true,
+        map_blocks: false,
     };
     let scene = py
         .detach(|| Scene::open_with(&path, &opts))

@@ -71,10 +71,10 @@ pub enum Error {
         source: crate::os::Changed,
     },
     /// A memory budget too small for the file: it must hold three of its largest blocks (one
-    /// being read, one being admitted, one more to evict from).
+    /// being read, one being admitted, one more to evict from), each in whole pages.
     #[error(
         "{}: a memory budget of {budget} bytes is too small for this file: its largest block \
-         decodes to {largest} bytes and tracing needs room for three; give a budget of {needed} \
+         decodes to {largest} bytes and tracing needs room for three (in whole pages); give a budget of {needed} \
          bytes or more (--mem-budget)",
         path.display()
     )]

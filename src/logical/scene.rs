@@ -37,6 +37,10 @@ pub struct SceneOptions {
     /// Check each raw block's checksum when it is paged in (reading it whole); off, only the
     /// pages a walk touches are read (see [`PagerOptions::check_raw`]).
     pub check_blocks: bool,
+    /// Under a budget, read blocks through the file's memory map (the page cache) rather than
+    /// into the pager's own memory with direct reads ([`PagerOptions::read_blocks`], the
+    /// default): for comparisons, and file systems where direct reads are slow.
+    pub map_blocks: bool,
 }
 
 impl Default for SceneOptions {
@@ -45,6 +49,7 @@ impl Default for SceneOptions {
             mem_budget: None,
             threads: 0,
             check_blocks: true,
+            map_blocks: false,
         }
     }
 }
@@ -54,6 +59,13 @@ impl Default for SceneOptions {
 /// cgroup has left), or [`FALLBACK_MEM_BUDGET`] where that cannot be read.
 pub fn default_mem_budget() -> u64 {
     crate::os::available_memory().map_or(FALLBACK_MEM_BUDGET, |a| a / 2)
+}
+
+/// The memory a block of `raw_len` bytes takes when held: whole pages (at least one).
+fn held_bytes(raw_len: u64) -> u64 {
+    raw_len
+        .max(1)
+        .next_multiple_of(crate::os::page_size() as u64)
 }
 
 /// The budget where the available memory cannot be read: 1 GiB.
@@ -146,14 +158,16 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         // block per thread inside a get, once its budget holds a block per thread and one more
         // (pager module docs). So it gets the user's budget less one block per thread, and the
         // threads are lowered until that holds `threads + 1` blocks: the resident bytes then
-        // never exceed the user's budget.
+        // never exceed the user's budget. A block takes whole pages of memory (in the page
+        // cache, or in a slot the pager reads it into).
         let largest = file.header().max_block_raw_len;
-        let fits = budget.checked_div(largest).unwrap_or(u64::MAX);
+        let held = held_bytes(largest);
+        let fits = budget.checked_div(held).unwrap_or(u64::MAX);
         if fits < 3 {
             return Err(Error::Budget {
                 path,
                 budget,
-                needed: largest.saturating_mul(3),
+                needed: held.saturating_mul(3),
                 largest,
             });
         }
@@ -162,7 +176,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             .max(1);
         let pager_budget = match budget {
             u64::MAX => u64::MAX,
-            b => b - threads as u64 * largest,
+            b => b - threads as u64 * held,
         };
         let pager = Pager::new(
             file.directory(),
@@ -171,6 +185,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 budget: pager_budget,
                 threads,
                 check_raw: opts.check_blocks,
+                read_blocks: !opts.map_blocks,
             },
         );
         Ok(Scene {
@@ -197,6 +212,14 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The memory one of the file's largest blocks takes when held, in whole pages (a raw
+    /// block's pages in the page cache, or the pager's buffer it is read or decoded into):
+    /// budgets are counted in these (a budget holds three at least, two a thread and one
+    /// more).
+    pub fn held_block_bytes(&self) -> u64 {
+        held_bytes(self.file.header().max_block_raw_len)
     }
 
     /// Threads that may trace at once: the threads asked for, lowered to what the budget
@@ -265,7 +288,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         if self.fits_in_budget() {
             return cores.min(self.threads);
         }
-        let largest = self.file.header().max_block_raw_len.max(1);
+        let largest = held_bytes(self.file.header().max_block_raw_len);
         let quarter = usize::try_from(self.budget / largest / 4).unwrap_or(usize::MAX);
         cores
             .saturating_mul(IO_THREADS_PER_CORE)
@@ -510,7 +533,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let workers = cores.min(self.threads).max(1);
         let readers = self.threads - workers;
-        let largest = self.file.header().max_block_raw_len.max(1);
+        let largest = held_bytes(self.file.header().max_block_raw_len);
         let pager_budget = self.pager.budget();
         // The pager keeps `threads + 1` blocks at least; the walks get an eighth of the budget
         // or what is left above that.

@@ -5,9 +5,12 @@
 //! Everything else reads the map through safe slices (`bytemuck` casts that fail on short or
 //! misaligned data), and treats every byte as untrusted.
 
-use std::fs::File;
-use std::os::unix::fs::MetadataExt;
+use std::fs::{File, OpenOptions};
+use std::os::fd::AsRawFd;
+use std::os::unix::fs::{FileExt, MetadataExt, OpenOptionsExt};
 use std::path::Path;
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use memmap2::{Advice, Mmap, UncheckedAdvice};
 
@@ -23,8 +26,14 @@ pub struct MappedFile {
     // Declared before `map`, so it is dropped (unregistered) before the map is unmapped.
     guard: Option<Registration>,
     map: Option<Mmap>,
-    /// Kept open for `posix_fadvise` (the map alone cannot drop page-cache pages) and `fstat`.
+    /// Kept open for `posix_fadvise` (the map alone cannot drop page-cache pages), `fstat`
+    /// and reads through the page cache.
     file: File,
+    /// The same file opened for direct reads (`O_DIRECT`), on the first [`Self::read_at`]
+    /// that can use it; `None` where it cannot be opened so.
+    direct: OnceLock<Option<File>>,
+    /// The file system refused a direct read: read through the page cache from then on.
+    buffered_only: AtomicBool,
     /// The file's size and change time when it was mapped.
     stamp: Stamp,
 }
@@ -82,6 +91,8 @@ impl MappedFile {
                 guard: None,
                 map: None,
                 file,
+                direct: OnceLock::new(),
+                buffered_only: AtomicBool::new(false),
                 stamp,
             });
         }
@@ -98,6 +109,8 @@ impl MappedFile {
             guard,
             map: Some(map),
             file,
+            direct: OnceLock::new(),
+            buffered_only: AtomicBool::new(false),
             stamp,
         })
     }
@@ -113,6 +126,31 @@ impl MappedFile {
             Ok(meta) if Stamp::of(&meta) == self.stamp => Ok(()),
             _ => Err(Changed),
         }
+    }
+
+    /// Reads the file's bytes `offset .. offset + buf.len()` into `buf` (bytes past the file's
+    /// end read as zeros), with no copy in the page cache when it can: a direct read
+    /// (`O_DIRECT`) if `offset`, `buf`'s address and its length are multiples of the page size
+    /// ([`super::PageBuf`]) and the file system allows it, else an ordinary one. A direct read
+    /// costs the kernel far less than faulting the map's pages in and dropping them again, and
+    /// many at once keep the disk busy at its bandwidth.
+    pub fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        let page = page_size();
+        let aligned = offset.is_multiple_of(page as u64)
+            && (buf.as_ptr() as usize).is_multiple_of(page)
+            && buf.len().is_multiple_of(page);
+        if aligned
+            && !self.buffered_only.load(Ordering::Relaxed)
+            && let Some(direct) = self.direct.get_or_init(|| open_direct(&self.file))
+        {
+            match read_full(direct, offset, buf, true) {
+                Err(e) if e.raw_os_error() == Some(libc::EINVAL) => {
+                    self.buffered_only.store(true, Ordering::Relaxed);
+                }
+                done => return done,
+            }
+        }
+        read_full(&self.file, offset, buf, false)
     }
 
     /// Hints the kernel about the access pattern; failures are harmless and ignored.
@@ -147,7 +185,6 @@ impl MappedFile {
         // and keeps reading the file's bytes (see `open` for a file another program changes).
         // The range is inside the map (`page_range` clips it) and page-aligned.
         let _ = unsafe { map.unchecked_advise_range(UncheckedAdvice::DontNeed, start, len) };
-        use std::os::fd::AsRawFd;
         // SAFETY: a plain system call on a file descriptor we own, with integer arguments; it
         // reads and writes no memory of ours. It only drops clean page-cache pages, which the
         // kernel reads again from the file if they are needed.
@@ -182,6 +219,43 @@ impl MappedFile {
     }
 }
 
+/// `file` opened again for direct reads, through `/proc/self/fd` (which reaches the same file
+/// even if it was renamed or unlinked since); `None` if that fails.
+fn open_direct(file: &File) -> Option<File> {
+    OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_DIRECT)
+        .open(format!("/proc/self/fd/{}", file.as_raw_fd()))
+        .ok()
+}
+
+/// Fills `buf` from `file` at `offset`; what lies past the end of the file reads as zeros. A
+/// direct read that stops short of a page multiple has reached the end.
+fn read_full(
+    file: &File,
+    mut offset: u64,
+    mut buf: &mut [u8],
+    direct: bool,
+) -> std::io::Result<()> {
+    while !buf.is_empty() {
+        match file.read_at(buf, offset) {
+            Ok(0) => break,
+            Ok(n) if direct && !n.is_multiple_of(page_size()) => {
+                buf = &mut buf[n..];
+                break;
+            }
+            Ok(n) => {
+                offset += n as u64;
+                buf = &mut buf[n..];
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    buf.fill(0);
+    Ok(())
+}
+
 /// The size of a memory page (4096 where the system does not say).
 pub fn page_size() -> usize {
     // SAFETY: `sysconf` reads a system constant; no memory of ours is involved.
@@ -192,5 +266,53 @@ pub fn page_size() -> usize {
 impl AsRef<[u8]> for MappedFile {
     fn as_ref(&self) -> &[u8] {
         self.map.as_deref().unwrap_or(&[])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::os::PageBuf;
+
+    /// Reads give the file's bytes, aligned (direct where the file system allows) or not, and
+    /// zeros past the end; a read wholly past the end is all zeros.
+    #[test]
+    fn read_at_gives_the_files_bytes_and_zeros_past_the_end() {
+        let page = page_size();
+        let len = 3 * page + 100;
+        let data: Vec<u8> = (0..len).map(|i| (i * 7 + i / 4096) as u8).collect();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.bin");
+        std::fs::write(&path, &data).unwrap();
+        let map = MappedFile::open(&path).unwrap();
+        let expect = |off: usize, n: usize| -> Vec<u8> {
+            (off..off + n)
+                .map(|i| data.get(i).copied().unwrap_or(0))
+                .collect()
+        };
+        // Aligned: whole pages into a page buffer, the last one past the end.
+        for (off, n) in [
+            (0, 4 * page),
+            (page, 2 * page),
+            (3 * page, page),
+            (5 * page, page),
+        ] {
+            let mut buf = PageBuf::new(n).unwrap();
+            buf.fill(0xAA);
+            map.read_at(off as u64, &mut buf).unwrap();
+            assert!(buf[..] == expect(off, n)[..], "aligned read at {off}+{n}");
+        }
+        // Unaligned offset, address or length: read through the page cache.
+        for (off, n) in [(7, 100), (page - 3, page + 9), (3 * page + 50, 200)] {
+            let mut buf = vec![0xAA; n];
+            map.read_at(off as u64, &mut buf).unwrap();
+            assert!(buf == expect(off, n), "unaligned read at {off}+{n}");
+        }
+        // A direct read on a file system that allows it (the test's temporary directory).
+        eprintln!(
+            "direct reads: {}",
+            map.direct.get().is_some_and(Option::is_some)
+                && !map.buffered_only.load(Ordering::Relaxed)
+        );
     }
 }

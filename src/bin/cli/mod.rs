@@ -83,6 +83,12 @@ pub struct TraceArgs {
     /// crash). `--verify` checks everything regardless.
     #[arg(long)]
     pub no_block_checks: bool,
+    /// Under a budget, read blocks through the file's memory map (the page cache), faulting
+    /// their pages in and dropping them on eviction, instead of reading each block into the
+    /// tracer's own memory with one direct read (the default: far less time in the kernel).
+    /// For comparisons, and file systems where direct reads are slow.
+    #[arg(long)]
+    pub map_blocks: bool,
     /// Order of tracing: stream (each ray's walk parked at every block it needs and resumed
     /// when that block is served with all the walks parked there; blocks read ahead in file
     /// order; a frame's shadow rays in the same stream), morton (rays that enter the model near

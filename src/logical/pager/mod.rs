@@ -4,8 +4,10 @@
 //!
 //! A file's tree is split into *blocks*, self-contained subtrees whose bytes are stored either
 //! raw or as one zstd frame. [`Pager::get`] turns a block id into the block's decoded bytes, and
-//! keeps the memory those bytes take within a budget: raw blocks are pages of the map, given
-//! back to the kernel when evicted; zstd blocks are decompressed into a fixed set of cache slots.
+//! keeps the memory those bytes take within a budget: zstd blocks are decompressed into a fixed
+//! set of cache slots; raw blocks are read into slots too ([`PagerOptions::read_blocks`], the
+//! scene's default under a budget), or are pages of the map, given back to the kernel when
+//! evicted.
 //!
 //! **Admission.** The directory is cast from the file, so it is untrusted. The first `get` of a
 //! block since it was last evicted (a *miss*) checks its entry as format-spec §11 ("Paging")
@@ -21,7 +23,8 @@
 //! fail at once with the same error. No bytes of the file can make the pager panic or allocate
 //! more than `max_raw_len` per slot.
 //!
-//! **Raw blocks** are returned as slices of the source, without a copy. Each block has an
+//! **Raw blocks read from the map** (without [`PagerOptions::read_blocks`], or when nothing is
+//! ever evicted) are returned as slices of the source, without a copy. Each block has an
 //! atomic state: cold, busy (being admitted or evicted), resident, resident and referenced, or
 //! bad. One thread admits a cold block (cold -> busy -> referenced); others asking for it wait
 //! (spin, then yield) and count a hit. Admitted blocks are queued, referenced, in a ring that
@@ -37,10 +40,16 @@
 //! The price is paid by budgets of a few blocks: a block evicted while its caller still walks
 //! it is read from the disk again.
 //!
-//! **Zstd blocks** are decompressed into slots, each an `RwLock` over an 8-aligned buffer
-//! (`Vec<u64>` of the block's size: a slot's buffer is replaced on a miss when it is too small
-//! or more than about twice too large, never past `max_raw_len`), with a zstd context per
-//! thread (not per slot). A
+//! **Blocks in slots** (zstd blocks, and raw blocks read into memory) live in slots, each an
+//! `RwLock` over a page-aligned buffer ([`PageBuf`]: whole pages, of the block's size; a
+//! slot's buffer is replaced on a miss when it is too small or more than about twice too
+//! large, never past `max_raw_len` rounded to pages). A raw block is read straight into its
+//! slot ([`BlockSource::read_at`]: one direct read past the page cache, for a mapped file),
+//! then checked; a zstd block's stored bytes are read into a per-thread buffer (or taken from
+//! the map) and decoded into the slot, with a zstd context per thread (not per slot). A miss
+//! takes a slot holding a block before a free one once the budget is full, preferring one
+//! whose buffer the block fits ([`VICTIMS`] looked at), so that buffers are reused rather
+//! than mapped, faulted in and unmapped for every block. A
 //! hit reads the block's slot index (an atomic), takes that slot's read lock and checks that it
 //! holds the block: no global lock, no allocation. The guard is returned inside [`BlockBytes`],
 //! so a slot cannot be reused while a caller reads it. A miss takes the clock mutex, looks
@@ -78,15 +87,17 @@
 //! are back under it before its `get` returns (one thread evicts raw blocks at a time; the
 //! others wait for it, then evict what is still over; slots held by readers, at most one per
 //! other thread, are skipped), and a block is queued for eviction only once its bytes are
-//! counted. Blocks held by readers cannot be evicted, so with `B = max(budget, (threads + 1) *
-//! max_raw_len)`: at any time `resident <= B + one block (max_raw_len) per thread inside get`,
-//! and once the gets return, `resident <= B`. A budget of `u64::MAX` means unlimited: nothing
-//! is ever evicted, and each zstd block gets a slot of its own.
+//! counted. A slot's buffer is never larger than `M`, `max_raw_len` rounded up to whole pages
+//! (a new one is the size of its block in whole pages; a reused one was made so). Blocks held
+//! by readers cannot be evicted, so with `B = max(budget, (threads + 1) * M)`: at any time
+//! `resident <= B + one block (M) per thread inside get`, and once the gets return,
+//! `resident <= B`. A budget of `u64::MAX` means unlimited: nothing is ever evicted, and each
+//! zstd block gets a slot of its own.
 //!
 //! The pager is given a budget that makes this bound the user's: `crate::logical::Scene`
-//! passes it the user's budget less one block per thread, and lowers the threads until that
-//! is at least `(threads + 1) * max_raw_len` (or refuses a budget smaller than three blocks),
-//! so the resident bytes never exceed the budget the user gave. Nothing is raised.
+//! passes it the user's budget less one block (`M`) per thread, and lowers the threads until
+//! that is at least `(threads + 1) * M` (or refuses a budget smaller than three blocks), so the
+//! resident bytes never exceed the budget the user gave. Nothing is raised.
 //!
 //! **Counters.** [`PageCounters`] belong to the caller (one per thread, summed at the end), so a
 //! hit touches no shared counter; resident bytes and their peak are shared atomics, changed on
@@ -106,7 +117,7 @@ use std::sync::{
 };
 
 use super::held::ReadyMap;
-use crate::os::{Changed, MappedFile};
+use crate::os::{Changed, MappedFile, PageBuf};
 use crate::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD};
 use crate::physical::{AlignedBytes, BlockError, BlockReader};
 
@@ -122,6 +133,17 @@ pub trait BlockSource: Sync {
     /// The bytes `off .. off + len` will not be needed for a while: their memory may be given
     /// back. They must stay readable (a later read may be slower, never wrong).
     fn release(&self, _off: usize, _len: usize) {}
+    /// Copies the bytes `off .. off + buf.len()` into `buf` (zeros past the end). A mapped
+    /// file reads them from the disk into `buf` directly, past the page cache, when `off`,
+    /// `buf` and its length are page-aligned ([`crate::os::PageBuf`]).
+    fn read_at(&self, off: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        let bytes = self.bytes();
+        let start = usize::try_from(off).unwrap_or(usize::MAX).min(bytes.len());
+        let n = buf.len().min(bytes.len() - start);
+        buf[..n].copy_from_slice(&bytes[start..start + n]);
+        buf[n..].fill(0);
+        Ok(())
+    }
     /// `Err` if the bytes changed since the source was opened (a mapped file truncated or
     /// written in place by another program): what was read from them cannot be trusted.
     fn check_unchanged(&self) -> Result<(), Changed> {
@@ -145,6 +167,9 @@ impl BlockSource for MappedFile {
     }
     fn release(&self, off: usize, len: usize) {
         MappedFile::release(self, off, len);
+    }
+    fn read_at(&self, off: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        MappedFile::read_at(self, off, buf)
     }
     fn check_unchanged(&self) -> Result<(), Changed> {
         MappedFile::check_unchanged(self)
@@ -172,6 +197,16 @@ pub struct PagerOptions {
     /// damaged block can give wrong answers, never a crash). Zstd blocks are always checked
     /// (they are decoded whole anyway).
     pub check_raw: bool,
+    /// Read blocks into the pager's own memory ([`BlockSource::read_at`]: for a mapped file,
+    /// direct reads past the page cache) instead of through the map: raw blocks then live in
+    /// cache slots as decoded zstd blocks do, and zstd blocks' stored bytes are read into a
+    /// buffer. Used under a budget with checks on, where each block is read whole anyway:
+    /// faulting a block's pages in and dropping them on eviction cost the kernel more time
+    /// than the tracing (format 4, 130M triangles in 1.5 GiB: 7.6 s of system time in 7.7 s),
+    /// and reader threads each waiting on a direct read keep the disk at its bandwidth. Ignored
+    /// when nothing is ever evicted (a raw file the budget holds whole is read from the map),
+    /// and for raw blocks without `check_raw` (which read only the pages a walk touches).
+    pub read_blocks: bool,
 }
 
 /// What the caller's gets cost (summed over them). See the module docs for what counts.
@@ -242,20 +277,25 @@ impl Deref for SlotGuard<'_> {
     }
 }
 
-/// A cache slot for one decoded zstd block.
+/// A cache slot for one block: a decoded zstd block, or a raw block read into it
+/// ([`PagerOptions::read_blocks`]).
 pub struct Slot {
     /// The block it holds, or [`NO_BLOCK`].
     block: u32,
     /// Whether `words` holds the block's decoded bytes (false while decoding, after a failure).
     valid: bool,
-    /// The decoded bytes, `len` of them, in `u64`s for alignment.
-    words: Vec<u64>,
+    /// The block's bytes, `len` of them, page-aligned (for direct reads, and so 8-aligned for
+    /// the records).
+    buf: PageBuf,
     len: usize,
     /// Bytes counted in the pager's resident bytes for this slot (its buffer's capacity).
     accounted: u64,
 }
 
 thread_local! {
+    /// Per thread, the buffer a zstd block's stored bytes are read into (with
+    /// [`PagerOptions::read_blocks`]), kept and grown to the largest read so far.
+    static STORED: std::cell::RefCell<PageBuf> = std::cell::RefCell::new(PageBuf::default());
     /// One zstd decompression context per thread, made on its first miss and kept: a miss
     /// allocates no context, and slots (of which there may be tens of thousands) hold none.
     static DCTX: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
@@ -270,9 +310,7 @@ pub const MIN_SLOT_BYTES: u64 = 64 * 1024;
 
 impl Slot {
     fn bytes(&self) -> &[u8] {
-        bytemuck::cast_slice::<u64, u8>(&self.words)
-            .get(..self.len)
-            .unwrap_or(&[])
+        self.buf.get(..self.len).unwrap_or(&[])
     }
 }
 
@@ -294,6 +332,10 @@ const SPINS: u32 = 64;
 pub struct Pager {
     /// [`PagerOptions::check_raw`].
     check_raw: bool,
+    /// Blocks are read into memory of the pager's ([`PagerOptions::read_blocks`]); raw
+    /// blocks too, in slots.
+    read_blocks: bool,
+    read_raw: bool,
     /// How blocks are checked and decoded.
     reader: BlockReader,
     /// The budget ([`Self::set_budget`] lowers it while a stream's parked walks take part of
@@ -352,12 +394,11 @@ impl Pager {
     /// blocks; allocates a few bytes per block, and no slot buffer until a zstd miss needs it.
     pub fn new(directory: &[BlockEntry], reader: BlockReader, opts: PagerOptions) -> Pager {
         let threads = opts.threads.max(1) as u64;
-        if reader.compressed() && opts.budget != u64::MAX {
-            // Slot buffers freed under a budget must leave the process.
-            crate::os::return_large_frees();
-        }
+        let keeps_everything = !reader.compressed()
+            && opts.budget >= (directory.len() as u64).saturating_mul(reader.max_raw_len());
+        let read_raw = opts.read_blocks && opts.check_raw && !keeps_everything;
         // (Slot indices are stored as u32s, NO_SLOT excluded.)
-        let slot_count = if reader.compressed() {
+        let slot_count = if reader.compressed() || read_raw {
             (opts.budget / MIN_SLOT_BYTES)
                 .max(threads + 1)
                 .min(directory.len() as u64)
@@ -367,6 +408,8 @@ impl Pager {
         };
         Pager {
             check_raw: opts.check_raw,
+            read_blocks: opts.read_blocks,
+            read_raw,
             reader,
             budget: AtomicU64::new(opts.budget),
             state: directory.iter().map(|_| AtomicU8::new(COLD)).collect(),
@@ -381,7 +424,7 @@ impl Pager {
                     RwLock::new(Slot {
                         block: NO_BLOCK,
                         valid: false,
-                        words: Vec::new(),
+                        buf: PageBuf::default(),
                         len: 0,
                         accounted: 0,
                     })
@@ -393,8 +436,7 @@ impl Pager {
                 free: (0..slot_count as usize).rev().collect(),
             }),
             ready: directory.iter().map(|_| OnceLock::new()).collect(),
-            keeps_everything: !reader.compressed()
-                && opts.budget >= (directory.len() as u64).saturating_mul(reader.max_raw_len()),
+            keeps_everything,
         }
     }
 
@@ -457,8 +499,9 @@ impl Pager {
             });
         };
         let bytes = match entry.codec {
+            CODEC_RAW if self.read_raw => self.get_slot(src, block, entry, c)?,
             CODEC_RAW => self.get_raw(src, block, entry, c)?,
-            CODEC_ZSTD => self.get_zstd(src, block, entry, c)?,
+            CODEC_ZSTD => self.get_slot(src, block, entry, c)?,
             codec => {
                 let what = match self.check_entry(src, entry) {
                     Err(what) => what,
@@ -657,7 +700,8 @@ impl Pager {
         }
     }
 
-    fn get_zstd<'s, S: BlockSource>(
+    /// A block kept in a slot: a zstd block, or a raw block read into one.
+    fn get_slot<'s, S: BlockSource>(
         &'s self,
         src: Src<'s, S>,
         block: u32,
@@ -681,13 +725,13 @@ impl Pager {
             }
             self.check_entry(src, entry)
                 .map_err(|what| self.fail(block, what))?;
-            let Some((slot, write)) = self.assign_slot(block) else {
+            let Some((slot, write)) = self.assign_slot(block, entry.raw_len) else {
                 // Admitted by another thread meanwhile (look again), or no slot free of
                 // readers yet (wait for one).
                 wait(&mut spins);
                 continue;
             };
-            return self.admit_zstd(src, block, entry, slot, write, c);
+            return self.admit_slot(src, block, entry, slot, write, c);
         }
     }
 
@@ -707,23 +751,66 @@ impl Pager {
         Some(guard)
     }
 
-    /// Under the clock mutex: a slot for `block`, chosen by CLOCK among the slots nobody
-    /// reads, locked for writing and assigned to the block. `None` if the block has a slot
-    /// already, or if no slot is free of readers.
-    fn assign_slot(&self, block: u32) -> Option<(usize, RwLockWriteGuard<'_, Slot>)> {
+    /// Under the clock mutex: a slot for `block` (of `raw_len` bytes), chosen by CLOCK among
+    /// the slots nobody reads, locked for writing and assigned to the block. `None` if the
+    /// block has a slot already, or if no slot is free of readers.
+    ///
+    /// A free slot (holding no block) is taken first if the budget has room for the block or
+    /// the slot has a buffer the block can reuse; else a slot holding a block is taken first,
+    /// so that its buffer is reused if the block fits it ([`Self::decode`]): mapping a new
+    /// buffer and faulting its pages in for every block read, and unmapping another's, had
+    /// cost more system time than the reads themselves.
+    fn assign_slot(&self, block: u32, raw_len: u64) -> Option<(usize, RwLockWriteGuard<'_, Slot>)> {
         let mut hand = lock(&self.hand);
-        // (`new` gives at least one slot when a zstd block exists, so `n > 0` below.)
+        // (`new` gives at least one slot when a slot block exists, so `n > 0` below.)
         if self.block_slot[block as usize].load(Ordering::Acquire) != NO_SLOT {
             return None;
         }
+        let room = self.resident.load(Ordering::SeqCst).saturating_add(raw_len) <= self.budget();
+        if let Some(t) = self.take_free(block, (!room).then_some(raw_len), &mut hand) {
+            return Some(t);
+        }
+        if let Some(t) = self.take_clock(block, raw_len, &mut hand) {
+            return Some(t);
+        }
+        self.take_free(block, None, &mut hand)
+    }
+
+    /// A free slot (holding no block), for `block`; with `fits`, only one whose buffer a block
+    /// of that many bytes can reuse.
+    fn take_free(
+        &self,
+        block: u32,
+        fits: Option<u64>,
+        hand: &mut Hand,
+    ) -> Option<(usize, RwLockWriteGuard<'_, Slot>)> {
         while let Some(i) = hand.free.pop() {
             if let Some(write) = self.try_write(i)
                 && write.block == NO_BLOCK
             {
+                if fits.is_some_and(|n| !reusable(write.buf.len(), n as usize)) {
+                    // Kept free for a block that has room or fits it.
+                    hand.free.push(i);
+                    return None;
+                }
                 return Some(self.assign(block, i, write));
             }
         }
+        None
+    }
+
+    /// A slot chosen by CLOCK among those nobody reads, for `block` (of `raw_len` bytes): of
+    /// the first [`VICTIMS`] the hand finds, the first whose buffer the block can reuse, else
+    /// the first.
+    fn take_clock(
+        &self,
+        block: u32,
+        raw_len: u64,
+        hand: &mut Hand,
+    ) -> Option<(usize, RwLockWriteGuard<'_, Slot>)> {
         let n = self.slots.len();
+        let mut first: Option<(usize, RwLockWriteGuard<'_, Slot>)> = None;
+        let mut seen = 0;
         for _ in 0..2 * n {
             let i = hand.at;
             hand.at = (i + 1) % n;
@@ -731,11 +818,22 @@ impl Pager {
                 self.slot_referenced[i].store(false, Ordering::Relaxed);
                 continue;
             }
-            if let Some(write) = self.try_write(i) {
+            let Some(write) = self.try_write(i) else {
+                continue;
+            };
+            if reusable(write.buf.len(), raw_len as usize) {
+                drop(first);
                 return Some(self.assign(block, i, write));
             }
+            if first.is_none() {
+                first = Some((i, write));
+            }
+            seen += 1;
+            if seen >= VICTIMS {
+                break;
+            }
         }
-        None
+        first.map(|(i, write)| self.assign(block, i, write))
     }
 
     /// Frees the buffers of slots nobody reads, chosen by CLOCK, until the resident bytes are
@@ -772,7 +870,7 @@ impl Pager {
             w.block = NO_BLOCK;
             w.valid = false;
             w.len = 0;
-            w.words = Vec::new();
+            w.buf = PageBuf::default();
             self.resident.fetch_sub(w.accounted, Ordering::SeqCst);
             w.accounted = 0;
             drop(w);
@@ -808,7 +906,7 @@ impl Pager {
 
     /// Fills a slot assigned to `block` (outside the clock mutex) and returns it locked for
     /// reading.
-    fn admit_zstd<'p, S: BlockSource>(
+    fn admit_slot<'p, S: BlockSource>(
         &'p self,
         src: Src<'_, S>,
         block: u32,
@@ -823,7 +921,9 @@ impl Pager {
                 let read = RwLockWriteGuard::downgrade(write);
                 c.misses += 1;
                 c.bytes_read += entry.stored_len;
-                c.bytes_decompressed += entry.raw_len;
+                if entry.codec == CODEC_ZSTD {
+                    c.bytes_decompressed += entry.raw_len;
+                }
                 self.evict_zstd();
                 self.evict_raw(src);
                 Ok(BlockBytes::Decoded(SlotGuard(read)))
@@ -842,30 +942,25 @@ impl Pager {
         }
     }
 
-    /// Verifies a zstd block's stored bytes and decompresses them into `slot`.
+    /// Fills `slot` with a block: a raw block's stored bytes read into it and verified, or a
+    /// zstd block's verified and decompressed into it.
     fn decode<S: BlockSource>(
         &self,
         src: Src<'_, S>,
         entry: &BlockEntry,
         slot: &mut Slot,
     ) -> Result<(), String> {
-        let stored = self.stored(src, entry);
-        src.source.prefetch(entry.offset as usize, stored.len());
-        self.reader.check_sum(entry, stored)?;
         let raw_len = entry.raw_len as usize;
         // A buffer of the block's size: the one the slot has if it is large enough and not
-        // more than about twice too large, else a new one (the old one is given back).
-        let words = raw_len.div_ceil(8);
+        // more than about twice too large, else a new one (the old one is given back). Whole
+        // pages, so that a raw block's last page is read whole too.
         slot.len = 0;
-        if slot.words.len() < words || slot.words.len() > 2 * words + 64 {
-            let mut fresh: Vec<u64> = Vec::new();
-            fresh
-                .try_reserve_exact(words)
-                .map_err(|_| format!("cannot allocate {raw_len} bytes to decode it"))?;
-            fresh.resize(words, 0);
-            slot.words = fresh;
+        if !reusable(slot.buf.len(), raw_len) {
+            slot.buf = PageBuf::default();
+            slot.buf = PageBuf::new(raw_len)
+                .ok_or_else(|| format!("cannot allocate {raw_len} bytes to read it"))?;
         }
-        let now = 8 * slot.words.capacity() as u64;
+        let now = slot.buf.len() as u64;
         if now > slot.accounted {
             self.add_resident(now - slot.accounted);
         } else {
@@ -873,17 +968,53 @@ impl Pager {
                 .fetch_sub(slot.accounted - now, Ordering::SeqCst);
         }
         slot.accounted = now;
-        let out = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut slot.words)[..raw_len];
-        DCTX.with_borrow_mut(|dctx| {
-            let dctx = match dctx {
-                Some(d) => d,
-                none => none.insert(
-                    zstd::bulk::Decompressor::new()
-                        .map_err(|e| format!("cannot create a zstd decompressor: {e}"))?,
-                ),
-            };
-            self.reader.decode(entry, stored, out, dctx)
-        })?;
+        if entry.codec == CODEC_RAW {
+            // (check_entry: a raw block starts on a page and `raw_len == stored_len`.)
+            let whole = raw_len.next_multiple_of(crate::os::page_size());
+            src.source
+                .read_at(entry.offset, &mut slot.buf[..whole])
+                .map_err(|e| format!("cannot read it: {e}"))?;
+            self.reader.check_sum(entry, &slot.buf[..raw_len])?;
+            slot.len = raw_len;
+            return Ok(());
+        }
+        let out = &mut slot.buf[..raw_len];
+        let mut decoded = |stored: &[u8]| {
+            self.reader.check_sum(entry, stored)?;
+            DCTX.with_borrow_mut(|dctx| {
+                let dctx = match dctx {
+                    Some(d) => d,
+                    none => none.insert(
+                        zstd::bulk::Decompressor::new()
+                            .map_err(|e| format!("cannot create a zstd decompressor: {e}"))?,
+                    ),
+                };
+                self.reader.decode(entry, stored, out, dctx)
+            })
+        };
+        if self.read_blocks {
+            // The pages covering the stored bytes, read into this thread's buffer.
+            let page = crate::os::page_size() as u64;
+            let first = entry.offset / page * page;
+            let skip = (entry.offset - first) as usize;
+            let len = entry.stored_len as usize;
+            let whole = (skip + len).next_multiple_of(page as usize);
+            STORED.with_borrow_mut(|buf| {
+                if buf.len() < whole {
+                    *buf = PageBuf::default();
+                    *buf = PageBuf::new(whole)
+                        .ok_or_else(|| format!("cannot allocate {whole} bytes to read it"))?;
+                }
+                src.source
+                    .read_at(first, &mut buf[..whole])
+                    .map_err(|e| format!("cannot read it: {e}"))?;
+                decoded(&buf[skip..skip + len])
+            })?;
+        } else {
+            let stored = self.stored(src, entry);
+            src.source.prefetch(entry.offset as usize, stored.len());
+            decoded(stored)?;
+        }
         slot.len = raw_len;
         Ok(())
     }
@@ -924,6 +1055,15 @@ impl Pager {
             .unwrap_or_else(|| "bad block".into());
         PageError { block, what }
     }
+}
+
+/// Slots the CLOCK hand looks at for one whose buffer a block can reuse.
+const VICTIMS: usize = 8;
+
+/// Whether a slot's buffer of `len` bytes may take a block of `raw_len`: large enough, and
+/// not more than about twice too large.
+fn reusable(len: usize, raw_len: usize) -> bool {
+    len >= raw_len && len <= 2 * raw_len + 65536
 }
 
 /// Locks a mutex, ignoring poisoning (every structure it guards stays consistent at each
