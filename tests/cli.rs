@@ -534,7 +534,7 @@ fn trace_renders_a_png() {
     let (tight, decoded) = {
         let scene = Scene::open(&file).unwrap();
         (
-            3 * scene.file().header().max_block_raw_len,
+            3 * scene.held_block_bytes(),
             scene.decoded_bytes(),
         )
     };
@@ -1080,7 +1080,7 @@ fn trace_threads_default_to_more_under_a_budget_and_never_raise_it() {
     let d = TempDir::new().unwrap();
     let (file, _) = pack_bunny(d.path(), "bunny.oavm", &["--block-size", "16K"]);
     let scene = oavm::Scene::open(&file).unwrap();
-    let max = scene.file().header().max_block_raw_len;
+    let max = scene.held_block_bytes();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u64;
     // Roomy: eight threads per core keep at most a quarter of it for the blocks they read.
     let roomy = ((4 * 8 * cores + 1) * max).to_string();
@@ -1164,7 +1164,7 @@ fn trace_waves_and_orders_do_not_change_the_answers() {
     let (tight, decoded) = {
         let scene = Scene::open(&file).unwrap();
         (
-            3 * scene.file().header().max_block_raw_len,
+            3 * scene.held_block_bytes(),
             scene.decoded_bytes(),
         )
     };

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # tools/ooc_ab.sh: two ways of tracing one file out of core, A/B, interleaved so that the
 # machine's drift falls on both: per repetition and per ray set, the page cache is dropped and
-# A runs twice in a fresh cgroup (cold, then warm), then B likewise. Prints each warm run's
-# Mrays/s, disk bytes per ray and blocks read, the medians and the ratio B/A of the warm
-# medians; fails if any run's answers differ from the first's.
+# A runs twice in a fresh cgroup (cold, then warm), then B likewise. Prints each run's
+# Mrays/s, disk bytes per ray and blocks read, the medians and the ratio B/A of the medians,
+# warm and cold; fails if any run's answers differ from the first's.
 #
 # Usage (as root):
 #   tools/ooc_ab.sh FILE.oavm LIMIT BUDGET REPS "A FLAGS" "B FLAGS"
@@ -25,7 +25,7 @@ for set in primary random; do
             [[ $side == A ]] && flags=$a || flags=$b
             # shellcheck disable=SC2086
             tools/ooc.sh --cold --json --report "$out/cg-$set-$side-$i.json" "$limit" -- sh -c \
-                '"$0" "$@" >"'"$out"'/cold.json" && "$0" "$@" >"'"$out/warm-$set-$side-$i"'.json"' \
+                '"$0" "$@" >"'"$out/cold-$set-$side-$i"'.json" && "$0" "$@" >"'"$out/warm-$set-$side-$i"'.json"' \
                 "$bin" "$file" $args $flags --mem-budget "$budget" --json
         done
     done
@@ -34,13 +34,13 @@ python3 - "$out" "$reps" "$a" "$b" <<'PY'
 import json, statistics, sys
 out, reps, a, b = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
 bad = False
-for s in ["primary", "random"]:
+for s, run in [(s, run) for s in ["primary", "random"] for run in ["warm", "cold"]]:
     first = None
     med = {}
     for side, flags in (("A", a), ("B", b)):
         speeds, disk, reads = [], [], []
         for i in range(reps):
-            r = json.load(open(f"{out}/warm-{s}-{side}-{i}.json"))
+            r = json.load(open(f"{out}/{run}-{s}-{side}-{i}.json"))
             rays = sum(x["rays"] for x in r["sets"])
             secs = sum(x["seconds"] for x in r["sets"])
             speeds.append(rays / secs / 1e6)
@@ -50,9 +50,9 @@ for s in ["primary", "random"]:
             first = first or d
             bad |= d != first
         med[side] = statistics.median(speeds)
-        print(f"{s:8} {side} {flags:24} warm Mrays/s {' '.join(f'{x:.3f}' for x in speeds)}  "
+        print(f"{s:8} {side} {flags:24} {run} Mrays/s {' '.join(f'{x:.3f}' for x in speeds)}  "
               f"median {med[side]:.3f}  disk B/ray {statistics.median(disk):,.0f}  blocks read {statistics.median(reads):,.0f}")
-    print(f"{s:8} B/A {med['B'] / med['A']:.3f}")
+    print(f"{s:8} {run} B/A {med['B'] / med['A']:.3f}")
 print("answers", "DIFFERENT" if bad else "identical")
 sys.exit(1 if bad else 0)
 PY
