@@ -13,7 +13,7 @@
 
 use std::sync::OnceLock;
 
-use oavm::logical::SceneOptions;
+use oavm::logical::{BlockReads, SceneOptions};
 use oavm::physical::AlignedBytes;
 use oavm::{Hit, Ray, Scene};
 use xxhash_rust::xxh3::xxh3_64;
@@ -348,7 +348,7 @@ fn open_verify_trace(data: &[u8]) {
             mem_budget: Some(1),
             threads: 1,
             check_blocks: false,
-            map_blocks: false,
+            block_reads: BlockReads::Auto,
         };
         if let Ok(scene) =
             Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &tiny)

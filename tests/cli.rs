@@ -533,10 +533,7 @@ fn trace_renders_a_png() {
     // decode to, so blocks are evicted and read again while the image is rendered.
     let (tight, decoded) = {
         let scene = Scene::open(&file).unwrap();
-        (
-            3 * scene.held_block_bytes(),
-            scene.decoded_bytes(),
-        )
+        (3 * scene.held_block_bytes(), scene.decoded_bytes())
     };
     assert!(
         2 * tight < decoded,
@@ -1163,10 +1160,7 @@ fn trace_waves_and_orders_do_not_change_the_answers() {
     // cluster of up to 512 triangles is one block however small the target size).
     let (tight, decoded) = {
         let scene = Scene::open(&file).unwrap();
-        (
-            3 * scene.held_block_bytes(),
-            scene.decoded_bytes(),
-        )
+        (3 * scene.held_block_bytes(), scene.decoded_bytes())
     };
     assert!(
         8 * tight < decoded,

@@ -49,7 +49,7 @@ use std::time::{Duration, Instant};
 
 use oavm::build::LeafKind;
 use oavm::build::{TreeParts, encode_with};
-use oavm::logical::SceneOptions;
+use oavm::logical::{BlockReads, SceneOptions};
 use oavm::physical::AlignedBytes;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::{
@@ -1119,7 +1119,7 @@ fn tight_options(fix: &Fixture) -> SceneOptions {
         mem_budget: Some(5 * fix.held),
         threads: 2,
         check_blocks: true,
-        map_blocks: false,
+        block_reads: BlockReads::Auto,
     }
 }
 

@@ -18,7 +18,7 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
 use oavm::build::encode_with;
-use oavm::logical::{FrameOptions, Order, SceneOptions};
+use oavm::logical::{BlockReads, FrameOptions, Order, SceneOptions};
 use oavm::physical::BlockOptions;
 use oavm::physical::format::CODEC_RAW;
 use oavm::physical::{AlignedBytes, BlockView};
@@ -124,7 +124,11 @@ fn trace_with(
             mem_budget: Some(budget),
             threads,
             check_blocks: checks,
-            map_blocks,
+            block_reads: if map_blocks {
+                BlockReads::Map
+            } else {
+                BlockReads::Read
+            },
         },
     )
     .expect("open");
@@ -310,7 +314,7 @@ fn streamed_frames_give_the_direct_answers() {
                     mem_budget: Some(budget),
                     threads,
                     check_blocks: true,
-                    map_blocks: false,
+                    block_reads: BlockReads::Read,
                 },
             )
             .expect("open")
@@ -457,7 +461,7 @@ fn renders_are_the_same_in_rows_and_in_morton_tiles_under_any_budget() {
                 mem_budget: Some(budget),
                 threads: 0,
                 check_blocks: true,
-                map_blocks: false,
+                block_reads: BlockReads::Read,
             },
         )
         .unwrap();
@@ -809,7 +813,7 @@ fn default_threads_leave_the_cache_most_of_the_budget() {
                 mem_budget: Some(budget),
                 threads: 64,
                 check_blocks: true,
-                map_blocks: false,
+                block_reads: BlockReads::Read,
             },
         )
         .expect("open")
@@ -830,4 +834,47 @@ fn default_threads_leave_the_cache_most_of_the_budget() {
     assert_eq!(open(5 * largest).default_threads(4), 2);
     // The whole file fits: one per core.
     assert_eq!(open(decoded).default_threads(2), 2);
+}
+
+/// Which way blocks are read: `Read` reads them into the pager's memory under a budget smaller
+/// than the file (raw and zstd), `Map` never does, `Auto` does only for a file larger than the
+/// memory available (not this one); a budget that holds a raw file whole maps it in any case.
+#[test]
+fn block_reads_follow_the_option_and_the_file_size() {
+    for compress in [None, Some(3)] {
+        let bytes = packed(compress);
+        let open = |budget: u64, block_reads: BlockReads| {
+            Scene::from_bytes_with(
+                bytes.clone(),
+                "bunny.oavm",
+                &SceneOptions {
+                    mem_budget: Some(budget),
+                    threads: 2,
+                    check_blocks: true,
+                    block_reads,
+                },
+            )
+            .expect("open")
+        };
+        let small = 9 * open(u64::MAX, BlockReads::Map).held_block_bytes();
+        for (budget, how, reads) in [
+            (small, BlockReads::Read, true),
+            (small, BlockReads::Map, false),
+            (small, BlockReads::Auto, false),
+            // Raw and held whole: read from the map; zstd: still decoded into slots.
+            (u64::MAX, BlockReads::Read, compress.is_some()),
+        ] {
+            let scene = open(budget, how);
+            assert_eq!(
+                scene.info().reads_blocks,
+                reads,
+                "{compress:?}, budget {budget}, {how:?}"
+            );
+            // And the blocks read back either way.
+            let rays = ray_set();
+            let mut hits = vec![Hit::MISS; rays.len()];
+            scene.intersect_batch(rays, &mut hits).unwrap();
+            assert!(hits.iter().filter(|h| h.is_hit()).count() > 30_000);
+        }
+    }
 }

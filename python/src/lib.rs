@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use oavm::build::{BuildOptions, LeafKind, PackOptions, PackReport};
-use oavm::logical::{IO_THREADS_PER_CORE, Order, SceneOptions};
+use oavm::logical::{BlockReads, IO_THREADS_PER_CORE, Order, SceneOptions};
 use oavm::mesh::Mesh;
 use oavm::physical::BlockOptions;
 use oavm::physical::DEFAULT_BLOCK_SIZE;
@@ -399,7 +399,7 @@ fn open(py: Python<'_>, path: PathBuf, mem_budget: Option<u64>) -> PyResult<Nati
         // each call traces on `Scene::default_threads` of them unless told otherwise.
         threads: cores() * IO_THREADS_PER_CORE,
         check_blocks: true,
-        map_blocks: false,
+        block_reads: BlockReads::Auto,
     };
     let scene = py
         .detach(|| Scene::open_with(&path, &opts))

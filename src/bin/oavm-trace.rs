@@ -231,7 +231,7 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
                 .threads
                 .unwrap_or(cli::cores() * IO_THREADS_PER_CORE),
             check_blocks: !args.trace.no_block_checks,
-            map_blocks: args.trace.map_blocks,
+            block_reads: args.trace.block_reads.into(),
         },
     )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -341,8 +341,6 @@ struct Report<'a, T: Serialize> {
     /// The budget asked for (`None`: the default, see `pager_budget`).
     mem_budget: Option<u64>,
     block_checks: bool,
-    /// Blocks were read through the map (`--map-blocks`), not into the tracer's memory.
-    map_blocks: bool,
     peak_rss_bytes: Option<u64>,
     disk_read_bytes_before_trace: Option<u64>,
     disk_read_bytes_trace: Option<u64>,
@@ -368,7 +366,6 @@ impl Run<'_> {
             start_to_first_ray_ms: self.first_ray_ms,
             mem_budget: self.args.trace.mem_budget,
             block_checks: !self.args.trace.no_block_checks,
-            map_blocks: self.args.trace.map_blocks,
             peak_rss_bytes: oavm::os::peak_rss_bytes(),
             disk_read_bytes_before_trace: self.io_before,
             disk_read_bytes_trace: io_after

@@ -83,12 +83,13 @@ pub struct TraceArgs {
     /// crash). `--verify` checks everything regardless.
     #[arg(long)]
     pub no_block_checks: bool,
-    /// Under a budget, read blocks through the file's memory map (the page cache), faulting
-    /// their pages in and dropping them on eviction, instead of reading each block into the
-    /// tracer's own memory with one direct read (the default: far less time in the kernel).
-    /// For comparisons, and file systems where direct reads are slow.
-    #[arg(long)]
-    pub map_blocks: bool,
+    /// How blocks are read under a budget smaller than the file: `read` (into the tracer's
+    /// own memory, one direct read a block past the page cache: far less time in the kernel,
+    /// nothing left in the page cache), `map` (through the file's memory map: pages faulted
+    /// in and dropped on eviction, the page cache keeps what it can for the next run) or
+    /// `auto` (read when the file is larger than the memory available, else map).
+    #[arg(long, value_enum, default_value_t = BlockReadsArg::Auto)]
+    pub block_reads: BlockReadsArg,
     /// Order of tracing: stream (each ray's walk parked at every block it needs and resumed
     /// when that block is served with all the walks parked there; blocks read ahead in file
     /// order; a frame's shadow rays in the same stream), morton (rays that enter the model near
@@ -106,6 +107,24 @@ pub struct TraceArgs {
     /// what the budget holds.
     #[arg(long)]
     pub threads: Option<usize>,
+}
+
+/// `--block-reads`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BlockReadsArg {
+    Auto,
+    Map,
+    Read,
+}
+
+impl From<BlockReadsArg> for oavm::logical::BlockReads {
+    fn from(a: BlockReadsArg) -> Self {
+        match a {
+            BlockReadsArg::Auto => Self::Auto,
+            BlockReadsArg::Map => Self::Map,
+            BlockReadsArg::Read => Self::Read,
+        }
+    }
 }
 
 /// The camera and light of renders and of `--primary`.

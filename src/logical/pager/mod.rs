@@ -554,7 +554,13 @@ impl Pager {
         self.budget.store(budget, Ordering::Relaxed);
     }
 
-    /// The number of zstd cache slots.
+    /// Whether blocks are read into the pager's memory ([`PagerOptions::read_blocks`] in
+    /// effect): raw blocks into slots, zstd blocks' stored bytes into a buffer.
+    pub fn reads_blocks(&self) -> bool {
+        self.read_raw || (self.read_blocks && self.reader.compressed())
+    }
+
+    /// The number of cache slots.
     pub fn slot_count(&self) -> usize {
         self.slots.len()
     }
