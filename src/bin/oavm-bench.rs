@@ -21,7 +21,9 @@ struct Args {
     /// Scenes: .ply, .obj or .aff files.
     #[arg(required = true)]
     scenes: Vec<PathBuf>,
-    /// Structures to build: grid, kdtree, octree, bvh, oavm or all (repeat or separate by commas).
+    /// Structures to build: grid, kdtree, octree, bvh, oavm or all (repeat or separate by
+    /// commas); and the KD-tree's traversals: kdtree:stack (the plain kdtree), kdtree:restart,
+    /// kdtree:pushdown, kdtree:shortstack (4 entries), not part of all.
     #[arg(long, value_delimiter = ',', default_value = "all")]
     structure: Vec<String>,
     /// Random rays per scene.
@@ -162,8 +164,16 @@ fn batch(
 }
 
 fn print_scene(r: &SceneResult) -> Result<(), Error> {
+    // The structure column fits the longest name (`kdtree:shortstack`).
+    let w = r
+        .structures
+        .iter()
+        .map(|s| s.stats.name.len())
+        .max()
+        .unwrap_or(0)
+        .max(8);
     let mut t = format!(
-        "\n{} ({} triangles, {} stored)\n{:<8} {:>10} {:>9} {:>9} {:>11}  {:<8} {:>10} {:>10} {:>10} {:>22}\n",
+        "\n{} ({} triangles, {} stored)\n{:<w$} {:>10} {:>9} {:>9} {:>11}  {:<8} {:>10} {:>10} {:>10} {:>22}\n",
         r.scene,
         r.input_triangles,
         r.triangles,
@@ -182,11 +192,11 @@ fn print_scene(r: &SceneResult) -> Result<(), Error> {
         for (i, set) in s.sets.iter().enumerate() {
             let head = if i == 0 {
                 format!(
-                    "{:<8} {:>10.1} {:>9} {:>9} {:>11}",
+                    "{:<w$} {:>10.1} {:>9} {:>9} {:>11}",
                     s.stats.name, s.build_ms, s.stats.nodes, s.stats.pointers, s.stats.bytes
                 )
             } else {
-                format!("{:<8} {:>10} {:>9} {:>9} {:>11}", "", "", "", "", "")
+                format!("{:<w$} {:>10} {:>9} {:>9} {:>11}", "", "", "", "", "")
             };
             let speed: Vec<String> = set
                 .mrays_per_s

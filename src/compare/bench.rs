@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::{Accelerator, OavmAccel, STRUCTURES, StructureStats, Triangles};
+use super::{Accelerator, KD_VARIANTS, OavmAccel, STRUCTURES, StructureStats, Triangles};
 use crate::build::BuildOptions;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
@@ -46,19 +46,22 @@ pub struct Options {
     pub threads: Vec<usize>,
 }
 
-/// The structures named by `list` (names of [`STRUCTURES`] or `all`), in the order given,
-/// repeats next to each other dropped.
+/// The structures named by `list` (names of [`STRUCTURES`] or [`KD_VARIANTS`], or `all`: the
+/// structures), in the order given, repeats next to each other dropped; `kdtree:stack` is
+/// `kdtree`.
 pub fn parse_structures(list: &[String]) -> Result<Vec<&'static str>, Error> {
     let mut names: Vec<&'static str> = Vec::new();
     for s in list {
         match s.as_str() {
             "all" => names.extend(STRUCTURES),
-            n => match STRUCTURES.iter().find(|&&k| k == n) {
+            "kdtree:stack" => names.push("kdtree"),
+            n => match STRUCTURES.iter().chain(&KD_VARIANTS).find(|&&k| k == n) {
                 Some(&k) => names.push(k),
                 None => {
                     return Err(Error::Invalid(format!(
-                        "unknown structure {n:?}: expected all or one of {}",
-                        STRUCTURES.join(", ")
+                        "unknown structure {n:?}: expected all or one of {}, {}",
+                        STRUCTURES.join(", "),
+                        KD_VARIANTS.join(", ")
                     )));
                 }
             },
@@ -577,6 +580,21 @@ mod tests {
             |v: &[&str]| parse_structures(&v.iter().map(|s| s.to_string()).collect::<Vec<_>>());
         assert_eq!(names(&["all"]).unwrap(), STRUCTURES);
         assert_eq!(names(&["bvh", "bvh", "grid"]).unwrap(), ["bvh", "grid"]);
+        assert_eq!(
+            names(&[
+                "kdtree:stack",
+                "kdtree:restart",
+                "kdtree:pushdown",
+                "kdtree:shortstack"
+            ])
+            .unwrap(),
+            [
+                "kdtree",
+                "kdtree:restart",
+                "kdtree:pushdown",
+                "kdtree:shortstack"
+            ]
+        );
         let e = names(&["octtree"]).unwrap_err().to_string();
         assert!(
             e.contains("unknown structure") && e.contains("kdtree"),

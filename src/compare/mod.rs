@@ -146,6 +146,18 @@ fn batch<T: Send>(
 /// The structures `oavm-bench` knows, by name, in the order it reports them.
 pub const STRUCTURES: [&str; 5] = ["grid", "kdtree", "octree", "bvh", "oavm"];
 
+/// The KD-tree's traversal variants, by the names `oavm-bench` takes (`kdtree:stack` is the
+/// plain `kdtree`; [`kdtree::KdTraversal`]). Not in `all`.
+pub const KD_VARIANTS: [&str; 4] = [
+    "kdtree:stack",
+    "kdtree:restart",
+    "kdtree:pushdown",
+    "kdtree:shortstack",
+];
+
+/// The short stack's size in `kdtree:shortstack` (Horn et al. 2007 used 4 to 8 entries).
+pub const SHORT_STACK: usize = 4;
+
 /// Builds the structure called `name` (one of [`STRUCTURES`]) over `mesh` (OAVM and the classic
 /// octree take `opts`, the subdivision they share; the others have their own heuristics).
 pub fn build_structure(
@@ -156,13 +168,24 @@ pub fn build_structure(
 ) -> Result<Box<dyn Accelerator>, Error> {
     match name {
         "grid" => Ok(Box::new(grid::UniformGrid::build(tris))),
-        "kdtree" => Ok(Box::new(kdtree::KdTree::build(tris))),
+        "kdtree" | "kdtree:stack" => Ok(Box::new(kdtree::KdTree::build(tris))),
+        "kdtree:restart" => Ok(Box::new(
+            kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::Restart),
+        )),
+        "kdtree:pushdown" => Ok(Box::new(
+            kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::PushDown),
+        )),
+        "kdtree:shortstack" => Ok(Box::new(
+            kdtree::KdTree::build(tris)
+                .with_traversal(kdtree::KdTraversal::ShortStack(SHORT_STACK)),
+        )),
         "octree" => Ok(Box::new(octree::ClassicOctree::build(tris, opts))),
         "bvh" => Ok(Box::new(bvh::Bvh::build(tris))),
         "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),
         _ => Err(Error::Invalid(format!(
-            "unknown structure {name:?}: expected one of {}",
-            STRUCTURES.join(", ")
+            "unknown structure {name:?}: expected one of {}, {}",
+            STRUCTURES.join(", "),
+            KD_VARIANTS.join(", ")
         ))),
     }
 }

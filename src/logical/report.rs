@@ -48,6 +48,8 @@ pub struct SetReport {
     pub cluster_nodes_visited: u64,
     pub boxes_tested: u64,
     pub groups_tested: u64,
+    /// Walks begun again from above (comparison KD-tree variants; 0 elsewhere).
+    pub restarts: u64,
     pub nodes_visited_per_ray: f64,
     pub leaves_visited_per_ray: f64,
     pub volumes_crossed_per_ray: f64,
@@ -56,6 +58,7 @@ pub struct SetReport {
     pub cluster_nodes_visited_per_ray: f64,
     pub boxes_tested_per_ray: f64,
     pub groups_tested_per_ray: f64,
+    pub restarts_per_ray: f64,
     /// Streamed sets ([`super::Order::Stream`]): walks parked at a block and resumed, times a
     /// block's queue was served, and the most bytes the parked walks took at once.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -106,6 +109,7 @@ impl SetReport {
             cluster_nodes_visited: c.cluster_nodes_visited,
             boxes_tested: c.boxes_tested,
             groups_tested: c.groups_tested,
+            restarts: c.restarts,
             nodes_visited_per_ray: per_ray(c.nodes_visited),
             leaves_visited_per_ray: per_ray(c.leaves_visited),
             volumes_crossed_per_ray: per_ray(c.volumes_crossed),
@@ -114,6 +118,7 @@ impl SetReport {
             cluster_nodes_visited_per_ray: per_ray(c.cluster_nodes_visited),
             boxes_tested_per_ray: per_ray(c.boxes_tested),
             groups_tested_per_ray: per_ray(c.groups_tested),
+            restarts_per_ray: per_ray(c.restarts),
             stream: (c.blocks_served > 0).then(|| StreamReport {
                 walks_parked: c.walks_parked,
                 walks_parked_per_ray: per_ray(c.walks_parked),

@@ -79,6 +79,10 @@ pub struct Counters {
     pub boxes_tested: u64,
     /// Triangle groups (spec §7.2) tested.
     pub groups_tested: u64,
+    /// Walks begun again from a node above the last one (the comparison KD-tree's kd-restart,
+    /// push-down and short-stack traversals: each time the rest of the ray is walked down
+    /// again).
+    pub restarts: u64,
     /// Blocks asked of the pager (each time a walk moves into another block), with its hits,
     /// misses and bytes.
     #[serde(flatten)]
@@ -101,6 +105,7 @@ impl std::ops::AddAssign for Counters {
         self.top_nodes_culled += o.top_nodes_culled;
         self.triangles_tested += o.triangles_tested;
         self.clusters_entered += o.clusters_entered;
+        self.restarts += o.restarts;
         self.cluster_nodes_visited += o.cluster_nodes_visited;
         self.boxes_tested += o.boxes_tested;
         self.groups_tested += o.groups_tested;

@@ -37,7 +37,7 @@ use rayon::prelude::*;
 
 use super::KdTree;
 use super::node::{KdNode, MAX_30};
-use super::traverse::STACK;
+use super::traverse::{KdTraversal, STACK};
 use crate::compare::aabb::{Aabb, padded_bounds};
 use crate::compare::leaf::{Soup, Tri};
 use crate::compare::{StructureStats, Triangles};
@@ -377,6 +377,7 @@ impl KdTree {
             soup: Soup::default(),
             max_depth,
             brute: false,
+            traversal: KdTraversal::Stack,
             stats: StructureStats {
                 name: "kdtree",
                 ..StructureStats::default()

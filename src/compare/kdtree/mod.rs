@@ -23,7 +23,7 @@ mod tests;
 
 pub use build::{EMPTY_BONUS, ISECT_COST, MAX_BAD_REFINES, MAX_DEPTH_CAP, TRAVERSAL_COST};
 pub use node::KdNode;
-pub use traverse::STACK;
+pub use traverse::{KdTraversal, MAX_SHORT_STACK, STACK};
 
 use super::StructureStats;
 use super::leaf::Soup;
@@ -44,10 +44,19 @@ pub struct KdTree {
     max_depth: u32,
     /// Too large to store with 30-bit indices: every ray tests every triangle.
     brute: bool,
+    /// How rays walk it.
+    traversal: KdTraversal,
     stats: StructureStats,
 }
 
 impl KdTree {
+    /// The same tree, walked by `traversal` (and named after it in reports).
+    pub fn with_traversal(mut self, traversal: KdTraversal) -> KdTree {
+        self.traversal = traversal;
+        self.stats.name = traversal.name();
+        self
+    }
+
     /// The depth limit the build used.
     pub fn max_depth(&self) -> u32 {
         self.max_depth

@@ -37,10 +37,10 @@ fn random_soup_matches_brute_force() {
 #[test]
 #[cfg(target_pointer_width = "64")]
 fn bytes_count_the_record_the_nodes_the_lists_and_the_triangles() {
-    assert_eq!(std::mem::size_of::<KdTree>(), 232);
+    assert_eq!(std::mem::size_of::<KdTree>(), 248);
     let (tris, _) = tris_of(unit_soup(300, 3));
     let kd = KdTree::build(&tris);
-    let want = 232 + 8 * kd.nodes.len() + 4 * kd.leaf_prims.len() + 40 * tris.len();
+    let want = 248 + 8 * kd.nodes.len() + 4 * kd.leaf_prims.len() + 40 * tris.len();
     assert_eq!(kd.stats().bytes, want as u64);
 }
 
@@ -161,4 +161,87 @@ fn outward_rounding() {
     assert!(f32_down(x) < f32_up(x));
     assert_eq!(f32_down(0.5), 0.5);
     assert_eq!(f32_up(0.5), 0.5);
+}
+
+/// The traversal variants the stackless comparison needs, with the short stack at several
+/// sizes.
+fn variants() -> Vec<KdTraversal> {
+    let mut v = vec![KdTraversal::Restart, KdTraversal::PushDown];
+    v.extend([1, 2, 4, 8].map(KdTraversal::ShortStack));
+    v
+}
+
+/// Every variant agrees with the f64 brute force (closest and any hit) and with the stack walk
+/// ray for ray (the same triangle at the same `t`; rays grazing an edge aside, where a walk
+/// down again from a leaf's exit may not revisit the side it left, as [`check`] sets them
+/// aside), on random soups, on the flat-plane scene (rays lying in split planes take the stack
+/// walk) and on awkward rays; the stackless ones restart, push-down visits fewer nodes than
+/// kd-restart, and a deeper short stack restarts less.
+#[test]
+fn traversal_variants_match_brute_force_and_the_stack_walk() {
+    use crate::compare::test_util::awkward_rays;
+    let mut scenes = vec![tris_of(unit_soup(1500, 31))];
+    let mut v = unit_soup(300, 15);
+    for &x in &[0.25f32, 0.5, 0.75] {
+        for i in 0..100 {
+            let (y, z) = ((i % 10) as f32 / 10.0, (i / 10) as f32 / 10.0);
+            v.push([[x, y, z], [x, y + 0.1, z], [x, y, z + 0.1]]);
+        }
+    }
+    scenes.push(tris_of(v));
+    for (s, (tris, mesh)) in scenes.iter().enumerate() {
+        let stack = KdTree::build(tris);
+        let mut rays = unit_rays(3000, 40 + s as u64);
+        rays.extend(awkward_rays(tris, 1500, 50 + s as u64));
+        let mut reference = Counters::default();
+        let want: Vec<(Hit, bool)> = rays
+            .iter()
+            .map(|r| {
+                (
+                    stack.intersect(r, &mut reference),
+                    stack.occluded(r, &mut reference),
+                )
+            })
+            .collect();
+        let mut visited = Vec::new();
+        for t in variants() {
+            let kd = KdTree::build(tris).with_traversal(t);
+            assert_eq!(kd.stats().name, t.name());
+            check(&kd, mesh, &rays, 1000);
+            let mut c = Counters::default();
+            let corners = mesh.corners();
+            for (r, w) in rays.iter().zip(&want) {
+                let got = (kd.intersect(r, &mut c), kd.occluded(r, &mut c));
+                if got != *w {
+                    assert!(
+                        crate::geom::reference::grazes(&corners, r),
+                        "scene {s}, {t:?}, {r:?}: {got:?}, the stack walk {w:?}"
+                    );
+                }
+            }
+            if matches!(
+                t,
+                KdTraversal::Restart | KdTraversal::PushDown | KdTraversal::ShortStack(1)
+            ) {
+                assert!(c.restarts > 0, "scene {s}, {t:?}: {c:?}");
+            }
+            visited.push((t, c.nodes_visited, c.restarts));
+        }
+        let nodes = |t: KdTraversal| visited.iter().find(|v| v.0 == t).unwrap().1;
+        assert!(
+            nodes(KdTraversal::PushDown) < nodes(KdTraversal::Restart),
+            "scene {s}: {visited:?}"
+        );
+        // A deeper short stack restarts less.
+        let restarts = |t: KdTraversal| visited.iter().find(|v| v.0 == t).unwrap().2;
+        assert!(
+            restarts(KdTraversal::ShortStack(8)) < restarts(KdTraversal::ShortStack(1))
+                && restarts(KdTraversal::ShortStack(1)) <= restarts(KdTraversal::Restart),
+            "scene {s}: {visited:?}"
+        );
+        eprintln!(
+            "scene {s}: stack {} nodes; {visited:?}",
+            reference.nodes_visited
+        );
+    }
 }

@@ -10,6 +10,21 @@
 //! size (in `t`), so rounding can only make the walk visit an extra node, never skip one; a ray
 //! parallel to a plane and lying on it visits both sides. Triangles are tested with the ray's
 //! full `[tmin, closest-so-far]` range; the any-hit walk stops at the first hit.
+//!
+//! **Stackless variants** ([`KdTraversal`], the comparison of the threaded KD-tree's source,
+//! Jiao, Chen and Zhang). They make the same plane decisions with the same tolerance, but
+//! where the stack walk pushes the far side they go on with the near side only and, once its
+//! leaf is done, walk the rest of the ray (from that leaf's exit to the end of the clipped
+//! segment) down again: from the root (*kd-restart*, Foley and Sugerman 2005), or from the
+//! deepest node of the last descent that holds the whole rest of the segment, the node where
+//! the descent first took both sides (*push-down*, same paper). *Short-stack* (Horn et al.
+//! 2007) keeps the `n` far sides pushed last in a ring (the oldest overwritten when it is
+//! full) and walks down again (push-down) only when it runs dry after dropping one. Each walk
+//! down again counts a restart ([`Counters::restarts`]). A ray lying in a split plane (the
+//! stack walk visits both sides with the same interval), or a walk down that would not move
+//! past the last leaf (an interval of zero length at a plane within the tolerance), finishes
+//! with the stack walk from the root: the answer stays exact, at the cost of leaves tested
+//! twice.
 
 use super::KdTree;
 use crate::compare::StructureStats;
@@ -20,6 +35,35 @@ use crate::logical::Counters;
 
 /// Entries of the traversal stack.
 pub const STACK: usize = 64;
+
+/// The most entries a short stack may have.
+pub const MAX_SHORT_STACK: usize = 32;
+
+/// How a ray walks the tree (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KdTraversal {
+    /// pbrt's stack traversal.
+    Stack,
+    /// No stack: the rest of the ray walked down from the root after each leaf.
+    Restart,
+    /// No stack: the rest walked down from the deepest node holding all of it.
+    PushDown,
+    /// A ring of this many far sides (1..=[`MAX_SHORT_STACK`]); push-down when it runs dry
+    /// after dropping one.
+    ShortStack(usize),
+}
+
+impl KdTraversal {
+    /// The name `oavm-bench` knows it by (`kdtree:stack` is the plain `kdtree`).
+    pub fn name(self) -> &'static str {
+        match self {
+            KdTraversal::Stack => "kdtree",
+            KdTraversal::Restart => "kdtree:restart",
+            KdTraversal::PushDown => "kdtree:pushdown",
+            KdTraversal::ShortStack(_) => "kdtree:shortstack",
+        }
+    }
+}
 
 impl Walk for KdTree {
     type Leaf = [u32];
@@ -40,6 +84,204 @@ impl Walk for KdTree {
         ray: &Ray,
         c: &mut Counters,
         mut leaf: impl FnMut(&[u32], &mut Counters) -> f32,
+    ) -> bool {
+        match self.traversal {
+            KdTraversal::Stack => self.walk_stack(ray, c, &mut leaf),
+            KdTraversal::Restart => self.walk_restart(ray, c, &mut leaf, false, 0),
+            KdTraversal::PushDown => self.walk_restart(ray, c, &mut leaf, true, 0),
+            KdTraversal::ShortStack(n) => {
+                self.walk_restart(ray, c, &mut leaf, true, n.clamp(1, MAX_SHORT_STACK))
+            }
+        }
+    }
+}
+
+/// The ray as the walks use it: clipped to the root box, in f64, with the plane tolerance.
+struct KdRay {
+    t0: f64,
+    t1: f64,
+    o: [f64; 3],
+    d: [f64; 3],
+    inv: [f64; 3],
+    eps: f64,
+}
+
+/// Where a plane sends a walk over `[tmin, tmax]`.
+enum Side {
+    /// One child only.
+    One(u32),
+    /// The near child over `[tmin, tp]`, then the far child over `[tp, tmax]`.
+    Both { near: u32, far: u32, tp: f64 },
+    /// Both children over the same interval (a ray lying in the plane).
+    InPlane,
+}
+
+impl KdTree {
+    /// The ray clipped and prepared, `None` if it misses the root box.
+    #[inline]
+    fn kd_ray(&self, ray: &Ray) -> Option<KdRay> {
+        let (t0, t1) = clip_ray(ray, self.lo, self.hi)?;
+        let o = ray.origin.map(|x| x as f64);
+        let d = ray.dir.map(|x| x as f64);
+        let dist = (0..3)
+            .map(|k| (o[k] - self.centre[k]).abs())
+            .fold(0.0, f64::max);
+        let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        Some(KdRay {
+            t0,
+            t1,
+            o,
+            d,
+            inv: d.map(|x| 1.0 / x),
+            eps: 1e-6 * (self.diag + dist) / norm,
+        })
+    }
+
+    /// The stack walk's decision at interior node `node` (record `n`) over `[tmin, tmax]`.
+    #[inline]
+    fn side(&self, r: &KdRay, node: u32, n: &super::KdNode, tmin: f64, tmax: f64) -> Side {
+        let a = n.axis();
+        let split = n.split() as f64;
+        let (below, above) = (node + 1, n.upper());
+        if r.d[a] == 0.0 {
+            return if r.o[a] < split {
+                Side::One(below)
+            } else if r.o[a] > split {
+                Side::One(above)
+            } else {
+                Side::InPlane
+            };
+        }
+        let tp = (split - r.o[a]) * r.inv[a];
+        let (near, far) = if r.d[a] > 0.0 {
+            (below, above)
+        } else {
+            (above, below)
+        };
+        if tp > tmax + r.eps {
+            Side::One(near)
+        } else if tp < tmin - r.eps {
+            Side::One(far)
+        } else {
+            Side::Both {
+                near,
+                far,
+                tp: tp.clamp(tmin, tmax),
+            }
+        }
+    }
+
+    /// The kd-restart, push-down and short-stack walks (module docs): `push_down` restarts
+    /// from the deepest node holding the rest of the segment (else the root), `short` is the
+    /// short stack's size (0: none).
+    fn walk_restart(
+        &self,
+        ray: &Ray,
+        c: &mut Counters,
+        leaf: &mut impl FnMut(&[u32], &mut Counters) -> f32,
+        push_down: bool,
+        short: usize,
+    ) -> bool {
+        if self.brute {
+            return false;
+        }
+        let Some(r) = self.kd_ray(ray) else {
+            return true;
+        };
+        let mut ring = [(0u32, 0.0f64, 0.0f64); MAX_SHORT_STACK];
+        let (mut top, mut len) = (0usize, 0usize);
+        let mut dropped = false;
+        let (mut node, mut tmin, mut tmax) = (0u32, r.t0, r.t1);
+        // Where the next walk down starts, and whether this descent has not yet taken both
+        // sides of a plane (so the node it is at holds all of `[tmin, t1]`).
+        let (mut restart_at, mut whole) = (0u32, true);
+        let mut seg_start = r.t0;
+        // Walking down again (not the first descent).
+        let mut again = false;
+        let mut bound = NO_HIT as f64;
+        loop {
+            let node_ref = if bound < tmin - r.eps {
+                None
+            } else {
+                self.nodes.get(node as usize)
+            };
+            if let Some(n) = node_ref {
+                c.nodes_visited += 1;
+                if !n.is_leaf() {
+                    let side = match self.side(&r, node, n, tmin, tmax) {
+                        // Walking down again from a leaf's exit: the plane that leaf was left
+                        // by meets the ray where the walk starts, and its near side holds
+                        // nothing of the rest of the ray (its one point there was in that leaf).
+                        Side::Both { far, tp, .. } if again && tp <= tmin => Side::One(far),
+                        side => side,
+                    };
+                    match side {
+                        Side::One(child) => {
+                            node = child;
+                            if whole && push_down {
+                                restart_at = child;
+                            }
+                        }
+                        Side::Both { near, far, tp } => {
+                            if short > 0 {
+                                if len == short {
+                                    dropped = true;
+                                } else {
+                                    len += 1;
+                                }
+                                ring[top] = (far, tp, tmax);
+                                top = (top + 1) % short;
+                            } else {
+                                dropped = true;
+                            }
+                            whole = false;
+                            node = near;
+                            tmax = tp;
+                        }
+                        Side::InPlane => return self.walk_stack(ray, c, leaf),
+                    }
+                    continue;
+                }
+                c.leaves_visited += 1;
+                let prims = self.leaf_list(n);
+                if !prims.is_empty() {
+                    let b = leaf(prims, c);
+                    if b == STOP {
+                        return true;
+                    }
+                    bound = b as f64;
+                }
+            }
+            if len > 0 {
+                top = (top + short - 1) % short;
+                len -= 1;
+                (node, tmin, tmax) = ring[top];
+                continue;
+            }
+            // Nothing was dropped: the walk is complete, as the stack walk's would be.
+            if !dropped || tmax >= r.t1 || bound < tmax - r.eps {
+                return true;
+            }
+            if tmax <= seg_start {
+                // No progress since the last walk down: finish with the stack walk.
+                return self.walk_stack(ray, c, leaf);
+            }
+            c.restarts += 1;
+            seg_start = tmax;
+            (node, tmin, tmax) = (restart_at, seg_start, r.t1);
+            whole = true;
+            dropped = false;
+            again = true;
+        }
+    }
+
+    /// pbrt's stack walk (module docs).
+    #[inline]
+    fn walk_stack(
+        &self,
+        ray: &Ray,
+        c: &mut Counters,
+        leaf: &mut impl FnMut(&[u32], &mut Counters) -> f32,
     ) -> bool {
         if self.brute {
             return false;
