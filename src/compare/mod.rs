@@ -148,11 +148,13 @@ pub const STRUCTURES: [&str; 5] = ["grid", "kdtree", "octree", "bvh", "oavm"];
 
 /// The KD-tree's traversal variants, by the names `oavm-bench` takes (`kdtree:stack` is the
 /// plain `kdtree`; [`kdtree::KdTraversal`]). Not in `all`.
-pub const KD_VARIANTS: [&str; 4] = [
+pub const KD_VARIANTS: [&str; 6] = [
     "kdtree:stack",
     "kdtree:restart",
     "kdtree:pushdown",
     "kdtree:shortstack",
+    "kdtree:ropes",
+    "kdtree:popov",
 ];
 
 /// The short stack's size in `kdtree:shortstack` (Horn et al. 2007 used 4 to 8 entries).
@@ -174,6 +176,12 @@ pub fn build_structure(
         )),
         "kdtree:pushdown" => Ok(Box::new(
             kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::PushDown),
+        )),
+        "kdtree:ropes" => Ok(Box::new(
+            kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::Ropes),
+        )),
+        "kdtree:popov" => Ok(Box::new(
+            kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::Popov),
         )),
         "kdtree:shortstack" => Ok(Box::new(
             kdtree::KdTree::build(tris)

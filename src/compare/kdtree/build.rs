@@ -378,6 +378,7 @@ impl KdTree {
             max_depth,
             brute: false,
             traversal: KdTraversal::Stack,
+            ropes: None,
             stats: StructureStats {
                 name: "kdtree",
                 ..StructureStats::default()

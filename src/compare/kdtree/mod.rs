@@ -16,6 +16,7 @@
 
 mod build;
 mod node;
+mod ropes;
 mod traverse;
 
 #[cfg(test)]
@@ -46,14 +47,28 @@ pub struct KdTree {
     brute: bool,
     /// How rays walk it.
     traversal: KdTraversal,
+    /// Its ropes, for the rope walks.
+    ropes: Option<ropes::Ropes>,
     stats: StructureStats,
 }
 
 impl KdTree {
-    /// The same tree, walked by `traversal` (and named after it in reports).
+    /// The same tree, walked by `traversal` (and named after it in reports). The rope walks
+    /// build their ropes here: their time and bytes are added to the tree's.
     pub fn with_traversal(mut self, traversal: KdTraversal) -> KdTree {
         self.traversal = traversal;
         self.stats.name = traversal.name();
+        self.ropes = None;
+        if traversal.has_ropes() && !self.brute {
+            let start = std::time::Instant::now();
+            let r = ropes::Ropes::build(&self, traversal == KdTraversal::Popov);
+            self.stats.build_seconds += start.elapsed().as_secs_f64();
+            self.stats.bytes += r.bytes() as u64;
+            // Six ropes a leaf.
+            let leaves = self.nodes.iter().filter(|n| n.is_leaf()).count();
+            self.stats.pointers += 6 * leaves as u64;
+            self.ropes = Some(r);
+        }
         self
     }
 

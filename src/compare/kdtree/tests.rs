@@ -168,6 +168,7 @@ fn outward_rounding() {
 fn variants() -> Vec<KdTraversal> {
     let mut v = vec![KdTraversal::Restart, KdTraversal::PushDown];
     v.extend([1, 2, 4, 8].map(KdTraversal::ShortStack));
+    v.extend([KdTraversal::Ropes, KdTraversal::Popov]);
     v
 }
 
@@ -219,10 +220,7 @@ fn traversal_variants_match_brute_force_and_the_stack_walk() {
                     );
                 }
             }
-            if matches!(
-                t,
-                KdTraversal::Restart | KdTraversal::PushDown | KdTraversal::ShortStack(1)
-            ) {
+            if !matches!(t, KdTraversal::ShortStack(2..)) {
                 assert!(c.restarts > 0, "scene {s}, {t:?}: {c:?}");
             }
             visited.push((t, c.nodes_visited, c.restarts));
@@ -244,4 +242,66 @@ fn traversal_variants_match_brute_force_and_the_stack_walk() {
             reference.nodes_visited
         );
     }
+}
+
+/// Every rope of a leaf names a node across that face: its cell starts where the leaf's ends
+/// on the face's axis and meets the face's rectangle; Popov's ropes name a node whose cell
+/// holds the whole face, and no larger node than the source's. The ropes' bytes and pointers
+/// are counted.
+#[test]
+fn ropes_name_the_node_across_each_face() {
+    let (tris, _) = tris_of(unit_soup(1200, 61));
+    let plain = KdTree::build(&tris);
+    let leaves = plain.nodes.iter().filter(|n| n.is_leaf()).count();
+    let src = KdTree::build(&tris).with_traversal(KdTraversal::Ropes);
+    let popov = KdTree::build(&tris).with_traversal(KdTraversal::Popov);
+    for kd in [&src, &popov] {
+        assert_eq!(
+            kd.stats().bytes,
+            plain.stats().bytes + 48 * plain.nodes.len() as u64
+        );
+        assert_eq!(
+            kd.stats().pointers,
+            plain.stats().pointers + 6 * leaves as u64
+        );
+    }
+    let (rs, rp) = (src.ropes.as_ref().unwrap(), popov.ropes.as_ref().unwrap());
+    let (mut boundary, mut pushed) = (0, 0);
+    for (i, n) in src.nodes.iter().enumerate() {
+        if !n.is_leaf() {
+            continue;
+        }
+        let leaf = rs.cell[i];
+        for f in 0..6 {
+            let (a, high) = (f / 2, f % 2 == 1);
+            let (s, p) = (rs.across[i][f], rp.across[i][f]);
+            assert_eq!(s == ropes::NONE, p == ropes::NONE, "leaf {i} face {f}");
+            if s == ropes::NONE {
+                // Only at the scene's boundary.
+                let edge = if high { src.hi[a] } else { src.lo[a] } as f32;
+                assert_eq!(if high { leaf[1][a] } else { leaf[0][a] }, edge);
+                boundary += 1;
+                continue;
+            }
+            for (t, whole) in [(s, false), (p, true)] {
+                let c = rs.cell[t as usize];
+                if high {
+                    assert_eq!(c[0][a], leaf[1][a], "leaf {i} face {f} -> {t}");
+                } else {
+                    assert_eq!(c[1][a], leaf[0][a], "leaf {i} face {f} -> {t}");
+                }
+                for k in (0..3).filter(|&k| k != a) {
+                    assert!(c[0][k] < leaf[1][k] && c[1][k] > leaf[0][k], "meets");
+                    if whole {
+                        assert!(c[0][k] <= leaf[0][k] && c[1][k] >= leaf[1][k], "holds");
+                    }
+                }
+            }
+            pushed += (p != s) as usize;
+        }
+    }
+    assert!(
+        boundary > 0 && pushed > leaves,
+        "{boundary} {pushed} {leaves}"
+    );
 }

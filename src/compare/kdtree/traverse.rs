@@ -51,6 +51,11 @@ pub enum KdTraversal {
     /// A ring of this many far sides (1..=[`MAX_SHORT_STACK`]); push-down when it runs dry
     /// after dropping one.
     ShortStack(usize),
+    /// The source's ropes: nodebox inheritance, a clue per face of each leaf
+    /// ([`super::ropes`]).
+    Ropes,
+    /// Popov et al.'s ropes to the smallest node across each face.
+    Popov,
 }
 
 impl KdTraversal {
@@ -61,6 +66,8 @@ impl KdTraversal {
             KdTraversal::Restart => "kdtree:restart",
             KdTraversal::PushDown => "kdtree:pushdown",
             KdTraversal::ShortStack(_) => "kdtree:shortstack",
+            KdTraversal::Ropes => "kdtree:ropes",
+            KdTraversal::Popov => "kdtree:popov",
         }
     }
 }
@@ -92,18 +99,19 @@ impl Walk for KdTree {
             KdTraversal::ShortStack(n) => {
                 self.walk_restart(ray, c, &mut leaf, true, n.clamp(1, MAX_SHORT_STACK))
             }
+            KdTraversal::Ropes | KdTraversal::Popov => self.walk_ropes(ray, c, &mut leaf),
         }
     }
 }
 
 /// The ray as the walks use it: clipped to the root box, in f64, with the plane tolerance.
-struct KdRay {
-    t0: f64,
-    t1: f64,
-    o: [f64; 3],
-    d: [f64; 3],
-    inv: [f64; 3],
-    eps: f64,
+pub(super) struct KdRay {
+    pub(super) t0: f64,
+    pub(super) t1: f64,
+    pub(super) o: [f64; 3],
+    pub(super) d: [f64; 3],
+    pub(super) inv: [f64; 3],
+    pub(super) eps: f64,
 }
 
 /// Where a plane sends a walk over `[tmin, tmax]`.
@@ -119,7 +127,7 @@ enum Side {
 impl KdTree {
     /// The ray clipped and prepared, `None` if it misses the root box.
     #[inline]
-    fn kd_ray(&self, ray: &Ray) -> Option<KdRay> {
+    pub(super) fn kd_ray(&self, ray: &Ray) -> Option<KdRay> {
         let (t0, t1) = clip_ray(ray, self.lo, self.hi)?;
         let o = ray.origin.map(|x| x as f64);
         let d = ray.dir.map(|x| x as f64);
@@ -277,7 +285,7 @@ impl KdTree {
 
     /// pbrt's stack walk (module docs).
     #[inline]
-    fn walk_stack(
+    pub(super) fn walk_stack(
         &self,
         ray: &Ray,
         c: &mut Counters,
