@@ -16,9 +16,12 @@
 //! stored: the source rebuilds it from its 64-bit `SplitStack` of the faces that caused each
 //! fork; a CPU stores it for 24 bytes a leaf and computes nothing), taking that face's rope.
 //! The walk ends at the scene's boundary, past the segment's end, or once the closest hit so far
-//! lies before the leaf's exit. A ray lying in a split plane, or a step that would not move
-//! past the last exit (rounding), finishes with the stack walk from the root, so the answer
-//! stays exact. Each rope taken counts a restart ([`Counters::restarts`]): the walk begins
+//! lies before the leaf's exit. A ray that enters a node at one of its split planes (within the
+//! tolerance: the other side may be a cell of no thickness holding triangles that lie in the
+//! plane, which the ray meets there), lies in a split plane, or would not move past the last
+//! exit (rounding), finishes with the stack walk from the root, so the answer stays exact
+//! (10^6 random rays: 2.9 % of them on the kitchen, under 0.12 % on the robots and the Cornell
+//! box; choosing a side by the direction instead lost 157 hits on the kitchen). Each rope taken counts a restart ([`Counters::restarts`]): the walk begins
 //! again at the node the rope names.
 //!
 //! **Memory**: per leaf six 4-byte ropes and its cell as six f32 (48 bytes), stored per node
@@ -151,6 +154,11 @@ impl KdTree {
                 }
                 let a = n.axis();
                 let s = n.split() as f64;
+                if r.d[a] != 0.0 && ((s - r.o[a]) * r.inv[a] - tmin).abs() <= r.eps {
+                    // The ray is at this plane, whose other side may hold triangles lying in
+                    // it (a cell of no thickness): the stack walk visits both.
+                    return self.walk_stack(ray, c, leaf);
+                }
                 let p = r.o[a] + tmin * r.d[a];
                 node = if p < s || (p == s && r.d[a] < 0.0) {
                     node + 1

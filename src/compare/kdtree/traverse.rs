@@ -20,11 +20,15 @@
 //! the descent first took both sides (*push-down*, same paper). *Short-stack* (Horn et al.
 //! 2007) keeps the `n` far sides pushed last in a ring (the oldest overwritten when it is
 //! full) and walks down again (push-down) only when it runs dry after dropping one. Each walk
-//! down again counts a restart ([`Counters::restarts`]). A ray lying in a split plane (the
-//! stack walk visits both sides with the same interval), or a walk down that would not move
-//! past the last leaf (an interval of zero length at a plane within the tolerance), finishes
-//! with the stack walk from the root: the answer stays exact, at the cost of leaves tested
-//! twice.
+//! down again counts a restart ([`Counters::restarts`]). A near side met over no length (the
+//! ray at the plane, within the tolerance: the plane may hold triangles lying in it, in a cell
+//! of no thickness, as the kitchen's walls do) is visited, its far side kept in one slot and
+//! taken next, so that walking down again does not meet the same plane for ever; a second such
+//! plane below the first, or a ray lying in a split plane (the stack walk visits both sides
+//! with the same interval), finishes with the stack walk from the root, so the answer stays
+//! exact at the cost of leaves tested twice (10^6 random rays: 0.7 % of them on the kitchen,
+//! under 0.1 % on the robots and the Cornell box). Skipping that near side instead lost the
+//! floor's hit on 534 of 10^6 random rays in the kitchen.
 
 use super::KdTree;
 use crate::compare::StructureStats;
@@ -204,8 +208,8 @@ impl KdTree {
         // sides of a plane (so the node it is at holds all of `[tmin, t1]`).
         let (mut restart_at, mut whole) = (0u32, true);
         let mut seg_start = r.t0;
-        // Walking down again (not the first descent).
-        let mut again = false;
+        // The far side of a plane the ray is at (see the walk down).
+        let mut tie: Option<(u32, f64, f64)> = None;
         let mut bound = NO_HIT as f64;
         loop {
             let node_ref = if bound < tmin - r.eps {
@@ -216,19 +220,24 @@ impl KdTree {
             if let Some(n) = node_ref {
                 c.nodes_visited += 1;
                 if !n.is_leaf() {
-                    let side = match self.side(&r, node, n, tmin, tmax) {
-                        // Walking down again from a leaf's exit: the plane that leaf was left
-                        // by meets the ray where the walk starts, and its near side holds
-                        // nothing of the rest of the ray (its one point there was in that leaf).
-                        Side::Both { far, tp, .. } if again && tp <= tmin => Side::One(far),
-                        side => side,
-                    };
-                    match side {
+                    match self.side(&r, node, n, tmin, tmax) {
                         Side::One(child) => {
                             node = child;
                             if whole && push_down {
                                 restart_at = child;
                             }
+                        }
+                        // Without a stack, a near side met over no length (the ray at the
+                        // plane, which may hold triangles lying in it) keeps its far side in
+                        // one slot, so that walking down again does not meet it once more.
+                        Side::Both { near, far, tp } if short == 0 && tp <= tmin => {
+                            if tie.is_some() {
+                                return self.walk_stack(ray, c, leaf);
+                            }
+                            tie = Some((far, tp, tmax));
+                            whole = false;
+                            node = near;
+                            tmax = tp;
                         }
                         Side::Both { near, far, tp } => {
                             if short > 0 {
@@ -266,6 +275,10 @@ impl KdTree {
                 (node, tmin, tmax) = ring[top];
                 continue;
             }
+            if let Some(t) = tie.take() {
+                (node, tmin, tmax) = t;
+                continue;
+            }
             // Nothing was dropped: the walk is complete, as the stack walk's would be.
             if !dropped || tmax >= r.t1 || bound < tmax - r.eps {
                 return true;
@@ -279,7 +292,6 @@ impl KdTree {
             (node, tmin, tmax) = (restart_at, seg_start, r.t1);
             whole = true;
             dropped = false;
-            again = true;
         }
     }
 
