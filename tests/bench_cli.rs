@@ -172,6 +172,8 @@ fn structures_agree_with_oavm(leaf: LeafKind) -> Vec<Value> {
                 assert_eq!(x["disagree_with_oavm"], 0, "{} {}", s["name"], x);
                 assert!(x["rays"].as_u64().unwrap() > 0);
                 assert!(x["nodes_visited_per_ray"].as_f64().unwrap() > 0.0, "{x}");
+                // Only the KD-tree's stackless walks begin again.
+                assert_eq!(x["restarts_per_ray"].as_f64(), Some(0.0), "{x}");
                 let speeds = x["mrays_per_s"].as_array().unwrap();
                 assert_eq!(speeds.len(), 1);
                 assert!(speeds[0][1].as_f64().unwrap() > 0.0);
@@ -329,4 +331,70 @@ fn bad_usage_is_refused_clearly() {
             .arg(dir.path().join("h"))),
         "bad.rays",
     );
+}
+
+/// The KD-tree's traversal variants run as structures of their own: on the Cornell box and the
+/// robots, each agrees with OAVM on every ray of every set, keeps the tree's nodes, and the
+/// stackless ones report their restarts (ropes taken, walks begun again); the rope walks count
+/// their ropes in bytes and pointers.
+#[test]
+fn kd_traversal_variants_run_as_structures() {
+    for rel in [
+        "cornell_box/CornellBox-Original.obj",
+        "bart/robot/Robot.aff",
+    ] {
+        let o = run(bench()
+            .arg(shared(rel))
+            .args([
+                "--structure",
+                "kdtree:stack,kdtree:restart,kdtree:pushdown,kdtree:shortstack,kdtree:ropes,kdtree:popov",
+                "--random",
+                "20000",
+                "--width",
+                "64",
+                "--height",
+                "48",
+                "--reps",
+                "1",
+                "--threads",
+                "1",
+                "--json",
+            ]));
+        assert!(o.status.success(), "{}", describe(&o));
+        let v: Value = serde_json::from_slice(&o.stdout).expect("json");
+        let structs = v["scenes"][0]["structures"].as_array().unwrap();
+        let names: Vec<&str> = structs
+            .iter()
+            .map(|s| s["name"].as_str().unwrap())
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "kdtree",
+                "kdtree:restart",
+                "kdtree:pushdown",
+                "kdtree:shortstack",
+                "kdtree:ropes",
+                "kdtree:popov"
+            ]
+        );
+        let plain = &structs[0];
+        for s in structs {
+            assert_eq!(s["nodes"], plain["nodes"], "{rel}: {s}");
+            let ropes =
+                s["name"].as_str().unwrap().ends_with("ropes") || s["name"] == "kdtree:popov";
+            let more = |k: &str| s[k].as_u64().unwrap() > plain[k].as_u64().unwrap();
+            assert_eq!(more("bytes"), ropes, "{rel}: {s}");
+            assert_eq!(more("pointers"), ropes, "{rel}: {s}");
+            for x in s["sets"].as_array().unwrap() {
+                assert_eq!(x["disagree_with_oavm"], 0, "{rel}: {} {x}", s["name"]);
+                let restarts = x["restarts_per_ray"].as_f64().unwrap();
+                match s["name"].as_str().unwrap() {
+                    "kdtree" => assert_eq!(restarts, 0.0),
+                    "kdtree:shortstack" => {}
+                    n => assert!(restarts > 0.1, "{rel}: {n} {x}"),
+                }
+            }
+        }
+    }
 }

@@ -283,6 +283,9 @@ pub struct SetResult {
     pub nodes_visited_per_ray: f64,
     pub leaves_visited_per_ray: f64,
     pub triangles_tested_per_ray: f64,
+    /// Walks begun again per ray (the KD-tree's restart, push-down, short-stack and rope
+    /// walks; 0 for the others).
+    pub restarts_per_ray: f64,
     /// (threads, Mrays/s), best of `reps`.
     pub mrays_per_s: Vec<(usize, f64)>,
 }
@@ -389,6 +392,7 @@ pub fn bench_scene(
                 nodes_visited_per_ray: per(c.nodes_visited),
                 leaves_visited_per_ray: per(c.leaves_visited),
                 triangles_tested_per_ray: per(c.triangles_tested),
+                restarts_per_ray: per(c.restarts),
                 mrays_per_s: speeds(acc.as_ref(), set, opts)?,
             });
         }
