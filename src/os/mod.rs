@@ -15,7 +15,7 @@ mod simd;
 pub use buf::PageBuf;
 pub use link::link_unnamed;
 pub use map::{Changed, MappedFile, page_size};
-pub use proc::{available_memory, peak_rss_bytes, read_bytes, return_large_frees};
+pub use proc::{available_memory, peak_rss_bytes, read_bytes};
 #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
 pub use simd::Sse41;
 pub use simd::{Avx2, Portable, Simd8, WithAvx2};

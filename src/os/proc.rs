@@ -61,28 +61,6 @@ fn field(path: &str, key: &str) -> Option<u64> {
     line[key.len()..].split_whitespace().next()?.parse().ok()
 }
 
-/// Makes the C allocator give large freed blocks back to the kernel: glibc serves allocations
-/// of 128 KiB or more with their own mappings, unmapped when freed, but raises that threshold
-/// (up to 32 MiB) each time such a block is freed, after which blocks of that size come from
-/// its arenas and stay there once freed. The pager's zstd slots are such blocks, replaced as
-/// blocks of other sizes come in: on the 130M-triangle zstd file under a 480 MB budget, the
-/// process kept about 90 MB of freed slot buffers beyond the budget. Fixing the threshold at
-/// its initial value stops the raising. Process-wide, once; a no-op on other C libraries.
-pub fn return_large_frees() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    {
-        static ONCE: std::sync::Once = std::sync::Once::new();
-        ONCE.call_once(|| {
-            // SAFETY: `mallopt` only sets an allocator parameter; `M_MMAP_THRESHOLD` with a
-            // value below its maximum (32 MiB on 64-bit) is always accepted, and changing it
-            // does not affect blocks already allocated.
-            unsafe {
-                libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
-            }
-        });
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

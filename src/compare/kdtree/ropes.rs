@@ -28,7 +28,7 @@
 //! here (an interior node's entries are unused), so `48 * nodes` bytes are added to the tree's.
 
 use super::{KdTraversal, KdTree};
-use crate::compare::leaf::{NO_HIT, STOP};
+use crate::compare::leaf::NO_HIT;
 use crate::geom::Ray;
 use crate::logical::Counters;
 
@@ -169,14 +169,9 @@ impl KdTree {
                     return self.walk_stack(ray, c, leaf);
                 };
             };
-            c.leaves_visited += 1;
-            let prims = self.leaf_list(n);
-            if !prims.is_empty() {
-                let b = leaf(prims, c);
-                if b == STOP {
-                    return true;
-                }
-                bound = b as f64;
+            match self.visit_leaf(n, c, leaf) {
+                Some(b) => bound = b.unwrap_or(bound),
+                None => return true,
             }
             // Out through the face the segment leaves by.
             let [lo, hi] = ropes.cell[node as usize];

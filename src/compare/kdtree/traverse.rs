@@ -89,7 +89,7 @@ impl Walk for KdTree {
 
     /// Returns `false` if the walk could not be completed (a full stack: never, by the depth
     /// cap) or there is no tree.
-    #[inline]
+    #[inline(always)]
     fn walk(
         &self,
         ray: &Ray,
@@ -130,7 +130,7 @@ enum Side {
 
 impl KdTree {
     /// The ray clipped and prepared, `None` if it misses the root box.
-    #[inline]
+    #[inline(always)]
     pub(super) fn kd_ray(&self, ray: &Ray) -> Option<KdRay> {
         let (t0, t1) = clip_ray(ray, self.lo, self.hi)?;
         let o = ray.origin.map(|x| x as f64);
@@ -149,8 +149,28 @@ impl KdTree {
         })
     }
 
+    /// Visits leaf `n`: tests its triangles (if it has any) through `leaf`. `None` if the walk
+    /// is over ([`STOP`]: an any hit); else the new bound, if the leaf had triangles.
+    #[inline(always)]
+    pub(super) fn visit_leaf(
+        &self,
+        n: &super::KdNode,
+        c: &mut Counters,
+        leaf: &mut impl FnMut(&[u32], &mut Counters) -> f32,
+    ) -> Option<Option<f64>> {
+        c.leaves_visited += 1;
+        let prims = self.leaf_list(n);
+        if prims.is_empty() {
+            return Some(None);
+        }
+        match leaf(prims, c) {
+            STOP => None,
+            b => Some(Some(b as f64)),
+        }
+    }
+
     /// The stack walk's decision at interior node `node` (record `n`) over `[tmin, tmax]`.
-    #[inline]
+    #[inline(always)]
     fn side(&self, r: &KdRay, node: u32, n: &super::KdNode, tmin: f64, tmax: f64) -> Side {
         let a = n.axis();
         let split = n.split() as f64;
@@ -259,14 +279,9 @@ impl KdTree {
                     }
                     continue;
                 }
-                c.leaves_visited += 1;
-                let prims = self.leaf_list(n);
-                if !prims.is_empty() {
-                    let b = leaf(prims, c);
-                    if b == STOP {
-                        return true;
-                    }
-                    bound = b as f64;
+                match self.visit_leaf(n, c, leaf) {
+                    Some(b) => bound = b.unwrap_or(bound),
+                    None => return true,
                 }
             }
             if len > 0 {
@@ -296,7 +311,7 @@ impl KdTree {
     }
 
     /// pbrt's stack walk (module docs).
-    #[inline]
+    #[inline(always)]
     pub(super) fn walk_stack(
         &self,
         ray: &Ray,
@@ -306,26 +321,18 @@ impl KdTree {
         if self.brute {
             return false;
         }
-        let Some((t0, t1)) = clip_ray(ray, self.lo, self.hi) else {
+        let Some(r) = self.kd_ray(ray) else {
             return true;
         };
-        let o = ray.origin.map(|x| x as f64);
-        let d = ray.dir.map(|x| x as f64);
-        let inv = d.map(|x| 1.0 / x);
-        let dist = (0..3)
-            .map(|k| (o[k] - self.centre[k]).abs())
-            .fold(0.0, f64::max);
-        let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let eps = 1e-6 * (self.diag + dist) / norm;
         let mut stack = [(0u32, 0.0f64, 0.0f64); STACK];
         let mut sp = 0;
-        let (mut node, mut tmin, mut tmax) = (0u32, t0, t1);
+        let (mut node, mut tmin, mut tmax) = (0u32, r.t0, r.t1);
         let mut bound = NO_HIT as f64;
         loop {
             // A node starting after the closest hit is skipped. Not a `break` as in pbrt: the
             // stack is ordered by `tmin` except below an entry pushed for a ray lying in a
             // plane (both sides, same interval), so later entries may still start earlier.
-            let node_ref = if bound < tmin - eps {
+            let node_ref = if bound < tmin - r.eps {
                 None
             } else {
                 self.nodes.get(node as usize)
@@ -333,14 +340,18 @@ impl KdTree {
             if let Some(n) = node_ref {
                 c.nodes_visited += 1;
                 if !n.is_leaf() {
+                    // The far side (or, for a ray lying in the plane, the above side over the
+                    // same interval) is pushed; the walk goes on with the other.
+                    // The decision of `side`, written out: through `side` (its enum) this walk
+                    // ran at 0.65x on the kitchen (1.71 against 2.62 Mrays/s, primary rays).
                     let a = n.axis();
                     let split = n.split() as f64;
                     let (below, above) = (node + 1, n.upper());
-                    if d[a] == 0.0 {
+                    if r.d[a] == 0.0 {
                         // Parallel to the plane: the side holding the ray, both if it lies in it.
-                        if o[a] < split {
+                        if r.o[a] < split {
                             node = below;
-                        } else if o[a] > split {
+                        } else if r.o[a] > split {
                             node = above;
                         } else {
                             let Some(slot) = stack.get_mut(sp) else {
@@ -352,15 +363,15 @@ impl KdTree {
                         }
                         continue;
                     }
-                    let tp = (split - o[a]) * inv[a];
-                    let (near, far) = if d[a] > 0.0 {
+                    let tp = (split - r.o[a]) * r.inv[a];
+                    let (near, far) = if r.d[a] > 0.0 {
                         (below, above)
                     } else {
                         (above, below)
                     };
-                    if tp > tmax + eps {
+                    if tp > tmax + r.eps {
                         node = near;
-                    } else if tp < tmin - eps {
+                    } else if tp < tmin - r.eps {
                         node = far;
                     } else {
                         let tp = tp.clamp(tmin, tmax);
@@ -374,14 +385,9 @@ impl KdTree {
                     }
                     continue;
                 }
-                c.leaves_visited += 1;
-                let prims = self.leaf_list(n);
-                if !prims.is_empty() {
-                    let b = leaf(prims, c);
-                    if b == STOP {
-                        return true;
-                    }
-                    bound = b as f64;
+                match self.visit_leaf(n, c, leaf) {
+                    Some(b) => bound = b.unwrap_or(bound),
+                    None => return true,
                 }
             }
             if sp == 0 {
