@@ -178,12 +178,13 @@ fn dragon_res3_matches_brute_force() {
     check_scene("dragon/dragon_vrip_res3.ply");
 }
 
-/// The KD-tree's traversal variants (kd-restart, push-down, short-stack, the source's ropes and
-/// Popov's) on the scenes of the threaded KD-tree's comparison: the kitchen and the robots
-/// (BART, axis-aligned walls on split planes, cells of no thickness) and the Cornell box. Each
-/// gives the stack walk's closest and any hit on every one of 20,000 random rays (grazing or
-/// not: these walks must reach the same leaves' triangles), and the stack walk itself agrees
-/// with the f64 brute force on a strided 1,000 of them.
+/// The KD-tree's traversal variants (kd-restart, push-down, short-stack, the source's ropes
+/// walked with stored cells or with its `SplitStack` register, and Popov's) on the scenes of the
+/// threaded KD-tree's comparison: the kitchen and the robots (BART, axis-aligned walls on split
+/// planes, cells of no thickness) and the Cornell box. Each gives the stack walk's closest and
+/// any hit on every one of 20,000 random rays (grazing or not: these walks must reach the same
+/// leaves' triangles; the `SplitStack` walk visits the very same nodes), and the stack walk
+/// itself agrees with the f64 brute force on a strided 1,000 of them.
 #[test]
 fn kd_traversal_variants_give_the_stack_walks_answers_on_architecture() {
     use oavm::compare::kdtree::KdTraversal;
@@ -198,10 +199,15 @@ fn kd_traversal_variants_give_the_stack_walks_answers_on_architecture() {
         let tris = &scene.tris;
         let rays = random_rays(&scene.bounds, 20_000, 0xd1ff);
         let stack = KdTree::build(tris);
-        let mut c = Counters::default();
+        let mut stack_counts = Counters::default();
         let want: Vec<(Hit, bool)> = rays
             .iter()
-            .map(|r| (stack.intersect(r, &mut c), stack.occluded(r, &mut c)))
+            .map(|r| {
+                (
+                    stack.intersect(r, &mut stack_counts),
+                    stack.occluded(r, &mut stack_counts),
+                )
+            })
             .collect();
         let hits = want.iter().filter(|w| w.0.is_hit()).count();
         assert!(hits > 4_000, "{rel}: {hits} hits");
@@ -224,6 +230,7 @@ fn kd_traversal_variants_give_the_stack_walks_answers_on_architecture() {
             KdTraversal::ShortStack(4),
             KdTraversal::Ropes,
             KdTraversal::Popov,
+            KdTraversal::SplitStack,
         ] {
             let kd = KdTree::build(tris).with_traversal(t);
             let mut c = Counters::default();
@@ -238,6 +245,13 @@ fn kd_traversal_variants_give_the_stack_walks_answers_on_architecture() {
             );
             if t != KdTraversal::ShortStack(4) {
                 assert!(c.restarts > 10_000, "{rel}, {t:?}: {c:?}");
+            }
+            if t == KdTraversal::SplitStack {
+                // It is the stack walk, with ropes and a register for its stack: the same
+                // nodes, leaves and triangles (no ray here lies in a split plane or has more
+                // forks pending than the register holds, which would take the stack walk).
+                c.restarts = 0;
+                assert_eq!(c, stack_counts, "{rel}: the stack walk's counts");
             }
         }
     }

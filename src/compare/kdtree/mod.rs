@@ -4,7 +4,10 @@
 //! - [`build`]: the SAH split choice (pbrt-v3) and the O(N log N) event-sweep build (Wald and
 //!   Havran 2006) with perfect splits;
 //! - [`node`]: pbrt's 8-byte node record;
-//! - [`traverse`]: pbrt's front-to-back stack traversal, with a tolerance.
+//! - [`traverse`]: pbrt's front-to-back stack traversal, with a tolerance, and the stackless
+//!   variants;
+//! - [`ropes`]: the threaded KD-tree's ropes and their walks (the source's, with stored cells or
+//!   its `SplitStack` register, and Popov's).
 //!
 //! **Counting** (the paper's Table 2 sense): `nodes` = all nodes, interior and leaves;
 //! `pointers` = one above-child index per interior node plus one primitive-list offset per leaf
@@ -24,6 +27,7 @@ mod tests;
 
 pub use build::{EMPTY_BONUS, ISECT_COST, MAX_BAD_REFINES, MAX_DEPTH_CAP, TRAVERSAL_COST};
 pub use node::KdNode;
+pub use ropes::SPLIT_STACK_FORKS;
 pub use traverse::{KdTraversal, MAX_SHORT_STACK, STACK};
 
 use super::StructureStats;
@@ -61,12 +65,17 @@ impl KdTree {
         self.ropes = None;
         if traversal.has_ropes() && !self.brute {
             let start = std::time::Instant::now();
-            let r = ropes::Ropes::build(&self, traversal == KdTraversal::Popov);
+            let r = ropes::Ropes::build(&self, traversal);
             self.stats.build_seconds += start.elapsed().as_secs_f64();
             self.stats.bytes += r.bytes() as u64;
-            // Six ropes a leaf.
-            let leaves = self.nodes.iter().filter(|n| n.is_leaf()).count();
-            self.stats.pointers += 6 * leaves as u64;
+            // Six ropes a leaf, or a node for the SplitStack walk (an interior node's tell
+            // where the interval of a node a rope leads to ends: `ropes`).
+            let roped = if traversal == KdTraversal::SplitStack {
+                self.nodes.len()
+            } else {
+                self.nodes.iter().filter(|n| n.is_leaf()).count()
+            };
+            self.stats.pointers += 6 * roped as u64;
             self.ropes = Some(r);
         }
         self

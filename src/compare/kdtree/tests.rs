@@ -168,7 +168,11 @@ fn outward_rounding() {
 fn variants() -> Vec<KdTraversal> {
     let mut v = vec![KdTraversal::Restart, KdTraversal::PushDown];
     v.extend([1, 2, 4, 8].map(KdTraversal::ShortStack));
-    v.extend([KdTraversal::Ropes, KdTraversal::Popov]);
+    v.extend([
+        KdTraversal::Ropes,
+        KdTraversal::Popov,
+        KdTraversal::SplitStack,
+    ]);
     v
 }
 
@@ -304,4 +308,137 @@ fn ropes_name_the_node_across_each_face() {
         boundary > 0 && pushed > leaves,
         "{boundary} {pushed} {leaves}"
     );
+}
+
+/// The `SplitStack` walk is the stack walk: on random soups, on the flat-plane scene (rays
+/// lying in split planes) and on awkward rays, every ray gets the stack walk's closest and any
+/// hit (grazing or not), and a ray not parallel to an axis (which cannot lie in a split plane)
+/// visits the same nodes and leaves and tests the same triangles; it takes ropes.
+#[test]
+fn split_stack_walk_is_the_stack_walk() {
+    use crate::compare::test_util::awkward_rays;
+    let mut scenes = vec![tris_of(unit_soup(1500, 71))];
+    let mut v = unit_soup(300, 72);
+    for &x in &[0.25f32, 0.5, 0.75] {
+        for i in 0..100 {
+            let (y, z) = ((i % 10) as f32 / 10.0, (i / 10) as f32 / 10.0);
+            v.push([[x, y, z], [x, y + 0.1, z], [x, y, z + 0.1]]);
+        }
+    }
+    scenes.push(tris_of(v));
+    for (s, (tris, mesh)) in scenes.iter().enumerate() {
+        let stack = KdTree::build(tris);
+        let walk = KdTree::build(tris).with_traversal(KdTraversal::SplitStack);
+        assert_eq!(walk.stats().name, "kdtree:splitstack");
+        let mut rays = unit_rays(3000, 73 + s as u64);
+        rays.extend(awkward_rays(tris, 1500, 75 + s as u64));
+        check(&walk, mesh, &rays, 1000);
+        let (mut same_counts, mut restarts) = (0, 0);
+        for r in &rays {
+            let (mut a, mut b) = (Counters::default(), Counters::default());
+            let want = (stack.intersect(r, &mut a), stack.occluded(r, &mut a));
+            let got = (walk.intersect(r, &mut b), walk.occluded(r, &mut b));
+            assert_eq!(got, want, "scene {s}, {r:?}");
+            restarts += b.restarts;
+            b.restarts = 0;
+            if r.dir.iter().all(|&d| d != 0.0) {
+                assert_eq!(b, a, "scene {s}, {r:?}");
+                same_counts += 1;
+            }
+        }
+        assert!(same_counts > rays.len() / 2 && restarts > 1000, "scene {s}");
+    }
+}
+
+/// The `SplitStack` walk's ropes are the source's, named by their forks and kept for every
+/// node: each names the node whose split plane forms that face of the node's cell (none at the
+/// scene's boundary), and across a leaf's face the fork's far child is the source's rope. They
+/// cost 24 bytes and six pointers a node, and no cells.
+#[test]
+fn split_stack_ropes_name_the_fork_forming_each_face() {
+    let (tris, _) = tris_of(unit_soup(1200, 62));
+    let plain = KdTree::build(&tris);
+    let src = KdTree::build(&tris).with_traversal(KdTraversal::Ropes);
+    let kd = KdTree::build(&tris).with_traversal(KdTraversal::SplitStack);
+    let nodes = plain.nodes.len() as u64;
+    assert_eq!(kd.stats().bytes, plain.stats().bytes + 24 * nodes);
+    assert_eq!(kd.stats().pointers, plain.stats().pointers + 6 * nodes);
+    let (rs, rk) = (src.ropes.as_ref().unwrap(), kd.ropes.as_ref().unwrap());
+    assert!(rk.cell.is_empty());
+    let mut interior = 0;
+    for (i, n) in kd.nodes.iter().enumerate() {
+        let cell = rs.cell[i];
+        for f in 0..6 {
+            let (a, high) = (f / 2, f % 2 == 1);
+            let face = if high { cell[1][a] } else { cell[0][a] };
+            let q = rk.across[i][f];
+            if q == ropes::NONE {
+                let edge = if high { kd.hi[a] } else { kd.lo[a] } as f32;
+                assert_eq!(face, edge, "node {i} face {f}");
+                if n.is_leaf() {
+                    assert_eq!(rs.across[i][f], ropes::NONE);
+                }
+                continue;
+            }
+            let fork = kd.nodes[q as usize];
+            assert!(
+                !fork.is_leaf() && (q as usize) < i,
+                "node {i} face {f}: {q}"
+            );
+            assert_eq!((fork.axis(), fork.split()), (a, face), "node {i} face {f}");
+            let across = if high { fork.upper() } else { q + 1 };
+            if n.is_leaf() {
+                assert_eq!(across, rs.across[i][f], "leaf {i} face {f}");
+            } else {
+                interior += 1;
+            }
+        }
+    }
+    assert!(interior > 100);
+}
+
+/// More forks pending than the `SplitStack` register holds. Real trees hardly have them (the
+/// kitchen, the robots and a 32^3 lattice of small triangles, depth 28, had none), so the tree
+/// is made by hand: `forks` splits on x at 1/2, 1/4, ..., each with an empty leaf above but the
+/// first (a triangle at x = 0.75), and rays along +x, which fork at every split. With 21 forks
+/// the walk is the stack walk; with 25 it finishes with the stack walk from the root.
+#[test]
+fn split_stack_walk_past_its_register_takes_the_stack_walk() {
+    let (tris, _) = tris_of(vec![
+        [[0.75, 0.0, 0.0], [0.75, 1.0, 0.0], [0.75, 0.0, 1.0]],
+        [[0.0, 0.9, 0.9], [0.0, 1.0, 0.9], [0.0, 0.9, 1.0]],
+    ]);
+    for forks in [SPLIT_STACK_FORKS, SPLIT_STACK_FORKS + 4] {
+        // Depth first: the forks, the leaf below the last (the second triangle, at x = 0), then
+        // the leaves above them, the last fork's first.
+        let mut nodes: Vec<KdNode> = (0..forks)
+            .map(|i| KdNode::interior(0, 0.5f32.powi(i as i32 + 1), (2 * forks - i) as u32))
+            .collect();
+        nodes.push(KdNode::leaf(1, 1));
+        for i in (0..forks).rev() {
+            nodes.push(KdNode::leaf((i == 0) as u32, 0));
+        }
+        let with = |t: KdTraversal| {
+            let mut kd = KdTree::build(&tris);
+            kd.nodes = nodes.clone();
+            kd.leaf_prims.clear();
+            kd.with_traversal(t)
+        };
+        let (stack, walk) = (with(KdTraversal::Stack), with(KdTraversal::SplitStack));
+        for k in 0..10 {
+            let y = 0.1 + 0.05 * k as f32;
+            let ray = Ray::new([-1.0, y, 0.2], [1.0, 0.0, 0.0], 0.0, f32::INFINITY);
+            let (mut a, mut b) = (Counters::default(), Counters::default());
+            let want = stack.intersect(&ray, &mut a);
+            assert!(want.prim == 0 && (want.t - 1.75).abs() < 1e-6, "{want:?}");
+            assert_eq!(walk.intersect(&ray, &mut b), want, "{forks} forks, {ray:?}");
+            assert!(walk.occluded(&ray, &mut Counters::default()));
+            // Past the register, walked again from the root: more nodes than the stack walk.
+            assert_eq!(
+                b.nodes_visited > a.nodes_visited,
+                forks > SPLIT_STACK_FORKS,
+                "{forks} forks: {a:?} {b:?}"
+            );
+        }
+    }
 }
