@@ -13,7 +13,7 @@
 
 use std::sync::OnceLock;
 
-use oavm::logical::{BlockReads, SceneOptions};
+use oavm::logical::{BlockReads, SceneOptions, Walk};
 use oavm::physical::AlignedBytes;
 use oavm::{Hit, Ray, Scene};
 use xxhash_rust::xxh3::xxh3_64;
@@ -349,11 +349,24 @@ fn open_verify_trace(data: &[u8]) {
             threads: 1,
             check_blocks: false,
             block_reads: BlockReads::Auto,
+            walk: Walk::Auto,
         };
         if let Ok(scene) =
             Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &tiny)
         {
             trace(&scene, true);
+        }
+        // The leaf-to-leaf walks, by Morton codes and by ropes (spec §8.4), whatever the leaves.
+        for walk in [Walk::Neighbours, Walk::Ropes] {
+            let opts = SceneOptions {
+                walk,
+                ..SceneOptions::default()
+            };
+            if let Ok(scene) =
+                Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &opts)
+            {
+                trace(&scene, false);
+            }
         }
     });
 }
@@ -526,7 +539,13 @@ fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
 ///
 /// Ranges that are not inside the buffer are left alone (open or the pager rejects them).
 pub fn fix_checksums(b: &mut [u8]) {
-    if b.len() < TABLE_END {
+    // A file with ropes (flag bit 3, §8.4) has an eighth section and a longer table.
+    let sections = match read_u32(b, FLAGS_AT) {
+        Some(flags) if flags & 8 != 0 => SECTION_COUNT + 1,
+        _ => SECTION_COUNT,
+    };
+    let table_end = HEADER_LEN + sections * ENTRY_LEN;
+    if b.len() < table_end {
         return;
     }
     write_u64(b, FILE_SIZE_AT, b.len() as u64);
@@ -581,7 +600,7 @@ pub fn fix_checksums(b: &mut [u8]) {
             write_u64(b, e + DIR_CHECKSUM, sum);
         }
     }
-    for i in DIRECTORY..SECTION_COUNT {
+    for i in DIRECTORY..sections {
         let e = HEADER_LEN + i * ENTRY_LEN;
         let (Some(at), Some(len)) = (read_u64(b, e + ENTRY_OFFSET), read_u64(b, e + ENTRY_LENGTH))
         else {
@@ -592,8 +611,8 @@ pub fn fix_checksums(b: &mut [u8]) {
             write_u64(b, e + ENTRY_CHECKSUM, sum);
         }
     }
-    let mut covered = Vec::with_capacity(HEADER_CHECKSUM + SECTION_COUNT * ENTRY_LEN);
+    let mut covered = Vec::with_capacity(HEADER_CHECKSUM + sections * ENTRY_LEN);
     covered.extend_from_slice(&b[..HEADER_CHECKSUM]);
-    covered.extend_from_slice(&b[HEADER_LEN..TABLE_END]);
+    covered.extend_from_slice(&b[HEADER_LEN..table_end]);
     write_u64(b, HEADER_CHECKSUM, xxh3_64(&covered));
 }

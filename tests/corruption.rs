@@ -24,11 +24,13 @@
 //! default options of leaf lists (`--leaf list`, §6–§7: format 3's leaves, in a version-4
 //! file), and from its first triangles with leaf size 4 (a deep tree, of small clusters), each
 //! split into small blocks (so that a small mesh makes many) and written both raw and
-//! zstd-compressed. The
-//! byte layout used to corrupt them, to recompute checksums and to re-lay a file out after a
-//! compressed block changed size, as a tool that rewrites a file would, is taken from
-//! format-spec.md §2–§8, not from the code; [`layout_matches_the_spec`] checks that the two
-//! agree.
+//! zstd-compressed; and the default file (raw) and the file of lists (zstd) again, with ropes
+//! (§8.4: an eighth section and a ninth part in every block, added by `add_ropes` as
+//! `oavm-pack --ropes` adds them), traced by the walk that follows them (`Walk::Ropes`; the
+//! other files by the default walk). The byte layout used to corrupt them, to recompute
+//! checksums and to re-lay a file out after a compressed block changed size, as a tool that
+//! rewrites a file would, is taken from format-spec.md §2–§8, not from the code;
+//! [`layout_matches_the_spec`] checks that the two agree.
 //!
 //! The mutation runs print what they found (`--nocapture`). A corruption that aborts the process
 //! (a failed allocation cannot be caught) is found by running with `OAVM_CORRUPTION_LOG=1`, which
@@ -49,12 +51,12 @@ use std::time::{Duration, Instant};
 
 use oavm::build::LeafKind;
 use oavm::build::{TreeParts, encode_with};
-use oavm::logical::{BlockReads, SceneOptions};
+use oavm::logical::{BlockReads, SceneOptions, Walk};
 use oavm::physical::AlignedBytes;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::{
-    BlockEntry, BlockHeader, ClusterNode, Header, LevelEntry, NodeRecord, RankWord, SectionEntry,
-    SectionKind, TriGroup, TriRecord, VolumeRecord,
+    BlockEntry, BlockHeader, ClusterNode, Header, LevelEntry, NodeRecord, RankWord, RopeRecord,
+    SectionEntry, SectionKind, TriGroup, TriRecord, VolumeRecord,
 };
 use oavm::rays::{Bounds, Camera, SplitMix64, random_rays};
 use oavm::{BuildOptions, Error, FormatError, Hit, Mesh, Ray, Scene};
@@ -62,6 +64,41 @@ use xxhash_rust::xxh3::xxh3_64;
 
 // ---------------------------------------------------------------------------------------------
 use common::layout::*;
+
+// Ropes (§8.4) changed the layout: the items below are format-spec.md's, as of ropes, and
+// shadow `common::layout`'s older ones of the same name (that file is shared with the fuzz
+// targets). `SECTION_COUNT` and `TABLE_END` there are a file's without ropes; with flag
+// `ROPES` the table has an eighth entry ([`section_count`], [`table_end`]).
+
+/// §2: flag bit 3, `ROPES`: an eighth section and a ninth part in every block (§8.4).
+const FLAG_ROPES: u32 = 8;
+/// §3: the section table of a file with ropes: eight 48-byte entries, the eighth the ropes.
+const SECTION_COUNT_ROPES: usize = 8;
+const TABLE_END_ROPES: usize = HEADER_LEN + SECTION_COUNT_ROPES * ENTRY_LEN;
+/// §3: the ropes' position in the section table (kind 8).
+const ROPES: usize = 7;
+/// §8.3: a block's header is 88 bytes; its last count, `rope_count`, at 80 (after `block_id`).
+const BLOCK_HEADER_LEN: usize = 88;
+const BH_ROPE_COUNT: usize = 80;
+/// §8.3: a block's parts, the level table first, the ropes ninth.
+const BLOCK_PART_COUNT: usize = 9;
+/// §8.4: a rope record (u32[6], one rope per face) and its special values.
+const ROPE_LEN: usize = 24;
+const ROPE_EXIT: u32 = 0xffff_ffff;
+const ROPE_TOP: u32 = 0x8000_0000;
+
+/// §2–§3: how many sections the file `b` has, from its header's flags (7, or 8 with `ROPES`).
+fn section_count(b: &[u8]) -> usize {
+    match b.len() >= FLAGS_AT + 4 && read_u32(b, FLAGS_AT) & FLAG_ROPES != 0 {
+        true => SECTION_COUNT_ROPES,
+        false => SECTION_COUNT,
+    }
+}
+
+/// §2–§3: where the section table of the file `b` ends (the header checksum covers it).
+fn table_end(b: &[u8]) -> usize {
+    HEADER_LEN + section_count(b) * ENTRY_LEN
+}
 
 /// Fields of a record: (offset in the record, name).
 type Fields = &'static [(usize, &'static str)];
@@ -77,6 +114,15 @@ const RANK_FIELDS: Fields = &[(0, "internal"), (8, "rank")];
 const VOLUME_FIELDS: Fields = &[(0, "lo"), (12, "hi")];
 /// §8.1: a link's bounds, in 256ths of its cell.
 const LINK_BOUNDS_FIELDS: Fields = &[(0, "lo"), (3, "hi"), (6, "reserved")];
+/// §8.4: a rope record: the rope of each face, `2 * axis + positive`.
+const ROPE_FIELDS: Fields = &[
+    (0, "-x"),
+    (4, "+x"),
+    (8, "-y"),
+    (12, "+y"),
+    (16, "-z"),
+    (20, "+z"),
+];
 /// §7.1: a cluster node: its quantisation grid, its children, their boxes.
 const CLUSTER_NODE_FIELDS: Fields = &[
     (CN_ORIGIN, "origin"),
@@ -110,19 +156,22 @@ const DIR_FIELDS: Fields = &[
     (DIR_CHECKSUM, "checksum"),
 ];
 
-/// §3, §8.2, §4–§5, §8.1: the sections after the blocks, in file order, with their record sizes and
-/// fields (the top tree's are named as the code names them: "levels section" and so on).
-const SECTIONS: [(&str, usize, Fields); 6] = [
+/// §3, §8.2, §4–§5, §8.1, §8.4: the sections after the blocks, in file order, with their record
+/// sizes and fields (the top tree's are named as the code names them: "levels section" and so
+/// on). The last, the ropes, only in a file with flag `ROPES`.
+const SECTIONS: [(&str, usize, Fields); SECTION_COUNT_ROPES - 1] = [
     ("block directory", DIR_LEN, DIR_FIELDS),
     ("levels", 32, LEVEL_FIELDS),
     ("nodes", 8, NODE_FIELDS),
     ("ranks", 16, RANK_FIELDS),
     ("volumes", 24, VOLUME_FIELDS),
     ("link bounds", 8, LINK_BOUNDS_FIELDS),
+    ("ropes", ROPE_LEN, ROPE_FIELDS),
 ];
 
 /// §8.3: the parts of a block after its header, in order, with their record sizes and fields.
-/// A file of lists has no cluster nodes or groups, a file of clusters no refs or triangles.
+/// A file of lists has no cluster nodes or groups, a file of clusters no refs or triangles; a
+/// file without ropes no ropes (§8.4).
 const BLOCK_PARTS: [(&str, usize, Fields); BLOCK_PART_COUNT] = [
     ("levels", 32, LEVEL_FIELDS),
     ("nodes", 8, NODE_FIELDS),
@@ -132,12 +181,14 @@ const BLOCK_PARTS: [(&str, usize, Fields); BLOCK_PART_COUNT] = [
     ("triangles", 40, &[(0, "v"), (36, "prim")]),
     ("cluster nodes", CLUSTER_NODE_LEN, CLUSTER_NODE_FIELDS),
     ("groups", TRI_GROUP_LEN, GROUP_FIELDS),
+    ("ropes", ROPE_LEN, ROPE_FIELDS),
 ];
 /// Indices into [`BLOCK_PARTS`].
 const PART_REFS: usize = 4;
 const PART_TRIANGLES: usize = 5;
 const PART_CLUSTER_NODES: usize = 6;
 const PART_GROUPS: usize = 7;
+const PART_ROPES: usize = 8;
 
 /// §8.3: the fields of a block's header.
 const BLOCK_HEADER_FIELDS: Fields = &[
@@ -153,6 +204,7 @@ const BLOCK_HEADER_FIELDS: Fields = &[
     (56, "cluster_node_count"),
     (64, "group_count"),
     (BH_BLOCK_ID, "block_id"),
+    (BH_ROPE_COUNT, "rope_count"),
 ];
 
 /// §2: the header's fields (offset, name).
@@ -258,28 +310,37 @@ fn dir_entry_at(b: &[u8], i: usize) -> usize {
     section(b, DIRECTORY).0 + i * DIR_LEN
 }
 
-/// §8.3: the byte ranges of a decoded block's eight parts, from its header's counts.
+/// §8.3: the byte ranges of a decoded block's nine parts, from its header's counts:
+/// `level_count` (u32), the seven u64 counts from `node_count` on (nodes, ranks, volumes, refs,
+/// triangles, cluster nodes, groups), then, past `block_id`, `rope_count`. Each part at the
+/// next multiple of 64, but absent ropes (count 0) take no place: the block then ends at the
+/// end of its groups.
 fn block_parts(raw: &[u8]) -> [Range<usize>; BLOCK_PART_COUNT] {
     let counts: [usize; BLOCK_PART_COUNT] = std::array::from_fn(|i| match i {
         0 => read_u32(raw, BH_LEVEL_COUNT) as usize,
+        PART_ROPES => read_u64(raw, BH_ROPE_COUNT) as usize,
         _ => read_u64(raw, BH_NODE_COUNT + 8 * (i - 1)) as usize,
     });
     let mut at = BLOCK_HEADER_LEN;
     std::array::from_fn(|i| {
-        at = at.next_multiple_of(ALIGN);
+        if i != PART_ROPES || counts[i] > 0 {
+            at = at.next_multiple_of(ALIGN);
+        }
         let r = at..at + counts[i] * BLOCK_PARTS[i].1;
         at = r.end;
         r
     })
 }
 
-/// Recomputes the header checksum (§2: xxh3-64 of header bytes 0..248, then the section table).
+/// Recomputes the header checksum (§2: xxh3-64 of header bytes 0..248, then the section table:
+/// 336 bytes, or 384 with ropes, as the header's flags say).
 fn fix_header_checksum(b: &mut [u8]) {
-    if b.len() < TABLE_END {
+    let table_end = table_end(b);
+    if b.len() < table_end {
         return;
     }
     let mut covered = b[..HEADER_CHECKSUM].to_vec();
-    covered.extend_from_slice(&b[HEADER_LEN..TABLE_END]);
+    covered.extend_from_slice(&b[HEADER_LEN..table_end]);
     write_u64(b, HEADER_CHECKSUM, xxh3_64(&covered));
 }
 
@@ -288,7 +349,7 @@ fn fix_header_checksum(b: &mut [u8]) {
 /// (§8.2: xxh3-64 of its stored bytes), each section's but the blocks' (§3), then the header's.
 /// Ranges that are not inside the file are left as they are (open or the pager rejects them).
 fn fix_checksums(b: &mut [u8]) {
-    if b.len() < TABLE_END {
+    if b.len() < table_end(b) {
         return;
     }
     let (dir, dir_len) = section(b, DIRECTORY);
@@ -302,7 +363,7 @@ fn fix_checksums(b: &mut [u8]) {
             }
         }
     }
-    for i in DIRECTORY..SECTION_COUNT {
+    for i in DIRECTORY..section_count(b) {
         let e = HEADER_LEN + i * ENTRY_LEN;
         let (offset, length) = (read_u64(b, e + ENTRY_OFFSET), read_u64(b, e + ENTRY_LENGTH));
         let Some(end) = offset
@@ -348,13 +409,14 @@ fn relayout(b: &[u8], block: usize, stored: &[u8], raw_len: usize) -> Vec<u8> {
         }
         out.extend_from_slice(bytes);
     }
-    let mut table = b[HEADER_LEN..TABLE_END].to_vec();
+    let (table_end, sections) = (table_end(b), section_count(b));
+    let mut table = b[HEADER_LEN..table_end].to_vec();
     write_u64(
         &mut table,
         BLOCKS * ENTRY_LEN + ENTRY_LENGTH,
         (out.len() - BLOCKS_START) as u64,
     );
-    for i in DIRECTORY..SECTION_COUNT {
+    for i in DIRECTORY..sections {
         out.resize(out.len().next_multiple_of(ALIGN), 0);
         let bytes = if i == DIRECTORY {
             dir_bytes.clone()
@@ -365,7 +427,7 @@ fn relayout(b: &[u8], block: usize, stored: &[u8], raw_len: usize) -> Vec<u8> {
         write_u64(&mut table, i * ENTRY_LEN + ENTRY_OFFSET, out.len() as u64);
         out.extend_from_slice(&bytes);
     }
-    out[HEADER_LEN..TABLE_END].copy_from_slice(&table);
+    out[HEADER_LEN..table_end].copy_from_slice(&table);
     let len = out.len() as u64;
     write_u64(&mut out, FILE_SIZE_AT, len);
     fix_checksums(&mut out);
@@ -495,6 +557,17 @@ fn open(bytes: &[u8]) -> Result<Scene<AlignedBytes>, Error> {
     Scene::from_bytes(AlignedBytes::from_slice(bytes), "corrupt.oavm")
 }
 
+/// Opens `bytes` to be traced by `walk` (the default options otherwise): [`Walk::Auto`] for
+/// the files without ropes, as [`open`] does; [`Walk::Ropes`] for the files with them, so that
+/// their ropes (§8.4) are followed.
+fn open_walking(bytes: &[u8], walk: Walk) -> Result<Scene<AlignedBytes>, Error> {
+    let opts = SceneOptions {
+        walk,
+        ..SceneOptions::default()
+    };
+    Scene::from_bytes_with(AlignedBytes::from_slice(bytes), "corrupt.oavm", &opts)
+}
+
 /// The format error that opening `bytes` must give.
 fn open_error(bytes: &[u8], what: &str) -> FormatError {
     match open(bytes) {
@@ -600,6 +673,10 @@ struct Fixture {
     bytes: Vec<u8>,
     /// The header's `CLUSTERS` flag (§2): solid leaves are clusters, not lists.
     clusters: bool,
+    /// The header's `ROPES` flag (§2, §8.4): the file holds ropes.
+    ropes: bool,
+    /// How the file is traced: [`Walk::Ropes`] for a file with ropes, else [`Walk::Auto`].
+    walk: Walk,
     dir: Vec<Entry>,
     /// Each block's decoded bytes.
     decoded: Vec<Vec<u8>>,
@@ -620,14 +697,49 @@ struct Fixture {
 
 impl Fixture {
     fn new(name: &str, mesh: &Mesh, opts: BuildOptions, blocks: BlockOptions) -> Fixture {
+        Fixture::build(name, mesh, opts, blocks, false)
+    }
+
+    /// Built as [`Fixture::new`]; with `ropes`, given ropes afterwards as `oavm-pack --ropes`
+    /// gives them (§8.4: `add_ropes` on the finished file) and traced by the walk that follows
+    /// them.
+    fn build(
+        name: &str,
+        mesh: &Mesh,
+        opts: BuildOptions,
+        blocks: BlockOptions,
+        ropes: bool,
+    ) -> Fixture {
         let (parts, _) = oavm::build::build(mesh, &opts, &oavm::build::Quiet).expect("build");
-        let bytes = encode_with(&parts, &blocks)
+        let mut bytes = encode_with(&parts, &blocks)
             .expect("encode")
             .as_ref()
             .to_vec();
-        let scene = open(&bytes).expect("the intact file opens");
+        if ropes {
+            let plain = open(&bytes).expect("the file without ropes opens");
+            let (roped, size, _) =
+                oavm::build::ropes::add_ropes(plain.file(), Vec::new()).expect("add ropes");
+            assert_eq!(
+                size,
+                roped.len() as u64,
+                "{name}: the size add_ropes reports"
+            );
+            bytes = roped;
+        }
+        let walk = if ropes { Walk::Ropes } else { Walk::Auto };
+        let scene = open_walking(&bytes, walk).expect("the intact file opens");
         let report = scene.verify().expect("verify");
         assert!(report.is_ok(), "{name}: intact file: {:?}", report.defects);
+        assert_eq!(
+            read_u32(&bytes, FLAGS_AT) & FLAG_ROPES != 0,
+            ropes,
+            "{name}: the ROPES flag"
+        );
+        assert_eq!(
+            read_u32(&bytes, 20) as usize,
+            section_count(&bytes),
+            "{name}: section_count (§2)"
+        );
         let dir = directory(&bytes);
         assert!(dir.len() >= 8, "{name}: {} blocks, want many", dir.len());
         let decoded: Vec<Vec<u8>> = dir
@@ -668,6 +780,14 @@ impl Fixture {
                     && lacks.iter().all(|&i| parts[i].is_empty()),
                 "{name}: block {b}'s parts {parts:?}"
             );
+            // §8.4: a block of a file with ropes has one rope record per node record, and
+            // one of a file without none.
+            let nodes = parts[1].len() / 8;
+            assert_eq!(
+                parts[PART_ROPES].len(),
+                if ropes { nodes * ROPE_LEN } else { 0 },
+                "{name}: block {b}'s ropes {parts:?}"
+            );
         }
         let links = top_links(&bytes);
         let largest = (0..dir.len())
@@ -699,6 +819,21 @@ impl Fixture {
         scene.intersect_batch(&rays, &mut hits).expect("trace");
         let mut occluded = vec![0u8; rays.len()];
         scene.occluded_batch(&rays, &mut occluded).expect("trace");
+        if ropes {
+            // The walk that follows ropes gives the answers of the same walk finding each next
+            // leaf from Morton codes (§8.4, §10), bit for bit.
+            let neighbours = open_walking(&bytes, Walk::Neighbours).expect("opens");
+            let mut h = vec![Hit::MISS; rays.len()];
+            neighbours.intersect_batch(&rays, &mut h).expect("trace");
+            let mut o = vec![0u8; rays.len()];
+            neighbours.occluded_batch(&rays, &mut o).expect("trace");
+            let same = |a: &Hit, b: &Hit| a.t.to_bits() == b.t.to_bits() && a.prim == b.prim;
+            let differ = (0..rays.len()).find(|&i| !same(&h[i], &hits[i]) || o[i] != occluded[i]);
+            assert!(
+                differ.is_none(),
+                "{name}: ray {differ:?}: the walks by ropes and by neighbours differ"
+            );
+        }
         let n_hit = hits.iter().filter(|h| h.is_hit()).count();
         assert!(
             n_hit > rays.len() / 4 && n_hit < rays.len(),
@@ -717,6 +852,8 @@ impl Fixture {
             ),
             bytes,
             clusters,
+            ropes,
+            walk,
             dir,
             decoded,
             links,
@@ -750,12 +887,12 @@ impl Fixture {
             file(
                 "section table".into(),
                 RegionKind::Table,
-                HEADER_LEN..TABLE_END,
+                HEADER_LEN..table_end(b),
             ),
             file(
                 "padding before the blocks section".into(),
                 RegionKind::Padding,
-                TABLE_END..BLOCKS_START,
+                table_end(b)..BLOCKS_START,
             ),
         ];
         let n = self.dir.len();
@@ -811,7 +948,7 @@ impl Fixture {
             // An empty part (the refs and triangles of a file of clusters, the cluster nodes
             // and groups of a file of lists) has no bytes but its place, at the next multiple
             // of 64: the padding before it is there all the same (so a block of lists ends
-            // with the padding before its empty cluster nodes).
+            // with the padding before its empty cluster nodes). Absent ropes take no place.
             for (i, r) in block_parts(raw).into_iter().enumerate() {
                 let part = BLOCK_PARTS[i].0;
                 if r.start > end {
@@ -839,7 +976,7 @@ impl Fixture {
             self.dir[n - 1].stored().end,
             "the last block ends the section"
         );
-        for (i, (name, ..)) in SECTIONS.iter().enumerate() {
+        for (i, (name, ..)) in SECTIONS.iter().enumerate().take(section_count(b) - 1) {
             let (offset, length) = section(b, i + 1);
             if offset > end {
                 out.push(file(
@@ -910,11 +1047,17 @@ impl Fixture {
         }
     }
 
-    /// A name for field `at` of `region`, telling link records of the top tree apart.
+    /// A name for field `at` of `region`, telling link records of the top tree (and their
+    /// ropes) apart.
     fn field(&self, region: &Region, at: usize) -> String {
         let field = region.field(at);
-        if region.kind == RegionKind::Section(NODES - 1) {
-            let node = (at - region.range.start) / 8;
+        let record = match region.kind {
+            RegionKind::Section(i) if i == NODES - 1 => Some(8),
+            RegionKind::Section(i) if i == ROPES - 1 => Some(ROPE_LEN),
+            _ => None,
+        };
+        if let Some(size) = record {
+            let node = (at - region.range.start) / size;
             if self.links.iter().any(|l| l.node == node) {
                 return format!("{field} (of a link)");
             }
@@ -1062,6 +1205,36 @@ fn deep_zstd_file() -> &'static Fixture {
     })
 }
 
+/// The default file (clusters, raw blocks) with ropes (§8.4), added by `add_ropes` as
+/// `oavm-pack --ropes` adds them; traced by the walk that follows them.
+fn roped_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        Fixture::build(
+            "dragon res4, default, ropes, raw",
+            dragon(),
+            BuildOptions::default(),
+            blocks_16k(false),
+            true,
+        )
+    })
+}
+
+/// The file of leaf lists, zstd-compressed blocks, with ropes (each block decoded, given its
+/// ropes and compressed again).
+fn roped_list_zstd_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        Fixture::build(
+            "dragon res4, lists, ropes, zstd",
+            dragon(),
+            BuildOptions::with_leaf(LeafKind::List),
+            blocks_16k(true),
+            true,
+        )
+    })
+}
+
 // ---------------------------------------------------------------------------------------------
 // Opening, verifying and tracing a corrupted file, under a time limit
 
@@ -1116,6 +1289,7 @@ fn pool2() -> &'static rayon::ThreadPool {
 /// and one more).
 fn tight_options(fix: &Fixture) -> SceneOptions {
     SceneOptions {
+        walk: fix.walk,
         mem_budget: Some(5 * fix.held),
         threads: 2,
         check_blocks: true,
@@ -1126,7 +1300,7 @@ fn tight_options(fix: &Fixture) -> SceneOptions {
 /// Opens `bytes`; if that works, traces the fixture's rays through it without verifying it
 /// (and, if `with_tight`, again under a tight budget on 2 threads), then verifies it.
 fn evaluate(fix: &Fixture, bytes: &[u8], with_tight: bool) -> Verdict {
-    let scene = match open(bytes) {
+    let scene = match open_walking(bytes, fix.walk) {
         Ok(s) => s,
         Err(e) => return Verdict::Rejected(e.to_string()),
     };
@@ -1304,6 +1478,8 @@ fn layout_matches_the_spec() {
     assert_eq!(offset_of!(Header, flags), FLAGS_AT);
     assert_eq!(oavm::physical::format::FLAG_COMPRESSED, FLAG_COMPRESSED);
     assert_eq!(oavm::physical::format::FLAG_CLUSTERS, FLAG_CLUSTERS);
+    assert_eq!(oavm::physical::format::FLAG_ROPES, FLAG_ROPES);
+    assert_eq!(offset_of!(Header, section_count), 20);
     assert_eq!(offset_of!(Header, file_size), FILE_SIZE_AT);
     assert_eq!(offset_of!(Header, root_min), ROOT_MIN_AT);
     assert_eq!(offset_of!(Header, root_size), ROOT_SIZE_AT);
@@ -1348,6 +1524,7 @@ fn layout_matches_the_spec() {
         offset_of!(BlockHeader, cluster_node_count),
         offset_of!(BlockHeader, group_count),
         offset_of!(BlockHeader, block_id),
+        offset_of!(BlockHeader, rope_count),
     ];
     assert_eq!(
         bh_fields.to_vec(),
@@ -1362,8 +1539,18 @@ fn layout_matches_the_spec() {
         size_of::<TriRecord>(),
         size_of::<ClusterNode>(),
         size_of::<TriGroup>(),
+        size_of::<RopeRecord>(),
     ];
     assert_eq!(part_sizes, BLOCK_PARTS.map(|p| p.1));
+    assert_eq!(size_of::<RopeRecord>(), ROPE_LEN);
+    assert_eq!(
+        ROPE_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>(),
+        (0..6)
+            .map(|f| offset_of!(RopeRecord, across) + 4 * f)
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(oavm::physical::format::ROPE_EXIT, ROPE_EXIT);
+    assert_eq!(oavm::physical::format::ROPE_TOP, ROPE_TOP);
     assert_eq!(oavm::physical::format::BLOCK_PARTS, BLOCK_PART_COUNT);
     let node_fields = [
         offset_of!(ClusterNode, origin),
@@ -1391,7 +1578,14 @@ fn layout_matches_the_spec() {
         group_fields.to_vec(),
         GROUP_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
     );
-    assert_eq!(SectionKind::ALL.len(), SECTION_COUNT);
+    assert_eq!(SectionKind::ALL.len(), SECTION_COUNT_ROPES);
+    assert_eq!(SectionKind::BASE, SECTION_COUNT);
+    assert_eq!(SectionKind::count_for(0), SECTION_COUNT);
+    assert_eq!(SectionKind::count_for(FLAG_CLUSTERS), SECTION_COUNT);
+    assert_eq!(SectionKind::count_for(FLAG_ROPES), SECTION_COUNT_ROPES);
+    assert_eq!(SectionKind::ALL[ROPES], SectionKind::Ropes);
+    assert_eq!(SectionKind::Ropes as usize, ROPES + 1, "§3: kind 8");
+    assert_eq!((TABLE_END, TABLE_END_ROPES), (256 + 336, 256 + 384), "§2");
     assert_eq!(SectionKind::ALL[BLOCKS].record_size(), None);
     for (kind, (name, size, _)) in SectionKind::ALL[1..].iter().zip(SECTIONS) {
         assert_eq!((kind.name(), kind.record_size()), (name, Some(size as u64)));
@@ -1406,7 +1600,20 @@ fn layout_matches_the_spec() {
         list_zstd_file(),
         deep_file(),
         deep_zstd_file(),
+        roped_file(),
+        roped_list_zstd_file(),
     ] {
+        // The section table is as long as the flags say (§2, §3).
+        assert_eq!(
+            read_u32(&fix.bytes, 20) as usize,
+            if fix.ropes {
+                SECTION_COUNT_ROPES
+            } else {
+                SECTION_COUNT
+            },
+            "{}: section_count",
+            fix.name
+        );
         // Recomputing the checksums of an intact file changes nothing: the tests compute them
         // as the writer does.
         let mut b = fix.bytes.clone();
@@ -1436,12 +1643,14 @@ fn layout_matches_the_spec() {
         assert_eq!(fix.links.len(), roots, "{}: links", fix.name);
     }
     // After a change, recomputing the checksums leaves verify nothing to say about checksums,
-    // in a raw block and in a compressed one, of clusters and of lists.
+    // in a raw block and in a compressed one, of clusters and of lists, with ropes and without.
     for fix in [
         default_file(),
         default_zstd_file(),
         list_file(),
         list_zstd_file(),
+        roped_file(),
+        roped_list_zstd_file(),
     ] {
         let blk = fix.detailed[0];
         let r = fix
@@ -1476,7 +1685,7 @@ fn layout_matches_the_spec() {
             fix_header_checksum(&mut b);
         }
         let checksum_defect = |b: &[u8]| {
-            let scene = open(b).expect("opens");
+            let scene = open_walking(b, fix.walk).expect("opens");
             let defects = scene
                 .verify()
                 .map(|r| r.defects)
@@ -1502,13 +1711,21 @@ fn layout_matches_the_spec() {
 
 #[test]
 fn truncated_files_fail_at_open() {
-    for fix in [default_file(), default_zstd_file(), list_file()] {
+    for fix in [
+        default_file(),
+        default_zstd_file(),
+        list_file(),
+        roped_file(),
+    ] {
         truncated_file_fails_at_open(fix);
     }
 }
 
 fn truncated_file_fails_at_open(fix: &Fixture) {
     let n = fix.bytes.len();
+    // §2–§3: a file with ropes has a longer section table: cut at the end of a table of seven
+    // entries, it still ends inside its own.
+    let table_end = table_end(&fix.bytes);
     let mut lengths = vec![
         0,
         1,
@@ -1523,6 +1740,9 @@ fn truncated_file_fails_at_open(fix: &Fixture) {
         TABLE_END - 1,
         TABLE_END,
         TABLE_END + 1,
+        table_end - 1,
+        table_end,
+        table_end + 1,
         BLOCKS_START - 1,
         BLOCKS_START,
         BLOCKS_START + 1,
@@ -1570,7 +1790,7 @@ fn truncated_file_fails_at_open(fix: &Fixture) {
         fix_header_checksum(&mut b);
         let err = open_error(&b, &format!("{len} bytes, file_size patched"));
         let msg = err.to_string();
-        if len < TABLE_END {
+        if len < table_end {
             assert!(
                 msg.contains("ends inside the section table"),
                 "{len}: {msg}"
@@ -1588,7 +1808,12 @@ fn truncated_file_fails_at_open(fix: &Fixture) {
 
 #[test]
 fn extended_files_fail_at_open() {
-    for fix in [default_file(), list_zstd_file(), deep_zstd_file()] {
+    for fix in [
+        default_file(),
+        list_zstd_file(),
+        deep_zstd_file(),
+        roped_list_zstd_file(),
+    ] {
         let n = fix.bytes.len();
         for extra in [1usize, 7, 64, 4096] {
             let mut b = fix.bytes.clone();
@@ -2092,6 +2317,22 @@ fn bit_flips_in_deep_zstd_file_are_caught() {
     }
 }
 
+/// With ropes (§8.4): the ropes section and the detailed blocks' ropes are regions too, and
+/// the file is traced by the walk that follows them.
+#[test]
+fn bit_flips_in_roped_file_are_caught() {
+    if let Err(e) = check_bit_flips(roped_file(), 24, true, 31) {
+        panic!("{e}");
+    }
+}
+
+#[test]
+fn bit_flips_in_roped_list_zstd_file_are_caught() {
+    if let Err(e) = check_bit_flips(roped_list_zstd_file(), 16, false, 32) {
+        panic!("{e}");
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // 4. Rewritten files (checksums recomputed): never a panic or a hang, traced or verified
 
@@ -2169,7 +2410,9 @@ const F64_EDGES: [f64; 9] = [
 /// by one), a float (non-finite, huge, tiny), a whole record copied from another one, or (node
 /// records) a record turned into another kind of node, or a link sent to another block or root,
 /// or (cluster nodes) an inner child sent back to the node itself or to one before it (a cycle
-/// the walk must not follow forever, §11), or child counts and bases set to edge values.
+/// the walk must not follow forever, §11), or child counts and bases set to edge values, or
+/// (ropes, §8.4) a rope sent to another node of its unit or of the other one, made an exit, a
+/// near node of the same level, or a record's two ropes of one axis swapped.
 fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
     let bytes = fix.space(region.space);
     // The header's checksum is recomputed anyway: corrupt the fields it covers.
@@ -2189,7 +2432,13 @@ fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
     };
     let is_nodes = fields == NODE_FIELDS && len >= 8;
     let is_cluster_nodes = fields == CLUSTER_NODE_FIELDS && len >= CLUSTER_NODE_LEN;
-    let choice = rng.next_u64() % if is_nodes || is_cluster_nodes { 14 } else { 12 };
+    let is_ropes = fields == ROPE_FIELDS && len >= ROPE_LEN;
+    let choice = rng.next_u64()
+        % if is_nodes || is_cluster_nodes || is_ropes {
+            14
+        } else {
+            12
+        };
     let (at, new, how): (usize, Vec<u8>, &'static str) = match choice {
         // A region too short for words (some padding) gets bit flips only.
         c if c == 0 || len < 8 => {
@@ -2290,6 +2539,48 @@ fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
                 new,
                 "cluster child count or base changed",
             )
+        }
+        12 if is_ropes => {
+            // §8.4: a rope sent to a random node of its own unit (one rope record per node
+            // record, so the region's records count the unit's nodes) or, bit 31 set, of the
+            // top tree; made the exit; or made the rope of another face of its record.
+            let at = pick(4, rng);
+            let old = read_u32(bytes, at);
+            let record = at - (at - base) % ROPE_LEN;
+            let top_nodes = (section(&fix.bytes, NODES).1 / 8).max(1) as u64;
+            let own_nodes = (len / ROPE_LEN) as u64;
+            let r = rng.next_u64();
+            let to_top = match region.space {
+                Space::File => true,
+                Space::Block(_) if old == ROPE_EXIT => r & 1 << 20 != 0,
+                Space::Block(_) => old & ROPE_TOP != 0,
+            };
+            let v = match r % 4 {
+                0 if to_top => ROPE_TOP | ((r >> 8) % top_nodes) as u32,
+                0 => ((r >> 8) % own_nodes) as u32,
+                1 => old ^ ROPE_TOP,
+                2 => ROPE_EXIT,
+                _ => read_u32(bytes, record + 4 * ((r >> 8) % 6) as usize),
+            };
+            (at, v.to_le_bytes().to_vec(), "rope retargeted")
+        }
+        13 if is_ropes => {
+            // §8.4: a rope moved to a node near the one it names (the same level, most often),
+            // its unit kept; or a record's ropes of one axis, -k and +k, swapped.
+            let r = rng.next_u64();
+            if r.is_multiple_of(2) {
+                let at = pick(4, rng);
+                let old = read_u32(bytes, at);
+                let d = [1u32, u32::MAX, 2, u32::MAX - 1][(r >> 8) as usize % 4];
+                let v = old & ROPE_TOP | (old & !ROPE_TOP).wrapping_add(d) & !ROPE_TOP;
+                (at, v.to_le_bytes().to_vec(), "rope moved to a near node")
+            } else {
+                // Records start at the region's start: a multiple of 8 from it is an axis's pair.
+                let at = pick(8, rng);
+                let mut new = bytes[at + 4..at + 8].to_vec();
+                new.extend_from_slice(&bytes[at..at + 4]);
+                (at, new, "ropes of one axis swapped")
+            }
         }
         12 => {
             // Another kind of node (§4.2), its other bits kept.
@@ -2451,7 +2742,8 @@ fn check_rewritten(fix: &'static Fixture, per_region: usize, seed: u64) -> Resul
             || matches!(
                 region.kind,
                 RegionKind::Stored(_) | RegionKind::Section(0) | RegionKind::Section(2)
-            );
+            )
+            || region.kind == RegionKind::Section(ROPES - 1);
         let mut tries = 0;
         while tally.tried < count && tries < count * 20 {
             tries += 1;
@@ -2691,6 +2983,23 @@ fn rewritten_deep_zstd_file_never_panics_or_hangs() {
     }
 }
 
+/// With ropes (§8.4), traced by the walk that follows them: a rope rewritten (to another node,
+/// the other unit, the exit, a near node) is reported by verify or leaves every answer as it
+/// was; never a panic or an endless walk.
+#[test]
+fn rewritten_roped_file_never_panics_or_hangs() {
+    if let Err(e) = check_rewritten(roped_file(), 20, 33) {
+        panic!("{e}");
+    }
+}
+
+#[test]
+fn rewritten_roped_list_zstd_file_never_panics_or_hangs() {
+    if let Err(e) = check_rewritten(roped_list_zstd_file(), 12, 34) {
+        panic!("{e}");
+    }
+}
+
 /// The long run: many more corruptions, and the whole dragon at leaf size 4 (16 levels) in
 /// default-sized blocks, raw and compressed.
 /// `cargo test --release --test corruption -- --ignored --nocapture`.
@@ -2729,6 +3038,8 @@ fn rewritten_files_long_run() {
         check_rewritten(list_zstd_file(), 400, 26),
         check_rewritten(deep_file(), 300, 6),
         check_rewritten(deep_zstd_file(), 300, 16),
+        check_rewritten(roped_file(), 400, 35),
+        check_rewritten(roped_list_zstd_file(), 300, 36),
         check_rewritten(big(), 100, 7),
         check_rewritten(big_z(), 100, 17),
         check_bit_flips(big(), 200, false, 8),
@@ -3032,6 +3343,186 @@ fn links_rewritten_are_caught() {
                 fix.name, l.level, l.block, l.root
             );
             expect_caught(fix, what, b, defect, &fails_on, &mut problems);
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// Ropes (§8.4) rewritten one at a time, checksums recomputed, in the top tree's ropes section
+/// and in the largest block: a link's or a leaf's rope made the exit where the face is inside
+/// the root cube, an exit rope made a node, a rope to the node that holds it (which does not
+/// hold the cells across), to a node past its unit's, a top-tree rope without its top bit, a
+/// block's rope sent to the other unit, an internal node given ropes; and the block header's
+/// `rope_count` made 0 or one more than its nodes. Verify reports each ("rope", or the block
+/// for its header); tracing by ropes returns, answers or an error, never a panic or an endless
+/// walk, and fails naming the block whose header lies.
+#[test]
+fn ropes_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    for fix in [roped_file(), roped_list_zstd_file()] {
+        let u32le = |v: u32| v.to_le_bytes().to_vec();
+        // (what, space, offset in the space, new bytes, defect, blocks tracing must fail on)
+        type Case = (String, Space, usize, Vec<u8>, String, Vec<usize>);
+        let mut cases: Vec<Case> = Vec::new();
+        let kinds =
+            |nodes: &[u8]| -> Vec<u32> { nodes.chunks(8).map(|r| read_u32(r, 4) >> 30).collect() };
+        // The top tree: a link's ropes, and the root's (internal: all 0).
+        let top = fix.region("ropes section").range.start;
+        let (nodes_at, nodes_len) = section(&fix.bytes, NODES);
+        let top_kinds = kinds(&fix.bytes[nodes_at..nodes_at + nodes_len]);
+        let top_nodes = top_kinds.len() as u32;
+        // A link with a face inside the root cube and, if there is one, a face on its boundary.
+        let rope = |b: &[u8], record: usize, f: usize| read_u32(b, record + 4 * f);
+        let link = fix
+            .links
+            .iter()
+            .find(|l| (0..6).any(|f| rope(&fix.bytes, top + ROPE_LEN * l.node, f) != ROPE_EXIT))
+            .expect("a link inside the root cube");
+        let rec = top + ROPE_LEN * link.node;
+        let inner = (0..6)
+            .find(|&f| rope(&fix.bytes, rec, f) != ROPE_EXIT)
+            .expect("a face inside");
+        let old = rope(&fix.bytes, rec, inner);
+        assert!(
+            old & ROPE_TOP != 0,
+            "{}: a top-tree rope has bit 31",
+            fix.name
+        );
+        let place = format!("the link at node {} face {inner}", link.node);
+        let f = Space::File;
+        cases.extend(
+            [
+                (
+                    format!("{place}: the exit"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(ROPE_EXIT),
+                ),
+                (
+                    format!("{place}: without its top bit"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(old & !ROPE_TOP),
+                ),
+                (
+                    format!("{place}: past the top tree's {top_nodes} nodes"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(ROPE_TOP | top_nodes),
+                ),
+                (
+                    format!("{place}: the link itself"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(ROPE_TOP | link.node as u32),
+                ),
+            ]
+            .map(|(w, s, a, n)| (w, s, a, n, "rope".to_string(), vec![])),
+        );
+        if let Some(exit) = (0..6).find(|&f| rope(&fix.bytes, rec, f) == ROPE_EXIT) {
+            cases.push((
+                format!(
+                    "the link at node {} face {exit}: the root, not the exit",
+                    link.node
+                ),
+                f,
+                rec + 4 * exit,
+                u32le(ROPE_TOP),
+                "rope".into(),
+                vec![],
+            ));
+        }
+        assert_eq!(
+            top_kinds[0], KIND_INTERNAL,
+            "{}: the root is internal",
+            fix.name
+        );
+        cases.push((
+            "the top tree's root given a rope".into(),
+            f,
+            top,
+            u32le(ROPE_TOP | 1),
+            "rope".into(),
+            vec![],
+        ));
+
+        // The largest block: a leaf's ropes, an internal node's, the header's rope_count.
+        let blk = fix.largest;
+        let raw = &fix.decoded[blk];
+        let parts = block_parts(raw);
+        let (ropes, b) = (parts[PART_ROPES].start, Space::Block(blk));
+        let block_kinds = kinds(&raw[parts[1].clone()]);
+        let n = block_kinds.len() as u32;
+        // A leaf (solid or empty) with a face inside the root cube.
+        let leaf = (0..block_kinds.len())
+            .filter(|&i| block_kinds[i] != KIND_INTERNAL && block_kinds[i] != KIND_LINK)
+            .find(|&i| (0..6).any(|f| rope(raw, ropes + ROPE_LEN * i, f) != ROPE_EXIT))
+            .expect("a leaf inside the root cube");
+        let rec = ropes + ROPE_LEN * leaf;
+        let inner = (0..6)
+            .find(|&f| rope(raw, rec, f) != ROPE_EXIT)
+            .expect("a face inside");
+        let old = rope(raw, rec, inner);
+        let place = format!("block {blk}'s leaf {leaf} face {inner} (rope {old:#x})");
+        cases.extend(
+            [
+                (
+                    format!("{place}: the exit"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(ROPE_EXIT),
+                ),
+                (
+                    format!("{place}: to the other unit"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(old ^ ROPE_TOP),
+                ),
+                (
+                    format!("{place}: past the block's {n} nodes"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(n),
+                ),
+                (
+                    format!("{place}: the leaf itself"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(leaf as u32),
+                ),
+            ]
+            .map(|(w, s, a, n)| (w, s, a, n, "rope".to_string(), vec![])),
+        );
+        if let Some(i) = block_kinds.iter().position(|&k| k == KIND_INTERNAL) {
+            cases.push((
+                format!("block {blk}'s internal node {i} given a rope"),
+                b,
+                ropes + ROPE_LEN * i,
+                u32le(1),
+                "rope".into(),
+                vec![],
+            ));
+        }
+        for (what, v) in [("0", 0u64), ("one more than its nodes", n as u64 + 1)] {
+            cases.push((
+                format!("block {blk}'s header: rope_count {what}"),
+                b,
+                BH_ROPE_COUNT,
+                v.to_le_bytes().to_vec(),
+                format!("block {blk}"),
+                vec![blk],
+            ));
+        }
+        eprintln!(
+            "{}: {} rewritten ropes and rope counts",
+            fix.name,
+            cases.len()
+        );
+        for (what, space, at, new, defect, fails_on) in cases {
+            let bytes = fix.rewrite(space, at, &new);
+            assert!(bytes != fix.bytes, "{}: {what}: nothing changed", fix.name);
+            let what = format!("{}: {what}", fix.name);
+            expect_caught(fix, what, bytes, &defect, &fails_on, &mut problems);
         }
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
@@ -3343,6 +3834,7 @@ fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
         default_zstd_file(),
         list_zstd_file(),
         deep_file(),
+        roped_file(),
     ] {
         let opts = tight_options(fix);
         let scene =

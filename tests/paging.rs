@@ -121,6 +121,7 @@ fn trace_with(
         bytes.clone(),
         "bunny.oavm",
         &SceneOptions {
+            walk: oavm::logical::Walk::Auto,
             mem_budget: Some(budget),
             threads,
             check_blocks: checks,
@@ -311,6 +312,7 @@ fn streamed_frames_give_the_direct_answers() {
                 bytes.clone(),
                 "bunny.oavm",
                 &SceneOptions {
+                    walk: oavm::logical::Walk::Auto,
                     mem_budget: Some(budget),
                     threads,
                     check_blocks: true,
@@ -406,7 +408,7 @@ fn without_link_culling(bytes: &AlignedBytes) -> AlignedBytes {
     b[table + 40..table + 48].copy_from_slice(&sum.to_le_bytes());
     let mut h = xxhash_rust::xxh3::Xxh3::new();
     h.update(&b[..248]);
-    h.update(&b[256..256 + 48 * SectionKind::ALL.len()]);
+    h.update(&b[256..256 + 48 * SectionKind::count_for(f.header().flags)]);
     b[248..256].copy_from_slice(&h.digest().to_le_bytes());
     AlignedBytes::from_slice(&b)
 }
@@ -458,6 +460,7 @@ fn renders_are_the_same_in_rows_and_in_morton_tiles_under_any_budget() {
             bytes.clone(),
             "bunny.oavm",
             &SceneOptions {
+                walk: oavm::logical::Walk::Auto,
                 mem_budget: Some(budget),
                 threads: 0,
                 check_blocks: true,
@@ -810,6 +813,7 @@ fn default_threads_leave_the_cache_most_of_the_budget() {
             bytes.clone(),
             "bunny.oavm",
             &SceneOptions {
+                walk: oavm::logical::Walk::Auto,
                 mem_budget: Some(budget),
                 threads: 64,
                 check_blocks: true,
@@ -848,6 +852,7 @@ fn block_reads_follow_the_option_and_the_file_size() {
                 bytes.clone(),
                 "bunny.oavm",
                 &SceneOptions {
+                    walk: oavm::logical::Walk::Auto,
                     mem_budget: Some(budget),
                     threads: 2,
                     check_blocks: true,

@@ -177,12 +177,14 @@ class Scene:
     (by path and budget: a worker that unpickles it opens the file itself); a context manager
     that closes (unmaps) the file on exit."""
 
-    def __init__(self, path: PathLike, *, mem_budget: Union[None, int, str] = None):
+    def __init__(self, path: PathLike, *, mem_budget: Union[None, int, str] = None,
+                 walk: str = "auto"):
         budget = _bytes("mem_budget", mem_budget)
         self._path = os.fspath(path)
         self._native: Optional[_native.NativeScene] = None
-        self._native = _native.open(self._path, budget)
+        self._native = _native.open(self._path, budget, str(walk))
         self._mem_budget = budget
+        self._walk = str(walk)
         self._info: Optional[dict] = None
 
     def _scene(self) -> "_native.NativeScene":
@@ -294,7 +296,7 @@ class Scene:
         self.close()
 
     def __reduce__(self):
-        return (_reopen, (self._path, self._mem_budget))
+        return (_reopen, (self._path, self._mem_budget, self._walk))
 
     def __repr__(self) -> str:
         if self._native is None:
@@ -304,16 +306,20 @@ class Scene:
                 f"{i['blocks']} blocks, {i['file_bytes']} bytes, format {i['format_version']}>")
 
 
-def _reopen(path: str, mem_budget: Optional[int]) -> Scene:
-    return Scene(path, mem_budget=mem_budget)
+def _reopen(path: str, mem_budget: Optional[int], walk: str = "auto") -> Scene:
+    return Scene(path, mem_budget=mem_budget, walk=walk)
 
 
-def open(path: PathLike, *, mem_budget: Union[None, int, str] = None) -> Scene:  # noqa: A001
+def open(path: PathLike, *, mem_budget: Union[None, int, str] = None,  # noqa: A001
+         walk: str = "auto") -> Scene:
     """Opens a packed ``.oavm`` file for tracing. Reads only the header, section table and top
     tree: its cost does not grow with the file. ``mem_budget`` (bytes, or a string like
     ``"4G"``): the most decoded blocks kept in memory (default: half of the memory available);
-    a file larger than it is traced by paging blocks in and out."""
-    return Scene(path, mem_budget=mem_budget)
+    a file larger than it is traced by paging blocks in and out. ``walk``: ``"auto"`` (the
+    fastest for the file), ``"topdown"`` (files of clusters), ``"neighbours"`` (the OAVM paper's
+    leaf-to-leaf walk) or ``"ropes"`` (the same, following the ropes of a file packed with
+    ``ropes=True``); the answers are the same."""
+    return Scene(path, mem_budget=mem_budget, walk=walk)
 
 
 def pack(
@@ -328,6 +334,7 @@ def pack(
     leaf: str = "cluster",
     block_size: Union[None, int, str] = None,
     threads: Optional[int] = None,
+    ropes: bool = False,
 ) -> dict:
     """Packs a triangle mesh into an ``.oavm`` file, written atomically (it appears only when
     complete). Returns the pack report as a dict (triangles, nodes, leaves, volumes, bytes,
@@ -343,7 +350,8 @@ def pack(
     meshes larger than memory); ``progress``: a progress bar on stderr when it is a terminal;
     ``leaf``: ``"cluster"`` (a wide BVH per leaf, the fastest) or ``"list"`` (the OAVM paper's
     triangle lists); ``block_size``: target size of a block, the unit of paging (default 256K);
-    ``threads``: build threads (default one per core; the file is the same for any count)."""
+    ``threads``: build threads (default one per core; the file is the same for any count);
+    ``ropes``: add ropes (format-spec §8.4) for ``oavm.open(..., walk="ropes")``."""
     level: Optional[int]
     if compress is None or compress is False:
         level = None
@@ -359,6 +367,7 @@ def pack(
         block_size=_bytes("block_size", block_size),
         progress=bool(progress),
         threads=_count("threads", threads, 1, 1024),
+        ropes=bool(ropes),
     )
     out = os.fspath(out_path)
     if isinstance(mesh, (str, bytes, os.PathLike)):

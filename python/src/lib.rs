@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use oavm::build::{BuildOptions, LeafKind, PackOptions, PackReport};
-use oavm::logical::{BlockReads, IO_THREADS_PER_CORE, Order, SceneOptions};
+use oavm::logical::{BlockReads, IO_THREADS_PER_CORE, Order, SceneOptions, Walk};
 use oavm::mesh::Mesh;
 use oavm::physical::BlockOptions;
 use oavm::physical::DEFAULT_BLOCK_SIZE;
@@ -391,8 +391,24 @@ impl NativeScene {
 
 /// Opens a file, O(1) in its size: the header, section table and top tree's level table.
 #[pyfunction]
-#[pyo3(signature = (path, mem_budget=None))]
-fn open(py: Python<'_>, path: PathBuf, mem_budget: Option<u64>) -> PyResult<NativeScene> {
+#[pyo3(signature = (path, mem_budget=None, walk="auto"))]
+fn open(
+    py: Python<'_>,
+    path: PathBuf,
+    mem_budget: Option<u64>,
+    walk: &str,
+) -> PyResult<NativeScene> {
+    let walk = match walk {
+        "auto" => Walk::Auto,
+        "topdown" => Walk::TopDown,
+        "neighbours" => Walk::Neighbours,
+        "ropes" => Walk::Ropes,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "walk must be 'auto', 'topdown', 'neighbours' or 'ropes', not {other:?}"
+            )));
+        }
+    };
     let opts = SceneOptions {
         mem_budget,
         // As `oavm-trace`: room for the reader threads a budget smaller than the file wants;
@@ -400,6 +416,7 @@ fn open(py: Python<'_>, path: PathBuf, mem_budget: Option<u64>) -> PyResult<Nati
         threads: cores() * IO_THREADS_PER_CORE,
         check_blocks: true,
         block_reads: BlockReads::Auto,
+        walk,
     };
     let scene = py
         .detach(|| Scene::open_with(&path, &opts))
@@ -418,6 +435,7 @@ fn pack_options(
     compress: Option<i32>,
     mem_budget: Option<u64>,
     block_size: Option<u64>,
+    ropes: bool,
 ) -> PyResult<PackOptions> {
     let leaf = match leaf {
         "cluster" => LeafKind::Cluster,
@@ -441,6 +459,7 @@ fn pack_options(
         },
         time: None,
         mem_budget,
+        ropes,
     };
     opts.validate().map_err(to_py)?;
     Ok(opts)
@@ -469,7 +488,7 @@ fn run_pack(
 /// Packs a mesh file (PLY, OBJ, AFF); the report as JSON.
 #[pyfunction]
 #[pyo3(signature = (mesh, out, leaf="cluster", leaf_size=None, max_depth=None, compress=None,
-                    mem_budget=None, block_size=None, progress=true, threads=None))]
+                    mem_budget=None, block_size=None, progress=true, threads=None, ropes=false))]
 #[allow(clippy::too_many_arguments)]
 fn pack_file(
     py: Python<'_>,
@@ -483,8 +502,11 @@ fn pack_file(
     block_size: Option<u64>,
     progress: bool,
     threads: Option<usize>,
+    ropes: bool,
 ) -> PyResult<String> {
-    let opts = pack_options(leaf, leaf_size, max_depth, compress, mem_budget, block_size)?;
+    let opts = pack_options(
+        leaf, leaf_size, max_depth, compress, mem_budget, block_size, ropes,
+    )?;
     run_pack(py, progress, threads, |bar| {
         oavm::build::pack(&mesh, &out, &opts, bar)
     })
@@ -494,7 +516,7 @@ fn pack_file(
 /// the report as JSON.
 #[pyfunction]
 #[pyo3(signature = (vertices, faces, out, leaf="cluster", leaf_size=None, max_depth=None,
-                    compress=None, block_size=None, progress=true, threads=None))]
+                    compress=None, block_size=None, progress=true, threads=None, ropes=false))]
 #[allow(clippy::too_many_arguments)]
 fn pack_arrays(
     py: Python<'_>,
@@ -508,8 +530,11 @@ fn pack_arrays(
     block_size: Option<u64>,
     progress: bool,
     threads: Option<usize>,
+    ropes: bool,
 ) -> PyResult<String> {
-    let opts = pack_options(leaf, leaf_size, max_depth, compress, None, block_size)?;
+    let opts = pack_options(
+        leaf, leaf_size, max_depth, compress, None, block_size, ropes,
+    )?;
     let three = |name: &str, shape: &[usize]| {
         if shape[1] == 3 {
             Ok(())

@@ -293,3 +293,30 @@ def test_python_threads_share_a_scene(packed):
                 assert np.array_equal(g.t, want.t[k::3]) and np.array_equal(g.prim, want.prim[k::3])
             else:
                 assert np.array_equal(g, want.prim[k::3] != oavm.MISS)
+
+
+def test_ropes_from_python_give_every_walks_answers(packed, oavm_trace, tmp_path):
+    """`oavm.pack(..., ropes=True)` writes the file `oavm-pack --ropes` writes, and every walk of
+    it (`walk=` of `oavm.open`) answers every ray set exactly as the default walk of the file
+    without ropes; a file without ropes refuses the rope walk."""
+    mesh = REPO / "data" / "bunny.ply"
+    roped = tmp_path / "roped.oavm"
+    report = oavm.pack(mesh, roped, progress=False, ropes=True)
+    assert report["ropes"]["ropes"] > 0 and report["file_bytes"] == roped.stat().st_size
+    assert report["file_bytes"] > packed["bunny"].stat().st_size
+    with oavm.open(packed["bunny"]) as plain:
+        info = plain.info
+        sets = ray_sets(info["mesh_min"], info["mesh_max"], 5000, seed=11)
+        want = {name: (plain.intersect(r).t, plain.occluded(r)) for name, r in sets.items()}
+    assert want["random"][0][np.isfinite(want["random"][0])].size > 1000
+    for walk in ("auto", "topdown", "neighbours", "ropes"):
+        with oavm.open(roped, walk=walk) as scene:
+            assert scene.verify()["ok"] is True
+            for name, rays in sets.items():
+                t = scene.intersect(rays).t
+                assert np.array_equal(t.view(np.uint32), want[name][0].view(np.uint32)), (walk, name)
+                assert np.array_equal(scene.occluded(rays), want[name][1]), (walk, name)
+    with pytest.raises(ValueError, match="no ropes"):
+        oavm.open(packed["bunny"], walk="ropes")
+    with pytest.raises(ValueError, match="walk"):
+        oavm.open(packed["bunny"], walk="sideways")

@@ -22,8 +22,11 @@ struct Args {
     #[arg(required = true)]
     scenes: Vec<PathBuf>,
     /// Structures to build: grid, kdtree, octree, bvh, oavm or all (repeat or separate by
-    /// commas); and the KD-tree's traversals: kdtree:stack (the plain kdtree), kdtree:restart,
-    /// kdtree:pushdown, kdtree:shortstack (4 entries), not part of all.
+    /// commas); the KD-tree's traversals: kdtree:stack (the plain kdtree), kdtree:restart,
+    /// kdtree:pushdown, kdtree:shortstack (4 entries), kdtree:splitstack (the source's ropes
+    /// with a SplitStack register), kdtree:ropes (ropes with leaf cells), kdtree:popov (ropes to
+    /// the smallest node, leaf boxes); OAVM's leaf-to-leaf walks: oavm:morton, oavm:ropes. None
+    /// of those are part of all.
     #[arg(long, value_delimiter = ',', default_value = "all")]
     structure: Vec<String>,
     /// Random rays per scene.

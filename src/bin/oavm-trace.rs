@@ -232,6 +232,7 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
                 .unwrap_or(cli::cores() * IO_THREADS_PER_CORE),
             check_blocks: !args.trace.no_block_checks,
             block_reads: args.trace.block_reads.into(),
+            walk: args.trace.walk.into(),
         },
     )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;

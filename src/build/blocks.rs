@@ -454,6 +454,7 @@ fn extract(
         triangles,
         cluster_nodes,
         groups,
+        ropes: Vec::new(),
     })
 }
 
@@ -553,5 +554,6 @@ pub fn assemble_top(mut nodes: Vec<TopNode>) -> Result<UnitParts, Error> {
         triangles: Vec::new(),
         cluster_nodes: Vec::new(),
         groups: Vec::new(),
+        ropes: Vec::new(),
     })
 }

@@ -177,6 +177,7 @@ pub(super) fn layout_from(
             triangles,
             cluster_nodes: Vec::new(),
             groups: Vec::new(),
+            ropes: Vec::new(),
         },
         empty_leaves,
         solid_leaves,

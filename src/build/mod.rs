@@ -20,6 +20,7 @@ mod layout;
 mod merge;
 mod pack;
 mod prepare;
+pub mod ropes;
 mod spill;
 mod stats;
 mod streaming;

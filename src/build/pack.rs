@@ -25,6 +25,8 @@ pub struct PackOptions {
     /// ([`IN_MEMORY_BYTES_PER_TRIANGLE`] each): then streaming within half of it
     /// ([`streaming_budget`]).
     pub mem_budget: Option<u64>,
+    /// Add ropes (format-spec §8.4) once the file is written ([`super::ropes::add_ropes`]).
+    pub ropes: bool,
 }
 
 impl PackOptions {
@@ -59,6 +61,9 @@ pub struct PackReport {
     /// How the streaming builder (`--mem-budget`) split the work; absent for the in-memory one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub streaming: Option<StreamingReport>,
+    /// What adding ropes did (`--ropes`); `file_bytes` counts them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ropes: Option<super::ropes::RopeReport>,
     pub total_seconds: f64,
     /// The process's peak resident set size when the file was written (`VmHWM`; what the
     /// memory budget of the streaming pack bounds), where the system says.
@@ -84,6 +89,40 @@ pub struct StreamingReport {
 /// [`crate::output`]): the output path is checked before any work (it may not be the mesh), and
 /// on any error nothing is left at `out`.
 pub fn pack(
+    mesh_path: &Path,
+    out: &Path,
+    opts: &PackOptions,
+    progress: &dyn Progress,
+) -> Result<PackReport, Error> {
+    let t0 = Instant::now();
+    let report = pack_without_ropes(mesh_path, out, opts, progress)?;
+    with_ropes(report, out, opts, progress, t0)
+}
+
+/// Adds ropes to the file just packed at `out` if `opts` ask for them. The file without ropes
+/// is complete and in place; the one with them replaces it atomically (a crash in between
+/// leaves a valid file, without ropes).
+fn with_ropes(
+    mut report: PackReport,
+    out: &Path,
+    opts: &PackOptions,
+    progress: &dyn Progress,
+    t0: Instant,
+) -> Result<PackReport, Error> {
+    if opts.ropes {
+        progress.phase("adding ropes", None, false);
+        let r = super::ropes::add_ropes_file(out, out)?;
+        report.file_bytes = r.bytes_after;
+        report.bytes_per_triangle =
+            r.bytes_after as f64 / report.stats.input_triangles.max(1) as f64;
+        report.ropes = Some(r);
+        report.total_seconds = t0.elapsed().as_secs_f64();
+        report.peak_rss_bytes = crate::os::peak_rss_bytes();
+    }
+    Ok(report)
+}
+
+fn pack_without_ropes(
     mesh_path: &Path,
     out: &Path,
     opts: &PackOptions,
@@ -170,7 +209,9 @@ pub fn pack_mesh(
         bytes: (mesh.positions.len() * 12 + mesh.triangles.len() * 12) as u64,
         parse_seconds: 0.0,
     };
-    pack_built(mesh, source, output, out, opts, progress, Instant::now())
+    let t0 = Instant::now();
+    let report = pack_built(mesh, source, output, out, opts, progress, t0)?;
+    with_ropes(report, out, opts, progress, t0)
 }
 
 /// The mesh a pack read, for its report.
@@ -217,6 +258,7 @@ fn pack_built(
         blocks: opts.blocks,
         block_count,
         streaming: None,
+        ropes: None,
         total_seconds: t0.elapsed().as_secs_f64(),
         peak_rss_bytes: crate::os::peak_rss_bytes(),
     })

@@ -13,7 +13,9 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::{Accelerator, KD_VARIANTS, OavmAccel, STRUCTURES, StructureStats, Triangles};
+use super::{
+    Accelerator, KD_VARIANTS, OAVM_VARIANTS, OavmAccel, STRUCTURES, StructureStats, Triangles,
+};
 use crate::build::BuildOptions;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
@@ -46,7 +48,8 @@ pub struct Options {
     pub threads: Vec<usize>,
 }
 
-/// The structures named by `list` (names of [`STRUCTURES`] or [`KD_VARIANTS`], or `all`: the
+/// The structures named by `list` (names of [`STRUCTURES`], [`KD_VARIANTS`] or
+/// [`OAVM_VARIANTS`], or `all`: the
 /// structures), in the order given, repeats next to each other dropped; `kdtree:stack` is
 /// `kdtree`.
 pub fn parse_structures(list: &[String]) -> Result<Vec<&'static str>, Error> {
@@ -55,13 +58,19 @@ pub fn parse_structures(list: &[String]) -> Result<Vec<&'static str>, Error> {
         match s.as_str() {
             "all" => names.extend(STRUCTURES),
             "kdtree:stack" => names.push("kdtree"),
-            n => match STRUCTURES.iter().chain(&KD_VARIANTS).find(|&&k| k == n) {
+            n => match STRUCTURES
+                .iter()
+                .chain(&KD_VARIANTS)
+                .chain(&OAVM_VARIANTS)
+                .find(|&&k| k == n)
+            {
                 Some(&k) => names.push(k),
                 None => {
                     return Err(Error::Invalid(format!(
-                        "unknown structure {n:?}: expected all or one of {}, {}",
+                        "unknown structure {n:?}: expected all or one of {}, {}, {}",
                         STRUCTURES.join(", "),
-                        KD_VARIANTS.join(", ")
+                        KD_VARIANTS.join(", "),
+                        OAVM_VARIANTS.join(", ")
                     )));
                 }
             },
@@ -283,9 +292,12 @@ pub struct SetResult {
     pub nodes_visited_per_ray: f64,
     pub leaves_visited_per_ray: f64,
     pub triangles_tested_per_ray: f64,
-    /// Walks begun again per ray (the KD-tree's restart, push-down, short-stack and rope
-    /// walks; 0 for the others).
+    /// Walks begun again per ray (the KD-tree's restart, push-down and short-stack walks; its
+    /// rope walks count each rope taken here; 0 for the others).
     pub restarts_per_ray: f64,
+    /// Ropes followed per ray by OAVM's rope walk (`oavm:ropes`; 0 for the others, the
+    /// KD-tree's rope walks count theirs in `restarts_per_ray`).
+    pub ropes_per_ray: f64,
     /// (threads, Mrays/s), best of `reps`.
     pub mrays_per_s: Vec<(usize, f64)>,
 }
@@ -393,6 +405,7 @@ pub fn bench_scene(
                 leaves_visited_per_ray: per(c.leaves_visited),
                 triangles_tested_per_ray: per(c.triangles_tested),
                 restarts_per_ray: per(c.restarts),
+                ropes_per_ray: per(c.ropes_followed),
                 mrays_per_s: speeds(acc.as_ref(), set, opts)?,
             });
         }

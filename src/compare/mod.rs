@@ -148,14 +148,21 @@ pub const STRUCTURES: [&str; 5] = ["grid", "kdtree", "octree", "bvh", "oavm"];
 
 /// The KD-tree's traversal variants, by the names `oavm-bench` takes (`kdtree:stack` is the
 /// plain `kdtree`; [`kdtree::KdTraversal`]). Not in `all`.
-pub const KD_VARIANTS: [&str; 6] = [
+pub const KD_VARIANTS: [&str; 7] = [
     "kdtree:stack",
     "kdtree:restart",
     "kdtree:pushdown",
     "kdtree:shortstack",
+    "kdtree:splitstack",
     "kdtree:ropes",
     "kdtree:popov",
 ];
+
+/// OAVM's walks, by the names `oavm-bench` takes (the plain `oavm` walks files of clusters
+/// top-down; [`crate::logical::Walk`]): `oavm:morton` steps leaf to leaf finding each next
+/// leaf from its Morton code (the paper's neighbour step), `oavm:ropes` by the rope of the face
+/// it leaves (format-spec §8.4; the file is built with ropes). Not in `all`.
+pub const OAVM_VARIANTS: [&str; 2] = ["oavm:morton", "oavm:ropes"];
 
 /// The short stack's size in `kdtree:shortstack` (Horn et al. 2007 used 4 to 8 entries).
 pub const SHORT_STACK: usize = 4;
@@ -180,6 +187,9 @@ pub fn build_structure(
         "kdtree:ropes" => Ok(Box::new(
             kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::Ropes),
         )),
+        "kdtree:splitstack" => Ok(Box::new(
+            kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::SplitStack),
+        )),
         "kdtree:popov" => Ok(Box::new(
             kdtree::KdTree::build(tris).with_traversal(kdtree::KdTraversal::Popov),
         )),
@@ -190,10 +200,21 @@ pub fn build_structure(
         "octree" => Ok(Box::new(octree::ClassicOctree::build(tris, opts))),
         "bvh" => Ok(Box::new(bvh::Bvh::build(tris))),
         "oavm" => Ok(Box::new(OavmAccel::build(mesh, opts)?)),
+        "oavm:morton" => Ok(Box::new(OavmAccel::build_walk(
+            mesh,
+            opts,
+            crate::logical::Walk::Neighbours,
+        )?)),
+        "oavm:ropes" => Ok(Box::new(OavmAccel::build_walk(
+            mesh,
+            opts,
+            crate::logical::Walk::Ropes,
+        )?)),
         _ => Err(Error::Invalid(format!(
-            "unknown structure {name:?}: expected one of {}, {}",
+            "unknown structure {name:?}: expected one of {}, {}, {}",
             STRUCTURES.join(", "),
-            KD_VARIANTS.join(", ")
+            KD_VARIANTS.join(", "),
+            OAVM_VARIANTS.join(", ")
         ))),
     }
 }

@@ -4,9 +4,9 @@ use super::{Accelerator, StructureStats};
 use crate::build::BuildOptions;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
-use crate::logical::{Counters, Scene};
+use crate::logical::{Counters, Scene, SceneOptions, Walk};
 use crate::mesh::Mesh;
-use crate::physical::AlignedBytes;
+use crate::physical::{AlignedBytes, OavmFile};
 
 /// OAVM packed in memory (the same bytes a file holds), behind the common interface.
 pub struct OavmAccel {
@@ -16,16 +16,40 @@ pub struct OavmAccel {
 
 impl OavmAccel {
     pub fn build(mesh: &Mesh, opts: &BuildOptions) -> Result<OavmAccel, Error> {
+        Self::build_walk(mesh, opts, Walk::Auto)
+    }
+
+    /// OAVM walked by `walk`; [`Walk::Ropes`] adds ropes to the file (their time counts in
+    /// the build, their six pointers per leaf and link in the pointers).
+    pub fn build_walk(mesh: &Mesh, opts: &BuildOptions, walk: Walk) -> Result<OavmAccel, Error> {
         let t = std::time::Instant::now();
         let (parts, s) = crate::build::build(mesh, opts, &crate::build::Quiet)?;
-        let bytes = crate::build::encode(&parts)?;
+        let mut bytes = crate::build::encode(&parts)?;
+        let mut pointers = s.pointers.total;
+        if walk == Walk::Ropes {
+            let plain = OavmFile::open(bytes).map_err(|e| Error::format("memory", e))?;
+            let (roped, _, report) = crate::build::ropes::add_ropes(&plain, Vec::new())?;
+            bytes = AlignedBytes::from_slice(&roped);
+            pointers += report.ropes;
+        }
         let build_seconds = t.elapsed().as_secs_f64();
-        let scene = Scene::from_bytes(bytes, "memory")?;
+        let scene = Scene::from_bytes_with(
+            bytes,
+            "memory",
+            &SceneOptions {
+                walk,
+                ..SceneOptions::default()
+            },
+        )?;
         let stats = StructureStats {
-            name: "oavm",
+            name: match walk {
+                Walk::Neighbours => "oavm:morton",
+                Walk::Ropes => "oavm:ropes",
+                Walk::TopDown | Walk::Auto => "oavm",
+            },
             build_seconds,
             nodes: s.nodes,
-            pointers: s.pointers.total,
+            pointers,
             bytes: scene.file().bytes().len() as u64,
         };
         Ok(OavmAccel { scene, stats })

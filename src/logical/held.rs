@@ -12,8 +12,8 @@
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::BlockView;
 use crate::physical::format::{
-    BLOCK_PARTS, BlockEntry, ClusterNode, LevelEntry, NodeRecord, RankWord, TriGroup, TriRecord,
-    block_layout,
+    BLOCK_PARTS, BlockEntry, ClusterNode, LevelEntry, NodeRecord, RankWord, RopeRecord, TriGroup,
+    TriRecord, block_layout,
 };
 
 /// What a block's bytes hold, checked once ([`BlockView::parse`]): where its parts are and the
@@ -61,6 +61,8 @@ pub(crate) struct Held<'v> {
     pub tris: &'v [TriRecord],
     pub cluster_nodes: &'v [ClusterNode],
     pub groups: &'v [TriGroup],
+    /// Ropes (spec §8.4), by node record; empty in a block without them.
+    pub ropes: &'v [RopeRecord],
 }
 
 impl<'v> Held<'v> {
@@ -80,6 +82,7 @@ impl<'v> Held<'v> {
             tris: ready.part(raw, 5),
             cluster_nodes: ready.part(raw, 6),
             groups: ready.part(raw, 7),
+            ropes: ready.part(raw, 8),
         }
     }
 }

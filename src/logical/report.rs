@@ -50,6 +50,8 @@ pub struct SetReport {
     pub groups_tested: u64,
     /// Walks begun again from above (comparison KD-tree variants; 0 elsewhere).
     pub restarts: u64,
+    /// Ropes followed (`--walk ropes`, spec §8.4; 0 elsewhere).
+    pub ropes_followed: u64,
     pub nodes_visited_per_ray: f64,
     pub leaves_visited_per_ray: f64,
     pub volumes_crossed_per_ray: f64,
@@ -59,6 +61,7 @@ pub struct SetReport {
     pub boxes_tested_per_ray: f64,
     pub groups_tested_per_ray: f64,
     pub restarts_per_ray: f64,
+    pub ropes_followed_per_ray: f64,
     /// Streamed sets ([`super::Order::Stream`]): walks parked at a block and resumed, times a
     /// block's queue was served, and the most bytes the parked walks took at once.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -110,6 +113,7 @@ impl SetReport {
             boxes_tested: c.boxes_tested,
             groups_tested: c.groups_tested,
             restarts: c.restarts,
+            ropes_followed: c.ropes_followed,
             nodes_visited_per_ray: per_ray(c.nodes_visited),
             leaves_visited_per_ray: per_ray(c.leaves_visited),
             volumes_crossed_per_ray: per_ray(c.volumes_crossed),
@@ -119,6 +123,7 @@ impl SetReport {
             boxes_tested_per_ray: per_ray(c.boxes_tested),
             groups_tested_per_ray: per_ray(c.groups_tested),
             restarts_per_ray: per_ray(c.restarts),
+            ropes_followed_per_ray: per_ray(c.ropes_followed),
             stream: (c.blocks_served > 0).then(|| StreamReport {
                 walks_parked: c.walks_parked,
                 walks_parked_per_ray: per_ray(c.walks_parked),

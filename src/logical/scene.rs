@@ -20,7 +20,7 @@ use crate::error::{Error, FormatError};
 use crate::geom::{Hit, HitAttributes, Ray};
 use crate::mapping::{Corruption, LevelInfos, TreeMap};
 use crate::os::MappedFile;
-use crate::physical::format::{FLAG_COMPRESSED, SectionKind};
+use crate::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_ROPES, SectionKind};
 use crate::physical::{BlockReader, OavmFile};
 
 /// How an opened file is traced.
@@ -39,6 +39,26 @@ pub struct SceneOptions {
     pub check_blocks: bool,
     /// How blocks are read under a budget smaller than the file (see [`BlockReads`]).
     pub block_reads: BlockReads,
+    /// Which walk traces the rays (see [`Walk`]).
+    pub walk: Walk,
+}
+
+/// Which walk traces a scene's rays. Every walk gives the same answers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Walk {
+    /// The fastest for the file: [`Walk::TopDown`] for a file of clusters, else
+    /// [`Walk::Neighbours`].
+    #[default]
+    Auto,
+    /// Top-down, nearest child first with a stack, as a BVH is walked (files of clusters).
+    TopDown,
+    /// The OAVM paper's walk: leaf to leaf across merged volumes, each next leaf found from the
+    /// lowest common ancestor of its cell and the last one (the computed Morton neighbour).
+    Neighbours,
+    /// The same walk, each next leaf found from the node the rope of the exit face names
+    /// (format-spec §8.4; a file packed with `--ropes`).
+    Ropes,
 }
 
 /// How the pager reads blocks when the budget is smaller than the file's blocks.
@@ -65,6 +85,7 @@ impl Default for SceneOptions {
             threads: 0,
             check_blocks: true,
             block_reads: BlockReads::Auto,
+            walk: Walk::Auto,
         }
     }
 }
@@ -129,6 +150,8 @@ pub struct Scene<D = MappedFile> {
     top_boxes: OnceLock<Vec<LatticeBox>>,
     /// Where streamed batches report the rays done and the blocks read.
     progress: Option<Arc<dyn Progress + Send + Sync>>,
+    /// The walk asked for ([`SceneOptions::walk`]), checked against the file at open.
+    walk: Walk,
 }
 
 /// What an opened scene is and holds, for reports.
@@ -178,6 +201,24 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     ) -> Result<Scene<D>, Error> {
         let path = path.into();
         let file = OavmFile::open(data).map_err(|e| Error::format(&path, e))?;
+        let flags = file.header().flags;
+        match opts.walk {
+            Walk::Ropes if flags & FLAG_ROPES == 0 => {
+                return Err(Error::Invalid(format!(
+                    "{} has no ropes to walk by: add them with `oavm-pack {} OUT.oavm --ropes`",
+                    path.display(),
+                    path.display()
+                )));
+            }
+            Walk::TopDown if flags & FLAG_CLUSTERS == 0 => {
+                return Err(Error::Invalid(format!(
+                    "{}: the top-down walk needs a file of clusters (`oavm-pack --leaf cluster`); \
+                     this one holds leaf lists",
+                    path.display()
+                )));
+            }
+            _ => {}
+        }
         let budget = opts.mem_budget.unwrap_or_else(default_mem_budget);
         let wanted = match opts.threads {
             0 => rayon::current_num_threads(),
@@ -235,6 +276,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             threads,
             top_boxes: OnceLock::new(),
             progress: None,
+            walk: opts.walk,
         })
     }
 
@@ -363,6 +405,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             }),
             h,
         )
+        .walking(self.walk, self.file.records(SectionKind::Ropes))
     }
 
     /// Checks every byte, checksum and invariant ([`super::verify`]).
@@ -459,7 +502,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
     ) -> Result<Counters, Error> {
         let tree = self.tree();
-        if order == Order::Stream && tree.has_clusters() {
+        if order == Order::Stream && tree.walks_top_down() {
             return self.stream::<ANY, T>(&tree, rays, out, map);
         }
         let order = match order {
@@ -524,7 +567,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         occluded: &mut [u8],
     ) -> Result<Option<([Counters; 2], f64)>, Error> {
         let tree = self.tree();
-        if !tree.has_clusters() {
+        if !tree.walks_top_down() {
             return Ok(None);
         }
         if occluded.len() != rays.len() {

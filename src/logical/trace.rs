@@ -39,6 +39,7 @@ use std::sync::OnceLock;
 
 use super::held::{Held, ReadyMap};
 use super::pager::{BlockBytes, PageCounters, PageError};
+use super::scene::Walk;
 use super::top_bounds::LatticeBox;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::grown_exit;
@@ -48,7 +49,7 @@ use crate::mapping::{Corruption, TreeMap};
 use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
     BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, FLAG_CLUSTERS, Header, KIND_EMPTY, KIND_INTERNAL,
-    KIND_LINK, KIND_SOLID, MAX_CLUSTER_DEPTH, NodeRecord, leaf_refs,
+    KIND_LINK, KIND_SOLID, MAX_CLUSTER_DEPTH, NodeRecord, ROPE_TOP, RopeRecord, leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -83,6 +84,9 @@ pub struct Counters {
     /// push-down and short-stack traversals: each time the rest of the ray is walked down
     /// again).
     pub restarts: u64,
+    /// Ropes followed by the leaf-to-leaf walk of [`Walk::Ropes`] (spec §8.4). (The comparison
+    /// KD-tree's rope walks count theirs in `restarts`.)
+    pub ropes_followed: u64,
     /// Blocks asked of the pager (each time a walk moves into another block), with its hits,
     /// misses and bytes.
     #[serde(flatten)]
@@ -106,6 +110,7 @@ impl std::ops::AddAssign for Counters {
         self.triangles_tested += o.triangles_tested;
         self.clusters_entered += o.clusters_entered;
         self.restarts += o.restarts;
+        self.ropes_followed += o.ropes_followed;
         self.cluster_nodes_visited += o.cluster_nodes_visited;
         self.boxes_tested += o.boxes_tested;
         self.groups_tested += o.groups_tested;
@@ -222,6 +227,13 @@ pub struct Tree<'a> {
     scale: f64,
     /// Solid leaves are clusters (spec §2 flag `CLUSTERS`), else lists of references.
     clusters: bool,
+    /// Rays are walked top-down (clusters, [`Walk::Auto`] or [`Walk::TopDown`]), else leaf to
+    /// leaf ([`Self::walk`]).
+    top_down: bool,
+    /// The leaf-to-leaf walk follows ropes ([`Walk::Ropes`]; spec §8.4).
+    follow_ropes: bool,
+    /// The top tree's ropes, by node record (empty in a file without them).
+    top_ropes: &'a [RopeRecord],
     /// The CPU's AVX2, if it has it.
     avx2: Option<Avx2>,
 }
@@ -288,7 +300,11 @@ impl<'a> Tree<'a> {
         direct: Option<Direct<'a>>,
         header: &Header,
     ) -> Tree<'a> {
+        let clusters = header.flags & FLAG_CLUSTERS != 0;
         Tree {
+            top_down: clusters,
+            follow_ropes: false,
+            top_ropes: &[],
             top,
             top_boxes,
             directory,
@@ -296,9 +312,22 @@ impl<'a> Tree<'a> {
             direct,
             root_min: header.root_min,
             scale: LATTICE_SIZE as f64 / header.root_size,
-            clusters: header.flags & FLAG_CLUSTERS != 0,
+            clusters,
             avx2: Avx2::detect(),
         }
+    }
+
+    /// The same tree, walked by `walk` ([`Walk::Ropes`] follows `top_ropes` and the blocks'
+    /// ropes; the scene checked at open that the file has them).
+    pub(crate) fn walking(mut self, walk: Walk, top_ropes: &'a [RopeRecord]) -> Tree<'a> {
+        self.top_down = match walk {
+            Walk::Auto => self.clusters,
+            Walk::TopDown => true,
+            Walk::Neighbours | Walk::Ropes => false,
+        };
+        self.follow_ropes = walk == Walk::Ropes;
+        self.top_ropes = top_ropes;
+        self
     }
 
     /// The top tree.
@@ -333,7 +362,7 @@ impl<'a> Tree<'a> {
             type Output = Result<Option<HitInfo>, TraceError>;
             #[inline(always)]
             fn run(self, isa: Avx2) -> Self::Output {
-                if self.tree.clusters {
+                if self.tree.top_down {
                     self.tree.descend_all::<ANY, Avx2>(isa, self.ray, self.c)
                 } else {
                     self.tree.walk::<ANY, Avx2>(isa, self.ray, self.c)
@@ -342,7 +371,7 @@ impl<'a> Tree<'a> {
         }
         match self.avx2 {
             Some(isa) => isa.vectorize(Job::<ANY> { tree: self, ray, c }),
-            None if self.clusters => self.descend_all::<ANY, _>(baseline(), ray, c),
+            None if self.top_down => self.descend_all::<ANY, _>(baseline(), ray, c),
             None => self.walk::<ANY, _>(baseline(), ray, c),
         }
     }
@@ -740,8 +769,73 @@ impl<'a> Tree<'a> {
                 return Ok(Step::Done(w.s.best));
             }
             w.q = next;
+            if self.follow_ropes {
+                // Spec §8.4: the rope of the exit face names the smallest node holding every
+                // cell just across it, `next` among them; the walk descends from there.
+                let face = 2 * axis + r.fwd[axis] as usize;
+                let (map, ropes, at) = match (block, held) {
+                    (Some(_), Some(h)) => (&h.map, h.ropes, w.bpath[(level & 31) as usize]),
+                    _ => (&self.top, self.top_ropes, w.tpath[(level & 31) as usize]),
+                };
+                let rope = ropes
+                    .get((map.node_start(level) + at) as usize)
+                    .map(|r| r.across[face]);
+                if let Some(rope) = rope
+                    && self.take_rope(rope, level, block.is_some(), held, w)
+                {
+                    k.ropes_followed += 1;
+                    continue;
+                }
+                // No rope (a block without them) or one that names no node: the root.
+                w.level = 0;
+                w.cur = None;
+                continue;
+            }
             w.level = level.min(morton::common_level(old, next));
         }
+    }
+
+    /// Moves the walk to the node `rope` names (spec §8.4), from a leaf at `level`
+    /// (`in_block`: of the block `held`): its level is found from its record index, at or
+    /// above `level`. `false` if the rope names no node of the unit it must be in (bytes that
+    /// break the format: the walk then starts again from the root, and stays bounded either
+    /// way, since every box is built around the walk's cell whatever node it starts from).
+    #[inline(always)]
+    fn take_rope(
+        &self,
+        rope: u32,
+        level: u32,
+        in_block: bool,
+        held: Option<&Held<'_>>,
+        w: &mut WalkState,
+    ) -> bool {
+        let (map, index) = if rope & ROPE_TOP != 0 {
+            (&self.top, (rope & !ROPE_TOP) as u64)
+        } else if in_block && let Some(h) = held {
+            (&h.map, rope as u64)
+        } else {
+            return false;
+        };
+        let base = map.base();
+        let mut l = level.min(base + map.level_count().saturating_sub(1));
+        while l > base && map.node_start(l) > index {
+            l -= 1;
+        }
+        let Some(e) = map.levels().get((l - base) as usize) else {
+            return false;
+        };
+        let local = index.wrapping_sub(e.node_start);
+        if index < e.node_start || local >= e.node_count {
+            return false;
+        }
+        if rope & ROPE_TOP != 0 {
+            w.cur = None;
+            w.tpath[(l & 31) as usize] = local;
+        } else {
+            w.bpath[(l & 31) as usize] = local;
+        }
+        w.level = l;
+        true
     }
 
     /// The top-down traversal of a file of clusters: the octree taken as a tree of 8-wide nodes
@@ -867,8 +961,9 @@ impl<'a> Tree<'a> {
 
     /// Whether solid leaves are clusters: the top-down walk, which [`super::stream`] parks
     /// between blocks (files of leaf lists are walked by neighbour steps, one ray at a time).
-    pub(super) fn has_clusters(&self) -> bool {
-        self.clusters
+    /// Whether rays are walked top-down (what streamed batches and frames need).
+    pub(super) fn walks_top_down(&self) -> bool {
+        self.top_down
     }
 
     /// Starts `ray`'s top-down walk for [`super::stream`]: counts the ray, and gives its

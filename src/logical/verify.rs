@@ -62,6 +62,14 @@ struct Unit<'a> {
     cluster_nodes: &'a [ClusterNode],
     groups: &'a [TriGroup],
     top: bool,
+    /// Ropes (spec §8.4), by node record; empty without them.
+    ropes: &'a [RopeRecord],
+}
+
+/// The top tree as ropes name it: its map and every node's code, by level.
+struct TopNodes<'a> {
+    map: TreeMap<'a>,
+    codes: Vec<Vec<u64>>,
 }
 
 /// What a unit contributes to the file's totals.
@@ -105,8 +113,14 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
         cluster_nodes: &[],
         groups: &[],
         top: true,
+        ropes: file.records(SectionKind::Ropes),
     };
     let top_totals = check_unit(&top, header, d);
+    let top_index = TopNodes {
+        map: top.map,
+        codes: level_codes(&top, &mut Defects::default()),
+    };
+    check_ropes(&top, &top_index.codes, &top_index, None, header, d);
 
     // Links: every block root linked exactly once, from its level.
     let directory = file.directory();
@@ -190,7 +204,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
                 id: b as u32,
                 entry: directory[b],
             };
-            let totals = check_block(&block, header, &roots, &prims_seen, &mut bd);
+            let totals = check_block(&block, header, &roots, &top_index, &prims_seen, &mut bd);
             (bd, totals)
         })
         .collect();
@@ -260,6 +274,7 @@ fn check_block(
     block: &Block,
     header: &Header,
     roots: &std::collections::HashMap<(u32, u32), (u64, LinkBounds)>,
+    top: &TopNodes<'_>,
     prims_seen: &[std::sync::atomic::AtomicU64],
     d: &mut Defects,
 ) -> UnitTotals {
@@ -314,8 +329,17 @@ fn check_block(
         cluster_nodes: view.cluster_nodes,
         groups: view.groups,
         top: false,
+        ropes: view.ropes,
     };
     let mut totals = check_unit(&unit, header, d);
+    check_ropes(
+        &unit,
+        &level_codes(&unit, &mut Defects::default()),
+        top,
+        Some(b),
+        header,
+        d,
+    );
     if unit.clusters.is_none() {
         totals.triangles = view.triangles.len() as u64;
     }
@@ -648,6 +672,149 @@ fn level_codes(u: &Unit, d: &mut Defects) -> Vec<Vec<u64>> {
         codes.push(next);
     }
     codes
+}
+
+/// Spec §8.4: a unit's ropes are there exactly when the file says so; an internal node's are
+/// 0; and each rope of a leaf or link names the smallest node that holds every cell just across
+/// that face of its walk box (found here from the codes of the nodes, not by the descent that
+/// made the ropes): it contains those cells, it is internal only at their common level, and it
+/// is a link only to another block (inside its own block a rope names the block's node).
+fn check_ropes(
+    u: &Unit,
+    codes: &[Vec<u64>],
+    top: &TopNodes<'_>,
+    own: Option<u32>,
+    header: &Header,
+    d: &mut Defects,
+) {
+    let label = &u.label;
+    let roped = header.flags & FLAG_ROPES != 0;
+    let nodes: u64 = u.map.levels().iter().map(|l| l.node_count).sum();
+    if !roped {
+        if !u.ropes.is_empty() {
+            d.push(format!("{label}: rope records in a file without ropes"));
+        }
+        return;
+    }
+    if u.ropes.len() as u64 != nodes {
+        d.push(format!(
+            "{label}: {} rope records for {nodes} nodes",
+            u.ropes.len()
+        ));
+        return;
+    }
+    // Level and index in level of a node record, in a unit's map.
+    let locate = |map: &TreeMap<'_>, index: u64| {
+        let base = map.base();
+        map.levels().iter().enumerate().find_map(|(ll, e)| {
+            (index >= e.node_start && index - e.node_start < e.node_count)
+                .then(|| (base + ll as u32, index - e.node_start))
+        })
+    };
+    let base = u.map.base();
+    let mut defects = 0usize;
+    for (ll, e) in u.map.levels().iter().enumerate() {
+        let level = base + ll as u32;
+        let Some(level_codes) = codes.get(ll) else {
+            break;
+        };
+        for (i, &code) in level_codes.iter().enumerate() {
+            let at = e.node_start + i as u64;
+            let (Ok(rec), Some(ropes)) = (u.map.node(level, i as u64), u.ropes.get(at as usize))
+            else {
+                break;
+            };
+            let mut fail = |what: String| {
+                defects += 1;
+                if defects <= 20 {
+                    d.push(format!("{label} level {level} node {i}: {what}"));
+                }
+            };
+            if rec.kind_bits() == KIND_INTERNAL {
+                if ropes.across != [0; 6] {
+                    fail("an internal node with ropes".into());
+                }
+                continue;
+            }
+            let cell = cell_origin(code, level);
+            let (lo, hi) = if rec.kind_bits() == KIND_EMPTY {
+                rec.shape_bits().box_around(cell)
+            } else {
+                (cell, cell.map(|x| x + cell_size(level)))
+            };
+            for (f, &rope) in ropes.across.iter().enumerate() {
+                let (a, positive) = (f / 2, f % 2 == 1);
+                let across = if positive {
+                    hi[a]
+                } else {
+                    lo[a].wrapping_sub(1)
+                };
+                let outside = across >= LATTICE_SIZE || hi.iter().any(|&h| h > LATTICE_SIZE);
+                if outside || rope == ROPE_EXIT {
+                    if outside != (rope == ROPE_EXIT) {
+                        fail(format!(
+                            "face {f}: rope {rope:#x}, but the face is {} the root's boundary",
+                            if outside { "on" } else { "not on" }
+                        ));
+                    }
+                    continue;
+                }
+                let mut r_lo = lo;
+                let mut r_hi = hi.map(|h| h - 1);
+                r_lo[a] = across;
+                r_hi[a] = across;
+                let to_top = rope & ROPE_TOP != 0;
+                if !to_top && own.is_none() {
+                    fail(format!(
+                        "face {f}: a top-tree rope {rope:#x} without the top bit"
+                    ));
+                    continue;
+                }
+                let (map, unit_codes): (&TreeMap<'_>, &[Vec<u64>]) = if to_top {
+                    (&top.map, &top.codes)
+                } else {
+                    (&u.map, codes)
+                };
+                let index = (rope & !ROPE_TOP) as u64;
+                let Some((tl, ti)) = locate(map, index) else {
+                    fail(format!("face {f}: rope {rope:#x} names no node"));
+                    continue;
+                };
+                let Some(&tcode) = unit_codes
+                    .get((tl - map.base()) as usize)
+                    .and_then(|c| c.get(ti as usize))
+                else {
+                    fail(format!("face {f}: rope {rope:#x} names a node of no code"));
+                    continue;
+                };
+                let Ok(trec) = map.node(tl, ti) else {
+                    fail(format!("face {f}: rope {rope:#x} names an unreadable node"));
+                    continue;
+                };
+                let contains = morton::code_at_level(r_lo, tl) == tcode
+                    && morton::code_at_level(r_hi, tl) == tcode;
+                let smallest = match trec.kind() {
+                    Some(NodeKind::Internal) => tl == morton::common_level(r_lo, r_hi),
+                    Some(NodeKind::Link { block, .. }) => Some(block) != own,
+                    _ => true,
+                };
+                if !contains || !smallest {
+                    fail(format!(
+                        "face {f}: rope {rope:#x} names node {ti} of level {tl}, which {} the \
+                         cells across the face {r_lo:?}..={r_hi:?}",
+                        if contains {
+                            "holds but is not the smallest node holding"
+                        } else {
+                            "does not hold"
+                        }
+                    ));
+                }
+            }
+        }
+    }
+    if defects > 20 {
+        d.push(format!("{label}: {} more rope defects", defects - 20));
+    }
 }
 
 /// Checks that a solid leaf's tight bounds contain every part of its triangles inside its cell

@@ -236,6 +236,8 @@ pub struct BlockView<'a> {
     pub triangles: &'a [TriRecord],
     pub cluster_nodes: &'a [ClusterNode],
     pub groups: &'a [TriGroup],
+    /// Ropes (spec §8.4): one per node, or none.
+    pub ropes: &'a [RopeRecord],
 }
 
 impl<'a> BlockView<'a> {
@@ -273,6 +275,9 @@ impl<'a> BlockView<'a> {
         {
             return Err("block level count or root level out of range");
         }
+        if header.rope_count != 0 && header.rope_count != header.node_count {
+            return Err("block rope count is neither 0 nor its node count");
+        }
         let Some((ranges, len)) = block_layout(&header) else {
             return Err("block counts overflow");
         };
@@ -289,6 +294,7 @@ impl<'a> BlockView<'a> {
             Ok(triangles),
             Ok(cluster_nodes),
             Ok(groups),
+            Ok(ropes),
         ) = (
             bytemuck::try_cast_slice::<u8, LevelEntry>(cast(0)),
             bytemuck::try_cast_slice::<u8, NodeRecord>(cast(1)),
@@ -298,6 +304,7 @@ impl<'a> BlockView<'a> {
             bytemuck::try_cast_slice::<u8, TriRecord>(cast(5)),
             bytemuck::try_cast_slice::<u8, ClusterNode>(cast(6)),
             bytemuck::try_cast_slice::<u8, TriGroup>(cast(7)),
+            bytemuck::try_cast_slice::<u8, RopeRecord>(cast(8)),
         )
         else {
             return Err("block bytes are not aligned");
@@ -332,6 +339,7 @@ impl<'a> BlockView<'a> {
             triangles,
             cluster_nodes,
             groups,
+            ropes,
         })
     }
 }

@@ -155,11 +155,16 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
             header.flags & !KNOWN_FLAGS
         )));
     }
-    if header.section_count as usize != SectionKind::ALL.len() {
+    let section_count = SectionKind::count_for(header.flags);
+    if header.section_count as usize != section_count {
         return Err(header_err(format!(
-            "{} sections, version {VERSION} files have {}",
+            "{} sections, version {VERSION} files {} ropes have {section_count}",
             header.section_count,
-            SectionKind::ALL.len()
+            if header.flags & FLAG_ROPES != 0 {
+                "with"
+            } else {
+                "without"
+            }
         )));
     }
     if header.section_table_offset != need as u64 {
@@ -168,7 +173,7 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
             header.section_table_offset
         )));
     }
-    let table_end = need + SectionKind::ALL.len() * std::mem::size_of::<SectionEntry>();
+    let table_end = need + section_count * std::mem::size_of::<SectionEntry>();
     if bytes.len() < table_end {
         return Err(header_err(format!(
             "the file ends inside the section table ({table_end} bytes needed)"
@@ -242,9 +247,11 @@ fn read_section_table(
     let start = header.section_table_offset as usize;
     let entry = std::mem::size_of::<SectionEntry>();
     let mut sections = [SectionEntry::zeroed(); SectionKind::ALL.len()];
-    let table_end = start + SectionKind::ALL.len() * entry;
+    // Checked by `read_header`: 7 sections, or 8 with ropes.
+    let count = SectionKind::count_for(header.flags);
+    let table_end = start + count * entry;
     let mut prev_end = table_end as u64;
-    for (i, kind) in SectionKind::ALL.into_iter().enumerate() {
+    for (i, kind) in SectionKind::ALL.into_iter().enumerate().take(count) {
         let at = start + i * entry;
         let s: SectionEntry = bytemuck::pod_read_unaligned(&bytes[at..at + entry]);
         let name = kind.name();
@@ -300,7 +307,7 @@ fn read_section_table(
                 s.count, header.block_count
             )));
         }
-        if kind == SectionKind::LinkBounds {
+        if kind == SectionKind::LinkBounds || kind == SectionKind::Ropes {
             let nodes = sections[SectionKind::Nodes as usize - 1].count;
             if s.count != nodes {
                 return Err(table_err(format!(

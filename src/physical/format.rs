@@ -39,8 +39,12 @@ pub const FLAG_COMPRESSED: u32 = 2;
 /// groups); clear: solid leaves list references to triangle records (spec §6, §7), the paper's
 /// structure (`oavm-pack --leaf list`).
 pub const FLAG_CLUSTERS: u32 = 4;
+/// Spec §2, `flags` bit 3: the file holds ropes (spec §8.4): for every leaf and link, the node
+/// across each face of the box a walk crosses there, in an eighth section (the top tree) and
+/// a ninth part of every block (`oavm-pack --ropes`).
+pub const FLAG_ROPES: u32 = 8;
 /// Every flag this version knows; any other bit set is an error at open.
-pub const KNOWN_FLAGS: u32 = FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS;
+pub const KNOWN_FLAGS: u32 = FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS | FLAG_ROPES;
 
 /// Spec §2: the file header, at offset 0 (256 bytes).
 #[repr(C)]
@@ -107,10 +111,14 @@ pub enum SectionKind {
     Volumes = 6,
     /// The top tree's link bounds (spec §8.1), one record per top-tree node.
     LinkBounds = 7,
+    /// The top tree's ropes (spec §8.4), one record per top-tree node; only in a file with
+    /// [`FLAG_ROPES`], whose section table then has eight entries.
+    Ropes = 8,
 }
 
 impl SectionKind {
-    pub const ALL: [SectionKind; 7] = [
+    /// Every kind, in file order; a file without ropes has the first [`Self::BASE`].
+    pub const ALL: [SectionKind; 8] = [
         SectionKind::Blocks,
         SectionKind::Directory,
         SectionKind::Levels,
@@ -118,7 +126,19 @@ impl SectionKind {
         SectionKind::Ranks,
         SectionKind::Volumes,
         SectionKind::LinkBounds,
+        SectionKind::Ropes,
     ];
+    /// Sections of a file without [`FLAG_ROPES`].
+    pub const BASE: usize = 7;
+
+    /// How many sections a file with these header flags has.
+    pub fn count_for(flags: u32) -> usize {
+        if flags & FLAG_ROPES != 0 {
+            Self::ALL.len()
+        } else {
+            Self::BASE
+        }
+    }
 
     pub fn from_u32(v: u32) -> Option<SectionKind> {
         SectionKind::ALL.into_iter().find(|k| *k as u32 == v)
@@ -133,6 +153,7 @@ impl SectionKind {
             SectionKind::Ranks => "ranks",
             SectionKind::Volumes => "volumes",
             SectionKind::LinkBounds => "link bounds",
+            SectionKind::Ropes => "ropes",
         }
     }
 
@@ -147,6 +168,7 @@ impl SectionKind {
             SectionKind::Ranks => std::mem::size_of::<RankWord>(),
             SectionKind::Volumes => std::mem::size_of::<VolumeRecord>(),
             SectionKind::LinkBounds => std::mem::size_of::<LinkBounds>(),
+            SectionKind::Ropes => std::mem::size_of::<RopeRecord>(),
         };
         Some(size as u64)
     }
@@ -712,11 +734,32 @@ pub struct BlockHeader {
     pub group_count: u64,
     /// The block's own index in the directory (catches a block stored in another's place).
     pub block_id: u64,
+    /// Rope records (spec §8.4): `node_count` in a file with [`FLAG_ROPES`], else 0 (bytes
+    /// 80..88 were padding before ropes, so blocks written before read 0 here).
+    pub rope_count: u64,
 }
-const _: () = assert!(std::mem::size_of::<BlockHeader>() == 80);
+const _: () = assert!(std::mem::size_of::<BlockHeader>() == 88);
 
 /// Spec §8.3: the parts of a block, in the order they are stored.
-pub const BLOCK_PARTS: usize = 8;
+pub const BLOCK_PARTS: usize = 9;
+
+/// Spec §8.4: a rope that leads out of the root cube (the face is on its boundary).
+pub const ROPE_EXIT: u32 = u32::MAX;
+/// Spec §8.4: a rope with this bit set leads to the top tree's node record `rope & !ROPE_TOP`;
+/// without it, to the node record of that index in the rope's own block.
+pub const ROPE_TOP: u32 = 1 << 31;
+/// Spec §8.4: the largest node index a rope can hold.
+pub const ROPE_MAX_INDEX: u32 = ROPE_TOP - 2;
+
+/// Spec §8.4: the ropes of one node record (24 bytes): for each face of the box a walk crosses
+/// at that node (its cell, or an empty leaf's merged volume), the smallest node containing
+/// everything just across the face. Faces in the order -x, +x, -y, +y, -z, +z
+/// (`2 * axis + positive`). Internal nodes' records are 0.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct RopeRecord {
+    pub across: [u32; 6],
+}
 
 /// Spec §8.3: the byte ranges, from a block's start, of its level table, nodes, ranks, volumes,
 /// refs, triangles, cluster nodes and groups (each at the next multiple of [`SECTION_ALIGN`]),
@@ -731,11 +774,16 @@ pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; BLOCK_PAR
         (h.triangle_count, std::mem::size_of::<TriRecord>()),
         (h.cluster_node_count, std::mem::size_of::<ClusterNode>()),
         (h.group_count, std::mem::size_of::<TriGroup>()),
+        (h.rope_count, std::mem::size_of::<RopeRecord>()),
     ];
     let mut at = std::mem::size_of::<BlockHeader>() as u64;
     let mut out: [std::ops::Range<u64>; BLOCK_PARTS] = Default::default();
     for (i, (count, size)) in sizes.into_iter().enumerate() {
-        at = at.checked_next_multiple_of(SECTION_ALIGN)?;
+        // The ropes, added later, take no place when absent: a block without them ends where
+        // it always did, at the end of its groups.
+        if i < BLOCK_PARTS - 1 || count > 0 {
+            at = at.checked_next_multiple_of(SECTION_ALIGN)?;
+        }
         let end = at.checked_add(count.checked_mul(size as u64)?)?;
         out[i] = at..end;
         at = end;

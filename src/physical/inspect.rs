@@ -90,13 +90,14 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
         (FLAG_MERGED, "merged"),
         (FLAG_COMPRESSED, "compressed"),
         (FLAG_CLUSTERS, "clusters"),
+        (FLAG_ROPES, "ropes"),
     ];
     let flags = names
         .iter()
         .filter(|(bit, _)| header.flags & bit != 0)
         .map(|&(_, name)| name)
         .collect();
-    let sections = SectionKind::ALL
+    let sections = SectionKind::ALL[..SectionKind::count_for(file.header().flags)]
         .iter()
         .map(|&k| Section {
             name: k.name(),

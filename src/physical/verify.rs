@@ -49,11 +49,11 @@ impl Defects {
 /// padding before each section, and the buffer's alignment. Returns the sections checked.
 pub fn check_sections<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects) -> u32 {
     let bytes = file.bytes();
-    let mut covered = (std::mem::size_of::<Header>()
-        + SectionKind::ALL.len() * std::mem::size_of::<SectionEntry>())
-        as u64;
+    let count = SectionKind::count_for(file.header().flags);
+    let mut covered =
+        (std::mem::size_of::<Header>() + count * std::mem::size_of::<SectionEntry>()) as u64;
     let mut checked = 0;
-    for kind in SectionKind::ALL {
+    for kind in SectionKind::ALL.into_iter().take(count) {
         let s = file.section(kind);
         if let Some(pad) = bytes.get(covered as usize..s.offset as usize)
             && pad.iter().any(|&b| b != 0)

@@ -22,6 +22,8 @@ pub struct UnitParts {
     /// Clusters (spec §7.1, §7.2): empty in a unit of leaf lists and in the top tree.
     pub cluster_nodes: Vec<ClusterNode>,
     pub groups: Vec<TriGroup>,
+    /// Ropes (spec §8.4): one record per node, or none (a file without ropes).
+    pub ropes: Vec<RopeRecord>,
 }
 
 impl UnitParts {
@@ -35,6 +37,7 @@ impl UnitParts {
             triangles: &self.triangles,
             cluster_nodes: &self.cluster_nodes,
             groups: &self.groups,
+            ropes: &self.ropes,
         }
     }
 }
@@ -50,6 +53,7 @@ pub struct UnitRef<'a> {
     pub triangles: &'a [TriRecord],
     pub cluster_nodes: &'a [ClusterNode],
     pub groups: &'a [TriGroup],
+    pub ropes: &'a [RopeRecord],
 }
 
 impl UnitRef<'_> {
@@ -115,6 +119,8 @@ pub struct StoredBlock {
     pub entry_id: u32,
     /// The bounds of each of its roots (spec §8.1), for the links to them.
     pub root_bounds: Vec<LinkBounds>,
+    /// Whether it carries ropes (spec §8.4; all blocks of a file do, or none).
+    pub ropes: bool,
 }
 
 /// Whether a block of `raw_len` bytes whose zstd frame is `z_len` bytes is stored compressed:
@@ -162,6 +168,7 @@ fn block_header(unit: UnitRef<'_>, root_level: u32, id: u32) -> BlockHeader {
         cluster_node_count: unit.cluster_nodes.len() as u64,
         group_count: unit.groups.len() as u64,
         block_id: id as u64,
+        rope_count: unit.ropes.len() as u64,
     }
 }
 
@@ -182,6 +189,7 @@ pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
         bytemuck::cast_slice(unit.triangles),
         bytemuck::cast_slice(unit.cluster_nodes),
         bytemuck::cast_slice(unit.groups),
+        bytemuck::cast_slice(unit.ropes),
     ];
     for (r, bytes) in ranges.iter().zip(parts) {
         out[r.start as usize..r.end as usize].copy_from_slice(bytes);
@@ -210,6 +218,13 @@ fn store_block_within(
     opts: &BlockOptions,
     limit: u64,
 ) -> Result<StoredBlock, Error> {
+    if !unit.ropes.is_empty() && unit.ropes.len() != unit.nodes.len() {
+        return Err(Error::Build(format!(
+            "block {id}: {} rope records for {} nodes",
+            unit.ropes.len(),
+            unit.nodes.len()
+        )));
+    }
     let raw_len = block_layout(&block_header(unit, root_level, id)).map_or(u64::MAX, |(_, n)| n);
     if raw_len > limit {
         let largest = largest_leaf(unit);
@@ -251,6 +266,7 @@ fn store_block_within(
         bytes,
         entry_id: id,
         root_bounds,
+        ropes: !unit.ropes.is_empty(),
     })
 }
 
@@ -322,6 +338,8 @@ pub struct FileWriter<S: Sink> {
     /// block `b`'s begin.
     bounds: Vec<LinkBounds>,
     bounds_start: Vec<usize>,
+    /// Whether the blocks written carry ropes (`None` before the first).
+    ropes: Option<bool>,
 }
 
 const ZEROS: [u8; 4096] = [0; 4096];
@@ -340,6 +358,7 @@ impl<S: Sink> FileWriter<S> {
             compressed: false,
             bounds: Vec::new(),
             bounds_start: Vec::new(),
+            ropes: None,
         })
     }
 
@@ -372,6 +391,18 @@ impl<S: Sink> FileWriter<S> {
             SECTION_ALIGN
         };
         self.pad_to(align)?;
+        if *self.ropes.get_or_insert(block.ropes) != block.ropes {
+            return Err(std::io::Error::other(format!(
+                "block {} {} ropes, the blocks before it {}",
+                block.entry_id,
+                if block.ropes { "has" } else { "has no" },
+                if block.ropes {
+                    "have none"
+                } else {
+                    "have them"
+                },
+            )));
+        }
         let mut entry = block.entry;
         entry.offset = self.at;
         self.sink.append(&block.bytes)?;
@@ -429,7 +460,21 @@ impl<S: Sink> FileWriter<S> {
         };
         let directory = std::mem::take(&mut self.directory);
         let link_bounds = self.link_bounds(top.nodes)?;
-        let sections: [(SectionKind, &[u8], u64); 6] = [
+        // Ropes (spec §8.4) are all or nothing: the top tree's and every block's.
+        let ropes = !top.ropes.is_empty();
+        if ropes && top.ropes.len() != top.nodes.len() {
+            return Err(std::io::Error::other(format!(
+                "{} top-tree rope records for {} nodes",
+                top.ropes.len(),
+                top.nodes.len()
+            )));
+        }
+        if ropes != self.ropes.unwrap_or(ropes) {
+            return Err(std::io::Error::other(
+                "the top tree and the blocks disagree on whether the file has ropes",
+            ));
+        }
+        let sections: [(SectionKind, &[u8], u64); 7] = [
             (
                 SectionKind::Directory,
                 bytemuck::cast_slice(&directory),
@@ -460,8 +505,18 @@ impl<S: Sink> FileWriter<S> {
                 bytemuck::cast_slice(&link_bounds),
                 link_bounds.len() as u64,
             ),
+            (
+                SectionKind::Ropes,
+                bytemuck::cast_slice(top.ropes),
+                top.ropes.len() as u64,
+            ),
         ];
-        for (i, (kind, bytes, count)) in sections.into_iter().enumerate() {
+        let section_count = if ropes {
+            SectionKind::ALL.len()
+        } else {
+            SectionKind::BASE
+        };
+        for (i, (kind, bytes, count)) in sections.into_iter().take(section_count - 1).enumerate() {
             self.pad_to(SECTION_ALIGN)?;
             entries[i + 1] = SectionEntry {
                 kind: kind as u32,
@@ -480,13 +535,16 @@ impl<S: Sink> FileWriter<S> {
         if self.compressed {
             flags |= FLAG_COMPRESSED;
         }
+        if ropes {
+            flags |= FLAG_ROPES;
+        }
         let header_size = std::mem::size_of::<Header>() as u64;
         let mut header = Header {
             magic: MAGIC,
             version: VERSION,
             flags,
             header_size: header_size as u32,
-            section_count: SectionKind::ALL.len() as u32,
+            section_count: section_count as u32,
             section_table_offset: header_size,
             file_size,
             root_min: meta.root_min,
@@ -507,7 +565,7 @@ impl<S: Sink> FileWriter<S> {
             reserved: [0; 10],
             checksum: 0,
         };
-        let table: &[u8] = bytemuck::cast_slice(&entries);
+        let table: &[u8] = bytemuck::cast_slice(&entries[..section_count]);
         let mut hasher = xxhash_rust::xxh3::Xxh3::new();
         hasher.update(&bytemuck::bytes_of(&header)[..HEADER_CHECKED_LEN]);
         hasher.update(table);
@@ -551,6 +609,7 @@ mod tests {
             triangles: vec![tri; n as usize],
             cluster_nodes: Vec::new(),
             groups: Vec::new(),
+            ropes: Vec::new(),
         }
     }
 

@@ -90,6 +90,13 @@ pub struct TraceArgs {
     /// `auto` (read when the file is larger than the memory available, else map).
     #[arg(long, value_enum, default_value_t = BlockReadsArg::Auto)]
     pub block_reads: BlockReadsArg,
+    /// Which walk traces the rays: `topdown` (nearest child first with a stack, as a BVH is
+    /// walked; files of clusters), `neighbours` (the OAVM paper's walk, leaf to leaf across
+    /// merged volumes, each next leaf found from its cell's Morton code), `ropes` (the same,
+    /// each next leaf found from the rope of the face left; a file packed with `--ropes`) or
+    /// `auto` (topdown for a file of clusters, else neighbours). The answers are the same.
+    #[arg(long, value_enum, default_value_t = WalkArg::Auto)]
+    pub walk: WalkArg,
     /// Order of tracing: stream (each ray's walk parked at every block it needs and resumed
     /// when that block is served with all the walks parked there; blocks read ahead in file
     /// order; a frame's shadow rays in the same stream), morton (rays that enter the model near
@@ -123,6 +130,26 @@ impl From<BlockReadsArg> for oavm::logical::BlockReads {
             BlockReadsArg::Auto => Self::Auto,
             BlockReadsArg::Map => Self::Map,
             BlockReadsArg::Read => Self::Read,
+        }
+    }
+}
+
+/// `--walk`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WalkArg {
+    Auto,
+    Topdown,
+    Neighbours,
+    Ropes,
+}
+
+impl From<WalkArg> for oavm::logical::Walk {
+    fn from(a: WalkArg) -> Self {
+        match a {
+            WalkArg::Auto => Self::Auto,
+            WalkArg::Topdown => Self::TopDown,
+            WalkArg::Neighbours => Self::Neighbours,
+            WalkArg::Ropes => Self::Ropes,
         }
     }
 }

@@ -219,6 +219,7 @@ pub(super) fn pack_streaming(
             spill_bytes: spill.disk_bytes(),
             histogram_level: plan.h,
         }),
+        ropes: None,
         total_seconds: t0.elapsed().as_secs_f64(),
         peak_rss_bytes: crate::os::peak_rss_bytes(),
     })
