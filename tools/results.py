@@ -269,7 +269,7 @@ shadow rays; the explanations come from the work-per-ray columns of the scene ta
 # figures, and the robots' speed-ups of ropes over each traversal (the issue that asked for this
 # section quotes them; the robots' absolute figures are not given there).
 PAPER_T1 = {
-    "Kitchen": {"kdtree:ropes": 139.8, "kdtree:pushdown": 21.4, "kdtree:restart": 17.1,
+    "Kitchen": {"kdtree:splitstack": 139.8, "kdtree:pushdown": 21.4, "kdtree:restart": 17.1,
                 "kdtree:shortstack": 27.3},
 }
 PAPER_T1_SPEEDUP = {
@@ -447,7 +447,15 @@ STACKLESS_NOTES = """### Why the CPU ranks the traversals differently
   ancestor with one read of the rope and a descent from the node it names. The Morton step is
   already cheap (the ancestor is found from the coordinates with a few bit operations, and most
   steps stay inside one parent, one or two levels down), so ropes save node reads (nodes per
-  ray) but add a 24-byte record read per step, and the file grows by 24 bytes per node.
+  ray) but add a 24-byte record read per step, and the file grows by 24 bytes per node. With
+  clusters (K = 512) a ray crosses few leaves and the two walks run at the same speed; with
+  leaf lists (K = 32, a deeper tree) the ropes save about a third of the node reads.
+- **The Cornell box** has 36 triangles: with clusters OAVM's whole tree is one leaf, so its
+  ropes are never taken and the two OAVM rows differ by noise only; the KD-tree's variants differ
+  little there for the same reason (a few leaves per ray).
+- **Two threads on two cores** share the machine with everything else it runs, and vary more
+  between runs than one thread does (the same walk differs by up to 1.5x between structures
+  measured minutes apart); the one-thread columns are the comparison.
 """
 
 
