@@ -3,11 +3,13 @@
 //!
 //! ```text
 //! cargo run --release --example check_structures -- [MESH]... [--random N] [--width W --height H]
-//!     [--brute N] [--judge N]
+//!     [--brute N] [--judge N] [--structure LIST]
 //! ```
 //!
 //! Default meshes: the bunny and the dragon from `../shared/scenes`. For each, every structure of
-//! `oavm::compare::STRUCTURES` is built from the same triangles and traces three sets: `random`
+//! `oavm::compare::STRUCTURES` (or of `--structure`, names as `oavm-bench` takes them, the
+//! traversal variants included: `kdtree:restart`, ..., `oavm:ropes`; `oavm` is always added, its
+//! primary hits start the shadow rays) is built from the same triangles and traces three sets: `random`
 //! (`--random` rays, default 10^6, closest hit), `primary` (`--width` x `--height`, default
 //! 1024x768, from the default camera, closest hit) and `shadow` (from OAVM's primary hits toward
 //! the default light, any hit). Brute force (`oavm::geom::reference`: every triangle in f64,
@@ -16,8 +18,8 @@
 //! - a strided subset of every set (every `k`-th ray, at least `--brute` rays; default 10^4 for
 //!   meshes up to 200,000 triangles, 2,000 above: brute force costs rays x triangles), against
 //!   which every structure is compared; and
-//! - every ray on which the five structures do not all agree (up to `--judge` per set, default
-//!   10^5), so a wrong answer of any structure on *any* ray of the set is found unless all five
+//! - every ray on which the structures do not all agree (up to `--judge` per set, default
+//!   10^5), so a wrong answer of any structure on *any* ray of the set is found unless all of them
 //!   give the same wrong answer, which the subset bounds.
 //!
 //! Agreement is `../shared/RAYS.md`'s rule (same hit or miss, `t` within 1e-4 of the bounding-box
@@ -42,6 +44,7 @@ struct Config {
     height: u32,
     brute: Option<usize>,
     judge: usize,
+    structures: Vec<&'static str>,
 }
 
 fn parse_args() -> Result<Config, String> {
@@ -52,6 +55,7 @@ fn parse_args() -> Result<Config, String> {
         height: 768,
         brute: None,
         judge: 100_000,
+        structures: STRUCTURES.to_vec(),
     };
     let mut it = std::env::args().skip(1);
     let num = |flag: &str, v: Option<String>| -> Result<usize, String> {
@@ -65,6 +69,19 @@ fn parse_args() -> Result<Config, String> {
             "--height" => c.height = num(&a, it.next())? as u32,
             "--brute" => c.brute = Some(num(&a, it.next())?),
             "--judge" => c.judge = num(&a, it.next())?,
+            "--structure" => {
+                let list: Vec<String> = it
+                    .next()
+                    .ok_or("--structure needs a list")?
+                    .split(',')
+                    .map(str::to_string)
+                    .collect();
+                c.structures =
+                    oavm::compare::bench::parse_structures(&list).map_err(|e| e.to_string())?;
+                if !c.structures.contains(&"oavm") {
+                    c.structures.push("oavm");
+                }
+            }
             f if f.starts_with('-') => return Err(format!("unknown flag {f}")),
             p => c.meshes.push(PathBuf::from(p)),
         }
@@ -116,7 +133,7 @@ fn run(c: &Config) -> Result<bool, String> {
     let mut ok = true;
     let opts = BuildOptions::default();
     println!(
-        "{:<8} {:<8} {:<8} {:>9} {:>16} {:>10} {:>20} {:>6}",
+        "{:<8} {:<8} {:<18} {:>9} {:>16} {:>10} {:>20} {:>6}",
         "mesh", "set", "struct", "rays", "brute subset", "agree %", "wrong among judged", "pass"
     );
     for path in &c.meshes {
@@ -128,7 +145,8 @@ fn run(c: &Config) -> Result<bool, String> {
         let tris = Triangles::from_mesh(&mesh).map_err(|e| e.to_string())?;
         let b = Bounds::of_points(tris.v.iter().flatten().copied());
         let diag = b.diagonal();
-        let accs: Vec<Box<dyn Accelerator>> = STRUCTURES
+        let accs: Vec<Box<dyn Accelerator>> = c
+            .structures
             .iter()
             .map(|s| compare::build_structure(s, &mesh, &tris, &opts).map_err(|e| e.to_string()))
             .collect::<Result<_, _>>()?;
@@ -189,7 +207,7 @@ fn run(c: &Config) -> Result<bool, String> {
                 let pass = sub_ok && all_ok;
                 ok &= pass;
                 println!(
-                    "{:<8} {:<8} {:<8} {:>9} {:>7} / {:<6} {:>10.4} {:>9} of {:<8} {:>6}",
+                    "{:<8} {:<8} {:<18} {:>9} {:>7} / {:<6} {:>10.4} {:>9} of {:<8} {:>6}",
                     name,
                     set,
                     acc.stats().name,
