@@ -177,6 +177,7 @@ fn structures_agree_with_oavm(leaf: LeafKind) -> Vec<Value> {
                 let speeds = x["mrays_per_s"].as_array().unwrap();
                 assert_eq!(speeds.len(), 1);
                 assert!(speeds[0][1].as_f64().unwrap() > 0.0);
+                check_by_occlusion(x);
             }
             // Primary rays inside a closed room hit something.
             assert!(sets[0]["hits"].as_u64().unwrap() > 0, "{s}");
@@ -223,6 +224,41 @@ fn structures_agree_with_oavm(leaf: LeafKind) -> Vec<Value> {
         }
     }
     scenes
+}
+
+/// The shadow (any-hit) set splits its work between the rays found occluded and those found
+/// unoccluded: the two counts are its hits and the rest, both occur, and the two averages,
+/// weighted by them, give the set's own; closest-hit sets have no split.
+fn check_by_occlusion(x: &Value) {
+    let b = &x["by_occlusion"];
+    if x["set"] != "shadow" {
+        assert!(b.is_null(), "{x}");
+        return;
+    }
+    let f = |k: &str| b[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {x}"));
+    let (occ, unocc) = (f("occluded_rays"), f("unoccluded_rays"));
+    assert_eq!(occ as u64, x["hits"].as_u64().unwrap(), "{x}");
+    assert_eq!((occ + unocc) as u64, x["rays"].as_u64().unwrap(), "{x}");
+    assert!(occ > 0.0 && unocc > 0.0, "{x}");
+    for (per_occ, per_unocc, all) in [
+        (
+            "nodes_per_occluded_ray",
+            "nodes_per_unoccluded_ray",
+            "nodes_visited_per_ray",
+        ),
+        (
+            "triangles_per_occluded_ray",
+            "triangles_per_unoccluded_ray",
+            "triangles_tested_per_ray",
+        ),
+    ] {
+        let mean = (f(per_occ) * occ + f(per_unocc) * unocc) / (occ + unocc);
+        let want = x[all].as_f64().unwrap();
+        assert!(
+            (mean - want).abs() <= 1e-9 * want.max(1.0),
+            "{all}: {mean} vs {want}: {x}"
+        );
+    }
 }
 
 #[test]

@@ -298,8 +298,38 @@ pub struct SetResult {
     /// Ropes followed per ray by OAVM's rope walk (`oavm:ropes`; 0 for the others, the
     /// KD-tree's rope walks count theirs in `restarts_per_ray`).
     pub ropes_per_ray: f64,
+    /// Any-hit sets: the work per ray of the rays found occluded and of those found
+    /// unoccluded, apart (absent for closest-hit sets).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub by_occlusion: Option<ByOcclusion>,
     /// (threads, Mrays/s), best of `reps`.
     pub mrays_per_s: Vec<(usize, f64)>,
+}
+
+/// Node and triangle tests per ray of an any-hit set's occluded and unoccluded rays (the
+/// multi-index tree's measures, Liang and Huang 2019).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ByOcclusion {
+    pub occluded_rays: u64,
+    pub unoccluded_rays: u64,
+    pub nodes_per_occluded_ray: f64,
+    pub triangles_per_occluded_ray: f64,
+    pub nodes_per_unoccluded_ray: f64,
+    pub triangles_per_unoccluded_ray: f64,
+}
+
+impl ByOcclusion {
+    fn of(split: &[Counters; 2]) -> ByOcclusion {
+        let per = |x: u64, c: &Counters| x as f64 / c.rays.max(1) as f64;
+        ByOcclusion {
+            occluded_rays: split[1].rays,
+            unoccluded_rays: split[0].rays,
+            nodes_per_occluded_ray: per(split[1].nodes_visited, &split[1]),
+            triangles_per_occluded_ray: per(split[1].triangles_tested, &split[1]),
+            nodes_per_unoccluded_ray: per(split[0].nodes_visited, &split[0]),
+            triangles_per_unoccluded_ray: per(split[0].triangles_tested, &split[0]),
+        }
+    }
 }
 
 /// One structure over one scene.
@@ -394,7 +424,18 @@ pub fn bench_scene(
         progress(&format!("  {name}: built in {build_ms:.1} ms"));
         let mut set_results = Vec::new();
         for (set, reference) in sets.iter().zip(&reference) {
-            let (c, answers) = Answers::trace(acc.as_ref(), &set.rays, set.any);
+            let (c, answers, by_occlusion) = if set.any {
+                let mut occ = vec![0u8; set.rays.len()];
+                let split = super::occluded_batch_split(acc.as_ref(), &set.rays, &mut occ);
+                (
+                    split[0] + split[1],
+                    Answers::Any(occ),
+                    Some(ByOcclusion::of(&split)),
+                )
+            } else {
+                let (c, answers) = Answers::trace(acc.as_ref(), &set.rays, false);
+                (c, answers, None)
+            };
             let per = |x: u64| x as f64 / c.rays.max(1) as f64;
             set_results.push(SetResult {
                 set: set.name,
@@ -406,6 +447,7 @@ pub fn bench_scene(
                 triangles_tested_per_ray: per(c.triangles_tested),
                 restarts_per_ray: per(c.restarts),
                 ropes_per_ray: per(c.ropes_followed),
+                by_occlusion,
                 mrays_per_s: speeds(acc.as_ref(), set, opts)?,
             });
         }

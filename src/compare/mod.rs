@@ -125,6 +125,31 @@ pub fn occluded_batch(acc: &dyn Accelerator, rays: &[Ray], out: &mut [u8]) -> Co
     batch(rays, out, |r, c| acc.occluded(r, c) as u8)
 }
 
+/// [`occluded_batch`], with the work counted apart for the rays found occluded (`[1]`) and
+/// the rays found unoccluded (`[0]`): what the shadow-ray traversals of the multi-index tree
+/// (Liang and Huang) are compared by, since an occluded ray may stop at its first hit and an
+/// unoccluded one must cross the whole segment.
+pub fn occluded_batch_split(acc: &dyn Accelerator, rays: &[Ray], out: &mut [u8]) -> [Counters; 2] {
+    rays.par_chunks(256)
+        .zip(out.par_chunks_mut(256))
+        .map(|(rays, out)| {
+            let mut split = [Counters::default(); 2];
+            for (r, o) in rays.iter().zip(out) {
+                let mut c = Counters {
+                    rays: 1,
+                    ..Counters::default()
+                };
+                *o = acc.occluded(r, &mut c) as u8;
+                split[*o as usize] += c;
+            }
+            split
+        })
+        .reduce(
+            || [Counters::default(); 2],
+            |a, b| [a[0] + b[0], a[1] + b[1]],
+        )
+}
+
 fn batch<T: Send>(
     rays: &[Ray],
     out: &mut [T],
