@@ -301,6 +301,18 @@ def ratio(a, b):
     return a / b if a and b else None
 
 
+def speed(st, set_name, threads):
+    """Mrays/s of structure `st` on one set at a thread count; None where it was not run."""
+    x = set_of(st, set_name)
+    return mrays(x, threads) if x else None
+
+
+def speed_cells(st, threads):
+    """The table cells of `st`'s speeds: each set of T1_SETS at each thread count."""
+    return [f"{m:.2f}" if m else "-"
+            for m in (speed(st, n, t) for n in T1_SETS for t in threads)]
+
+
 def fmt_x(v):
     return f"{v:.2f}x" if v else "-"
 
@@ -340,12 +352,7 @@ def stackless_section(w, data, lists, commit):
             st = structs.get(key)
             if not st:
                 continue
-            speeds = []
-            for set_name in T1_SETS:
-                x = set_of(st, set_name)
-                for t in threads:
-                    m = mrays(x, t) if x else None
-                    speeds.append(f"{m:.2f}" if m else "-")
+            speeds = speed_cells(st, threads)
             p = set_of(st, "primary") or {}
             dis = sum(x["disagree_with_oavm"] for x in st["sets"])
             w(f"| {KD_NAMES.get(key, key)} | {st['bytes'] / 1e6:,.2f} | {st['pointers']:,} | "
@@ -367,9 +374,8 @@ def stackless_section(w, data, lists, commit):
                     cells = []
                     for set_name in T1_SETS:
                         for t in threads:
-                            a, b = set_of(structs[rk], set_name), set_of(structs[ok], set_name)
-                            cells.append(fmt_x(ratio(mrays(a, t) if a else None,
-                                                     mrays(b, t) if b else None)))
+                            cells.append(fmt_x(ratio(speed(structs[rk], set_name, t),
+                                                     speed(structs[ok], set_name, t))))
                     paper = PAPER_T1_SPEEDUP.get(name, {}).get(ok)
                     label = f"{KD_NAMES[rk]} / {KD_NAMES[ok]}"
                     if paper:
@@ -385,9 +391,8 @@ def stackless_section(w, data, lists, commit):
             cells = []
             for set_name in T1_SETS:
                 for t in threads:
-                    a, b = set_of(orp, set_name), set_of(om, set_name)
                     cells.append(f"{set_name} ({t} thread{'s' if t > 1 else ''}) "
-                                 f"{fmt_x(ratio(mrays(a, t), mrays(b, t)))}")
+                                 f"{fmt_x(ratio(speed(orp, set_name, t), speed(om, set_name, t)))}")
             w(f"OAVM's ropes against its Morton neighbour step (clusters): {', '.join(cells)}; "
               f"they add {orp['pointers'] - om['pointers']:,} pointers and "
               f"{(orp['bytes'] - om['bytes']) / 1e6:,.2f} MB "
@@ -406,17 +411,11 @@ def stackless_section(w, data, lists, commit):
                 st = structs.get(key)
                 if not st:
                     continue
-                speeds = []
-                for set_name in T1_SETS:
-                    x = set_of(st, set_name)
-                    for t in threads:
-                        m = mrays(x, t) if x else None
-                        speeds.append(f"{m:.2f}" if m else "-")
+                speeds = speed_cells(st, threads)
                 p = set_of(st, "primary") or {}
                 r = "-"
                 if key == "oavm:ropes" and base:
-                    r = fmt_x(ratio(mrays(set_of(st, "primary"), 1),
-                                    mrays(set_of(base, "primary"), 1)))
+                    r = fmt_x(ratio(speed(st, "primary", 1), speed(base, "primary", 1)))
                 w(f"| {name} | {KD_NAMES[key]} | {st['bytes'] / 1e6:,.2f} | {st['pointers']:,} | "
                   f"{st['build_ms']:,.1f} | {' | '.join(speeds)} | "
                   f"{p.get('nodes_visited_per_ray', 0):.1f} | {p.get('ropes_per_ray', 0):.2f} | "

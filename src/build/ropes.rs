@@ -65,6 +65,27 @@ fn exit_box(rec: NodeRecord, level: u32, code: u64) -> ([u32; 3], [u32; 3]) {
     }
 }
 
+/// Descends `map` from node `idx` of `level` toward cell `lo` while the node is internal and
+/// above `stop`: the node reached, its level and record.
+fn descend_to(
+    map: &TreeMap<'_>,
+    mut level: u32,
+    mut idx: u64,
+    lo: [u32; 3],
+    stop: u32,
+) -> Result<(u32, u64, NodeRecord), Error> {
+    loop {
+        let rec = map.node(level, idx).map_err(bad)?;
+        if rec.kind_bits() != KIND_INTERNAL || level >= stop {
+            return Ok((level, idx, rec));
+        }
+        idx = map
+            .child(level, idx, morton::octant_of_point(lo, level + 1))
+            .map_err(bad)?;
+        level += 1;
+    }
+}
+
 /// The smallest node containing the lattice cells `lo..=hi`, found by descending from the top
 /// tree's root: a rope to a top-tree node (with [`ROPE_TOP`]), or, where the descent enters
 /// block `own` (the block whose ropes these are), to that block's node.
@@ -75,47 +96,22 @@ fn target(
     hi: [u32; 3],
 ) -> Result<u32, Error> {
     let stop = morton::common_level(lo, hi);
-    let (mut level, mut idx) = (0u32, 0u64);
-    let top_rope = |level: u32, idx: u64| {
-        let i = top.node_start(level) + idx;
+    let index = |map: &TreeMap<'_>, level: u32, idx: u64| {
+        let i = map.node_start(level) + idx;
         u32::try_from(i)
             .ok()
             .filter(|&i| i <= ROPE_MAX_INDEX)
-            .map(|i| i | ROPE_TOP)
-            .ok_or_else(|| bad(format!("top-tree node {i} is past what a rope can name")))
+            .ok_or_else(|| bad(format!("node {i} is past what a rope can name")))
     };
-    loop {
-        let rec = top.node(level, idx).map_err(bad)?;
-        match rec.kind_bits() {
-            KIND_INTERNAL if level < stop => {
-                let o = morton::octant_of_point(lo, level + 1);
-                idx = top.child(level, idx, o).map_err(bad)?;
-                level += 1;
-            }
-            KIND_LINK => {
-                let (b, root) = rec.link_bits();
-                let Some((own_id, map)) = own.filter(|(id, _)| *id == b) else {
-                    return top_rope(level, idx);
-                };
-                let _ = own_id;
-                let mut idx = root as u64;
-                loop {
-                    let r = map.node(level, idx).map_err(bad)?;
-                    if r.kind_bits() != KIND_INTERNAL || level >= stop {
-                        let i = map.node_start(level) + idx;
-                        return u32::try_from(i)
-                            .ok()
-                            .filter(|&i| i <= ROPE_MAX_INDEX)
-                            .ok_or_else(|| bad(format!("node {i} is past what a rope can name")));
-                    }
-                    let o = morton::octant_of_point(lo, level + 1);
-                    idx = map.child(level, idx, o).map_err(bad)?;
-                    level += 1;
-                }
-            }
-            _ => return top_rope(level, idx),
+    let (level, idx, rec) = descend_to(top, 0, 0, lo, stop)?;
+    if rec.kind_bits() == KIND_LINK {
+        let (b, root) = rec.link_bits();
+        if let Some((_, map)) = own.filter(|(id, _)| *id == b) {
+            let (level, idx, _) = descend_to(map, level, root as u64, lo, stop)?;
+            return index(map, level, idx);
         }
     }
+    Ok(index(top, level, idx)? | ROPE_TOP)
 }
 
 /// The six ropes of a node whose walk box is `lo..hi` (spec §8.4 face order).

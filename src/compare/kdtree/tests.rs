@@ -185,15 +185,7 @@ fn variants() -> Vec<KdTraversal> {
 #[test]
 fn traversal_variants_match_brute_force_and_the_stack_walk() {
     use crate::compare::test_util::awkward_rays;
-    let mut scenes = vec![tris_of(unit_soup(1500, 31))];
-    let mut v = unit_soup(300, 15);
-    for &x in &[0.25f32, 0.5, 0.75] {
-        for i in 0..100 {
-            let (y, z) = ((i % 10) as f32 / 10.0, (i / 10) as f32 / 10.0);
-            v.push([[x, y, z], [x, y + 0.1, z], [x, y, z + 0.1]]);
-        }
-    }
-    scenes.push(tris_of(v));
+    let scenes = soup_and_planes(31, 15);
     for (s, (tris, mesh)) in scenes.iter().enumerate() {
         let stack = KdTree::build(tris);
         let mut rays = unit_rays(3000, 40 + s as u64);
@@ -310,6 +302,20 @@ fn ropes_name_the_node_across_each_face() {
     );
 }
 
+/// Two scenes for the traversal variants: a random soup (seed `soup`), and a smaller soup (seed
+/// `planes`) with 300 triangles lying in the planes x = 0.25, 0.5, 0.75, where a ray can lie in a
+/// split plane.
+fn soup_and_planes(soup: u64, planes: u64) -> Vec<(Triangles, crate::mesh::Mesh)> {
+    let mut v = unit_soup(300, planes);
+    for &x in &[0.25f32, 0.5, 0.75] {
+        for i in 0..100 {
+            let (y, z) = ((i % 10) as f32 / 10.0, (i / 10) as f32 / 10.0);
+            v.push([[x, y, z], [x, y + 0.1, z], [x, y, z + 0.1]]);
+        }
+    }
+    vec![tris_of(unit_soup(1500, soup)), tris_of(v)]
+}
+
 /// The `SplitStack` walk is the stack walk: on random soups, on the flat-plane scene (rays
 /// lying in split planes) and on awkward rays, every ray gets the stack walk's closest and any
 /// hit (grazing or not), and a ray not parallel to an axis (which cannot lie in a split plane)
@@ -317,15 +323,7 @@ fn ropes_name_the_node_across_each_face() {
 #[test]
 fn split_stack_walk_is_the_stack_walk() {
     use crate::compare::test_util::awkward_rays;
-    let mut scenes = vec![tris_of(unit_soup(1500, 71))];
-    let mut v = unit_soup(300, 72);
-    for &x in &[0.25f32, 0.5, 0.75] {
-        for i in 0..100 {
-            let (y, z) = ((i % 10) as f32 / 10.0, (i / 10) as f32 / 10.0);
-            v.push([[x, y, z], [x, y + 0.1, z], [x, y, z + 0.1]]);
-        }
-    }
-    scenes.push(tris_of(v));
+    let scenes = soup_and_planes(71, 72);
     for (s, (tris, mesh)) in scenes.iter().enumerate() {
         let stack = KdTree::build(tris);
         let walk = KdTree::build(tris).with_traversal(KdTraversal::SplitStack);
