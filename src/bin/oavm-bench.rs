@@ -10,7 +10,9 @@ use oavm::build::{self, BuildOptions};
 mod cli;
 
 use cli::{LeafArg, main_with};
-use oavm::compare::bench::{self, Options, Report, SceneResult};
+use oavm::compare::bench::{self, BenchScene, Options, Report, SceneResult};
+use oavm::compare::kdtree::ShadowParams;
+use oavm::compare::shadow::{self, LightKind, ShadowOptions, ShadowVariant};
 use oavm::{Error, rays};
 
 /// Builds the structures of the OAVM paper's comparison over each scene and traces the same rays
@@ -70,6 +72,61 @@ struct Args {
     /// Print one JSON object with every figure.
     #[arg(long)]
     json: bool,
+    /// Shadow rays instead (the multi-index tree of Liang and Huang): these traversals of the
+    /// --structure (kdtree) over the frames of a camera orbit, each checked against standard:
+    /// standard, sato (children by surface area), multi (primitive and adjacency indices chosen
+    /// by prediction). With --rays and --occluded, exactly one.
+    #[arg(long, value_delimiter = ',', value_name = "VARIANTS")]
+    shadow_variant: Vec<String>,
+    /// Shadow rays: frames of the orbit.
+    #[arg(long, default_value_t = 8)]
+    frames: usize,
+    /// Shadow rays: degrees the camera turns each frame.
+    #[arg(long, default_value_t = 1.0)]
+    orbit_step: f64,
+    /// Shadow rays: prediction tile side, pixels.
+    #[arg(long, default_value_t = 16)]
+    tile: u32,
+    /// Shadow rays: the scene's point lights, or each made a square area light (side 2 % of the
+    /// scene's diagonal).
+    #[arg(long, value_enum, default_value_t = LightArg::Point)]
+    light: LightArg,
+    /// Shadow rays: samples per pixel of an area light.
+    #[arg(long, default_value_t = 4)]
+    light_samples: u32,
+    /// Shadow rays, meshes: enclose the mesh, the camera and the light in a closed box.
+    #[arg(long)]
+    closed_box: bool,
+    /// Shadow rays, multi: candidate occluders' box area over the mean (the source: 0.45-0.60).
+    #[arg(long, default_value_t = 0.5)]
+    candidate_ratio: f64,
+    /// Shadow rays, multi: the depth weight exp(-k d).
+    #[arg(long, default_value_t = 0.6)]
+    depth_k: f64,
+    /// Shadow rays, multi: the weighted saving C/C' a triangle must exceed to be promoted.
+    #[arg(long, default_value_t = 1.0)]
+    min_benefit: f64,
+    /// Shadow rays: camera position (replaces the scene's or framing camera's; with --target).
+    #[arg(long, value_parser = cli::parse_vec3, allow_hyphen_values = true, requires = "target")]
+    eye: Option<[f64; 3]>,
+    /// Shadow rays: the point the camera looks at.
+    #[arg(long, value_parser = cli::parse_vec3, allow_hyphen_values = true, requires = "eye")]
+    target: Option<[f64; 3]>,
+    /// Shadow rays: vertical field of view of --eye's camera, degrees.
+    #[arg(long, default_value_t = 40.0)]
+    fov: f64,
+    /// Shadow rays: one point light here instead of the scene's lights.
+    #[arg(long, value_parser = cli::parse_vec3, allow_hyphen_values = true)]
+    light_at: Option<[f64; 3]>,
+    /// Shadow rays, multi: most triangles promoted to one node.
+    #[arg(long, default_value_t = 8)]
+    per_node: usize,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum LightArg {
+    Point,
+    Quad,
 }
 
 fn main() -> std::process::ExitCode {
@@ -95,6 +152,9 @@ fn run(args: &Args) -> Result<(), Error> {
         threads: args.threads.clone(),
     };
     opts.build.validate()?;
+    if !args.shadow_variant.is_empty() {
+        return shadow(args);
+    }
     if let Some(rays_path) = &args.rays {
         return batch(args, rays_path, &names, &opts.build);
     }
@@ -164,6 +224,175 @@ fn batch(
         Some(f) => Err(Error::Invalid(f)),
         None => Ok(()),
     }
+}
+
+/// The shadow-ray benchmark (`--shadow-variant`).
+fn shadow(args: &Args) -> Result<(), Error> {
+    let variants = args
+        .shadow_variant
+        .iter()
+        .map(|v| ShadowVariant::parse(v))
+        .collect::<Result<Vec<_>, _>>()?;
+    let structure = match &args.structure[..] {
+        [s] if s == "all" => "kdtree",
+        [s] if shadow::SHADOW_STRUCTURES.contains(&s.as_str()) => "kdtree",
+        _ => {
+            return Err(Error::Invalid(format!(
+                "--shadow-variant runs on one --structure: {}",
+                shadow::SHADOW_STRUCTURES.join(", ")
+            )));
+        }
+    };
+    if !(args.candidate_ratio.is_finite() && args.candidate_ratio >= 0.0)
+        || !(args.depth_k.is_finite() && args.depth_k >= 0.0)
+        || !(args.min_benefit.is_finite() && args.min_benefit >= 0.0)
+    {
+        return Err(Error::Invalid(
+            "--candidate-ratio, --depth-k and --min-benefit must be finite and not negative".into(),
+        ));
+    }
+    let params = ShadowParams {
+        candidate_ratio: args.candidate_ratio,
+        depth_k: args.depth_k,
+        min_benefit: args.min_benefit,
+        per_node: args.per_node,
+        ..ShadowParams::default()
+    };
+    if let Some(rays_path) = &args.rays {
+        let ([variant], [scene], Some(out)) = (&variants[..], &args.scenes[..], &args.occluded)
+        else {
+            return Err(Error::Invalid(
+                "--rays with --shadow-variant needs exactly one scene, one variant and --occluded"
+                    .into(),
+            ));
+        };
+        let out = oavm::output::Output::create(out, &[scene.as_path(), rays_path])?;
+        let rays = rays::read_rays(rays_path, u32::MAX as u64)?;
+        let scene = BenchScene::load(scene)?;
+        let (result, answers) = shadow::batch_file(&scene, *variant, &rays, params)?;
+        rays::write_into(out, &answers)?;
+        cli::print_json(&result)?;
+        if result.disagree_with_standard > 0 {
+            return Err(Error::Invalid(format!(
+                "DISAGREEMENT: {} of {} rays differ from the standard walk",
+                result.disagree_with_standard, result.rays
+            )));
+        }
+        return Ok(());
+    }
+    if args.frames == 0 || args.tile == 0 || args.light_samples == 0 {
+        return Err(Error::Invalid(
+            "--frames, --tile and --light-samples must be at least 1".into(),
+        ));
+    }
+    let sopts = ShadowOptions {
+        width: args.width,
+        height: args.height,
+        frames: args.frames,
+        orbit_step: args.orbit_step,
+        tile: args.tile,
+        light: match args.light {
+            LightArg::Point => LightKind::Point,
+            LightArg::Quad => LightKind::Quad,
+        },
+        samples: args.light_samples,
+        closed_box: args.closed_box,
+        params,
+        reps: args.reps,
+        threads: args.threads.clone(),
+    };
+    let progress = |s: &str| eprintln!("oavm-bench: {s}");
+    let mut scenes = Vec::new();
+    let mut failed = 0;
+    for path in &args.scenes {
+        let mut scene = BenchScene::load(path)?;
+        if let (Some(eye), Some(target)) = (args.eye, args.target) {
+            let cam = oavm::rays::Camera::look_at(eye, target, [0.0, 1.0, 0.0], args.fov)
+                .map_err(|e| Error::Invalid(format!("--eye, --target, --fov: {e}")))?;
+            let light = scene.view.and_then(|(_, l)| l);
+            scene.view = Some((cam, light));
+        }
+        if let Some(l) = args.light_at {
+            let l = l.map(|x| x as f32);
+            scene.lights = vec![l];
+            if let Some((_, light)) = &mut scene.view {
+                *light = Some(l);
+            }
+        }
+        if args.closed_box && scene.lights.is_empty() {
+            shadow::close_in_box(&mut scene)?;
+        }
+        progress(&format!("{}: {} triangles", path.display(), scene.tris.len()));
+        let mut r = shadow::run(&scene, structure, &variants, &sopts, &progress)?;
+        r.scene = bench::scene_name(path);
+        failed += r.variants.iter().filter(|v| v.disagree_with_standard > 0).count();
+        if !args.json {
+            print_shadow(&r)?;
+        }
+        scenes.push(r);
+    }
+    if args.json {
+        cli::print_json(&serde_json::json!({
+            "format_version": oavm::physical::format::VERSION,
+            "shadow": sopts,
+            "scenes": scenes,
+        }))?;
+    }
+    if failed > 0 {
+        return Err(Error::Invalid(format!(
+            "DISAGREEMENT: {failed} variants answered otherwise than the standard walk"
+        )));
+    }
+    Ok(())
+}
+
+fn print_shadow(r: &shadow::ShadowSceneResult) -> Result<(), Error> {
+    let mut t = format!(
+        "\n{} ({} triangles, {} lights: {}, {} frames, {} shadow rays)\n{:<9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10} {:>8} {:>22}\n",
+        r.scene,
+        r.triangles,
+        r.lights,
+        r.light_source,
+        r.frames,
+        r.rays_per_frame.iter().sum::<usize>(),
+        "variant",
+        "occluded",
+        "nodes/occ",
+        "tris/occ",
+        "nodes/un",
+        "tris/un",
+        "predict",
+        "prep s",
+        "prep bytes",
+        "disagree",
+        "Mrays/s (threads)"
+    );
+    for v in &r.variants {
+        let b = &v.by_occlusion;
+        let speed: Vec<String> = v
+            .mrays_per_s
+            .iter()
+            .map(|(th, m)| format!("{m:.2} ({th})"))
+            .collect();
+        let acc = v
+            .prediction
+            .map_or("-".to_string(), |p| format!("{:.1} %", 100.0 * p.accuracy));
+        t.push_str(&format!(
+            "{:<9} {:>9} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>8} {:>10.3} {:>10} {:>8} {:>22}\n",
+            v.variant.name(),
+            v.occluded,
+            b.nodes_per_occluded_ray,
+            b.triangles_per_occluded_ray,
+            b.nodes_per_unoccluded_ray,
+            b.triangles_per_unoccluded_ray,
+            acc,
+            v.precompute.seconds,
+            v.precompute.bytes,
+            v.disagree_with_standard,
+            speed.join(" ")
+        ));
+    }
+    write_out(&t)
 }
 
 fn print_scene(r: &SceneResult) -> Result<(), Error> {

@@ -145,6 +145,8 @@ pub struct BenchScene {
     pub tris: Triangles,
     pub bounds: Bounds,
     pub view: Option<(Camera, Option<[f32; 3]>)>,
+    /// A BART scene's point lights, all of them (none for a mesh).
+    pub lights: Vec<[f32; 3]>,
 }
 
 impl BenchScene {
@@ -153,8 +155,10 @@ impl BenchScene {
         let is_aff = path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("aff"));
+        let mut lights = Vec::new();
         let (mesh, view) = if is_aff {
             let aff = crate::mesh::load_aff(path, None)?;
+            lights = aff.lights.iter().map(|l| l.map(|c| c as f32)).collect();
             let view = match aff.camera_path.or(aff.view) {
                 Some(v) => {
                     let cam = Camera::look_at(v.from, v.at, v.up, v.angle_deg).map_err(|e| {
@@ -176,6 +180,7 @@ impl BenchScene {
             tris,
             bounds,
             view,
+            lights,
         })
     }
 
@@ -319,7 +324,7 @@ pub struct ByOcclusion {
 }
 
 impl ByOcclusion {
-    fn of(split: &[Counters; 2]) -> ByOcclusion {
+    pub(crate) fn of(split: &[Counters; 2]) -> ByOcclusion {
         let per = |x: u64, c: &Counters| x as f64 / c.rays.max(1) as f64;
         ByOcclusion {
             occluded_rays: split[1].rays,

@@ -26,6 +26,7 @@ pub mod kdtree;
 mod leaf;
 mod oavm;
 pub mod octree;
+pub mod shadow;
 #[cfg(test)]
 mod test_util;
 

@@ -87,6 +87,9 @@ pub struct Counters {
     /// Ropes followed by the leaf-to-leaf walk of [`Walk::Ropes`] (spec §8.4). (The comparison
     /// KD-tree's rope walks count theirs in `restarts`.)
     pub ropes_followed: u64,
+    /// Occluders tested at inner nodes by the shadow-ray walk of a primitive index (the
+    /// multi-index tree of Liang and Huang; also counted in `triangles_tested`).
+    pub promoted_tested: u64,
     /// Blocks asked of the pager (each time a walk moves into another block), with its hits,
     /// misses and bytes.
     #[serde(flatten)]
@@ -111,6 +114,7 @@ impl std::ops::AddAssign for Counters {
         self.clusters_entered += o.clusters_entered;
         self.restarts += o.restarts;
         self.ropes_followed += o.ropes_followed;
+        self.promoted_tested += o.promoted_tested;
         self.cluster_nodes_visited += o.cluster_nodes_visited;
         self.boxes_tested += o.boxes_tested;
         self.groups_tested += o.groups_tested;

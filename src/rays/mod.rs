@@ -4,6 +4,7 @@
 
 mod camera;
 mod file;
+mod lights;
 mod rng;
 mod sets;
 
@@ -13,6 +14,7 @@ pub use file::{
     Record, encode_records, parse_records, read, read_hits, read_occlusion, read_rays, write,
     write_hits, write_into, write_occlusion, write_rays,
 };
+pub use lights::{Light, ShadowFrame, orbit};
 pub use rng::SplitMix64;
 pub use sets::{SHADOW_EPSILON, default_light, random_rays, shadow_ray, shadow_rays};
 

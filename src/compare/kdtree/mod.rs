@@ -20,6 +20,7 @@
 mod build;
 mod node;
 mod ropes;
+mod shadow;
 mod traverse;
 
 #[cfg(test)]
@@ -28,6 +29,7 @@ mod tests;
 pub use build::{EMPTY_BONUS, ISECT_COST, MAX_BAD_REFINES, MAX_DEPTH_CAP, TRAVERSAL_COST};
 pub use node::KdNode;
 pub use ropes::SPLIT_STACK_FORKS;
+pub use shadow::{Adjacency, Precompute, PrimitiveIndex, REMEMBER, SatoOrder, ShadowParams};
 pub use traverse::{KdTraversal, MAX_SHORT_STACK, STACK};
 
 use super::StructureStats;

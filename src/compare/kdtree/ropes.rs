@@ -166,7 +166,7 @@ impl Ropes {
 }
 
 /// The smallest node under `t` that holds all of face `f` of a leaf whose cell is `leaf`.
-fn push_down(kd: &KdTree, mut t: u32, f: usize, leaf: &[[f32; 3]; 2]) -> u32 {
+pub(super) fn push_down(kd: &KdTree, mut t: u32, f: usize, leaf: &[[f32; 3]; 2]) -> u32 {
     let (fa, high) = (f / 2, f % 2 == 1);
     while let Some(nd) = kd.nodes.get(t as usize) {
         if nd.is_leaf() {

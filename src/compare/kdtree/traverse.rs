@@ -309,9 +309,23 @@ impl KdTree {
         let Some(r) = self.kd_ray(ray) else {
             return true;
         };
+        self.stack_core(&r, r.t0, c, leaf, &mut Plain)
+    }
+
+    /// The stack walk of `r` over `[t0, r.t1]`, with `hooks` (the shadow-ray walks'
+    /// occluders tested at inner nodes and fixed child order; [`Plain`] for none).
+    #[inline(always)]
+    pub(super) fn stack_core(
+        &self,
+        r: &KdRay,
+        t0: f64,
+        c: &mut Counters,
+        leaf: &mut impl FnMut(&[u32], &mut Counters) -> f32,
+        hooks: &mut impl StackHooks,
+    ) -> bool {
         let mut stack = [(0u32, 0.0f64, 0.0f64); STACK];
         let mut sp = 0;
-        let (mut node, mut tmin, mut tmax) = (0u32, r.t0, r.t1);
+        let (mut node, mut tmin, mut tmax) = (0u32, t0, r.t1);
         let mut bound = NO_HIT as f64;
         loop {
             // A node starting after the closest hit is skipped. Not a `break` as in pbrt: the
@@ -325,6 +339,9 @@ impl KdTree {
             if let Some(n) = node_ref {
                 c.nodes_visited += 1;
                 if !n.is_leaf() {
+                    if hooks.inner(node, c) {
+                        return true;
+                    }
                     // The far side (or, for a ray lying in the plane, the above side over the
                     // same interval) is pushed; the walk goes on with the other.
                     // The plane decision is written out: through a helper returning an enum
@@ -364,10 +381,16 @@ impl KdTree {
                         let Some(slot) = stack.get_mut(sp) else {
                             return false;
                         };
-                        *slot = (far, tp, tmax);
+                        if hooks.far_first(node, near == below) {
+                            *slot = (near, tmin, tp);
+                            node = far;
+                            tmin = tp;
+                        } else {
+                            *slot = (far, tp, tmax);
+                            node = near;
+                            tmax = tp;
+                        }
                         sp += 1;
-                        node = near;
-                        tmax = tp;
                     }
                     continue;
                 }
@@ -384,3 +407,24 @@ impl KdTree {
         }
     }
 }
+
+/// What the shadow-ray walks add to the stack walk ([`KdTree::stack_core`]); the defaults add
+/// nothing.
+pub(super) trait StackHooks {
+    /// Called at each interior node the walk visits; `true` ends the walk (an occluder found).
+    #[inline(always)]
+    fn inner(&mut self, _node: u32, _c: &mut Counters) -> bool {
+        false
+    }
+    /// Whether, where the ray crosses both children of `node`, the far one is visited first
+    /// (`near_is_below`: the ray meets the below child first).
+    #[inline(always)]
+    fn far_first(&self, _node: u32, _near_is_below: bool) -> bool {
+        false
+    }
+}
+
+/// The plain stack walk: no hooks.
+pub(super) struct Plain;
+
+impl StackHooks for Plain {}
