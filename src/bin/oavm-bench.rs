@@ -10,9 +10,9 @@ use oavm::build::{self, BuildOptions};
 mod cli;
 
 use cli::{LeafArg, main_with};
-use oavm::compare::bench::{self, BenchScene, Options, Report, SceneResult};
+use oavm::compare::bench::{self, Options, Report, SceneResult};
 use oavm::compare::kdtree::ShadowParams;
-use oavm::compare::shadow::{self, LightKind, ShadowOptions, ShadowVariant};
+use oavm::compare::shadow::{self, LightKind, ShadowOptions, ShadowVariant, ViewOverride};
 use oavm::{Error, rays};
 
 /// Builds the structures of the OAVM paper's comparison over each scene and traces the same rays
@@ -243,9 +243,10 @@ fn shadow(args: &Args) -> Result<(), Error> {
             )));
         }
     };
-    if !(args.candidate_ratio.is_finite() && args.candidate_ratio >= 0.0)
-        || !(args.depth_k.is_finite() && args.depth_k >= 0.0)
-        || !(args.min_benefit.is_finite() && args.min_benefit >= 0.0)
+    let fine = |x: f64| x.is_finite() && x >= 0.0;
+    if ![args.candidate_ratio, args.depth_k, args.min_benefit]
+        .into_iter()
+        .all(fine)
     {
         return Err(Error::Invalid(
             "--candidate-ratio, --depth-k and --min-benefit must be finite and not negative".into(),
@@ -258,6 +259,12 @@ fn shadow(args: &Args) -> Result<(), Error> {
         per_node: args.per_node,
         ..ShadowParams::default()
     };
+    let view = ViewOverride {
+        eye_target: args.eye.zip(args.target),
+        fov: args.fov,
+        light_at: args.light_at.map(|l| l.map(|x| x as f32)),
+        closed_box: args.closed_box,
+    };
     if let Some(rays_path) = &args.rays {
         let ([variant], [scene], Some(out)) = (&variants[..], &args.scenes[..], &args.occluded)
         else {
@@ -268,7 +275,7 @@ fn shadow(args: &Args) -> Result<(), Error> {
         };
         let out = oavm::output::Output::create(out, &[scene.as_path(), rays_path])?;
         let rays = rays::read_rays(rays_path, u32::MAX as u64)?;
-        let scene = BenchScene::load(scene)?;
+        let scene = shadow::load_scene(scene, &view)?;
         let (result, answers) = shadow::batch_file(&scene, *variant, &rays, params)?;
         rays::write_into(out, &answers)?;
         cli::print_json(&result)?;
@@ -305,27 +312,19 @@ fn shadow(args: &Args) -> Result<(), Error> {
     let mut scenes = Vec::new();
     let mut failed = 0;
     for path in &args.scenes {
-        let mut scene = BenchScene::load(path)?;
-        if let (Some(eye), Some(target)) = (args.eye, args.target) {
-            let cam = oavm::rays::Camera::look_at(eye, target, [0.0, 1.0, 0.0], args.fov)
-                .map_err(|e| Error::Invalid(format!("--eye, --target, --fov: {e}")))?;
-            let light = scene.view.and_then(|(_, l)| l);
-            scene.view = Some((cam, light));
-        }
-        if let Some(l) = args.light_at {
-            let l = l.map(|x| x as f32);
-            scene.lights = vec![l];
-            if let Some((_, light)) = &mut scene.view {
-                *light = Some(l);
-            }
-        }
-        if args.closed_box && scene.lights.is_empty() {
-            shadow::close_in_box(&mut scene)?;
-        }
-        progress(&format!("{}: {} triangles", path.display(), scene.tris.len()));
+        let scene = shadow::load_scene(path, &view)?;
+        progress(&format!(
+            "{}: {} triangles",
+            path.display(),
+            scene.tris.len()
+        ));
         let mut r = shadow::run(&scene, structure, &variants, &sopts, &progress)?;
         r.scene = bench::scene_name(path);
-        failed += r.variants.iter().filter(|v| v.disagree_with_standard > 0).count();
+        failed += r
+            .variants
+            .iter()
+            .filter(|v| v.disagree_with_standard > 0)
+            .count();
         if !args.json {
             print_shadow(&r)?;
         }

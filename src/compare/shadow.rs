@@ -278,6 +278,40 @@ pub fn close_in_box(scene: &mut BenchScene) -> Result<(), Error> {
     Ok(())
 }
 
+/// A camera and a light given instead of the scene's, and the closed box (module docs).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ViewOverride {
+    /// The camera's eye and target (its up is +y).
+    pub eye_target: Option<([f64; 3], [f64; 3])>,
+    /// Its vertical field of view, degrees.
+    pub fov: f64,
+    /// One point light instead of the scene's lights.
+    pub light_at: Option<[f32; 3]>,
+    /// A mesh (a scene without lights) is closed in a box ([`close_in_box`]).
+    pub closed_box: bool,
+}
+
+/// Loads the scene at `path` as the shadow benchmark poses it.
+pub fn load_scene(path: &std::path::Path, view: &ViewOverride) -> Result<BenchScene, Error> {
+    let mut scene = BenchScene::load(path)?;
+    if let Some((eye, target)) = view.eye_target {
+        let cam = Camera::look_at(eye, target, [0.0, 1.0, 0.0], view.fov)
+            .map_err(|e| Error::Invalid(format!("the camera given: {e}")))?;
+        let light = scene.view.and_then(|(_, l)| l);
+        scene.view = Some((cam, light));
+    }
+    if let Some(l) = view.light_at {
+        scene.lights = vec![l];
+        if let Some((_, light)) = &mut scene.view {
+            *light = Some(l);
+        }
+    }
+    if view.closed_box && scene.lights.is_empty() {
+        close_in_box(&mut scene)?;
+    }
+    Ok(scene)
+}
+
 impl ShadowSetup {
     /// The frames of `scene` traced through `acc` (its primary hits).
     pub fn new(
@@ -300,7 +334,8 @@ impl ShadowSetup {
                 h
             })
             .collect();
-        let (points, light_source) = choose_lights(scene, acc, scene_lights, &camera, &primary[0], &hits[0]);
+        let (points, light_source) =
+            choose_lights(scene, acc, scene_lights, &camera, &primary[0], &hits[0]);
         let side = 0.02 * scene.bounds.diagonal() as f32;
         let lights: Vec<Light> = points
             .iter()
@@ -383,7 +418,10 @@ fn choose_lights(
     }
     let eye = camera.eye.map(|c| c as f32);
     let dir: [f32; 3] = std::array::from_fn(|k| (camera.target[k] - camera.eye[k]) as f32);
-    let hit = acc.intersect(&Ray::new(eye, dir, 0.0, f32::INFINITY), &mut Counters::default());
+    let hit = acc.intersect(
+        &Ray::new(eye, dir, 0.0, f32::INFINITY),
+        &mut Counters::default(),
+    );
     let light = if hit.is_hit() {
         std::array::from_fn(|k| eye[k] + 0.5 * hit.t * dir[k])
     } else {
@@ -416,7 +454,11 @@ pub struct Prediction {
 }
 
 /// Traces every frame of `setup` through `s` by `variant`, on the current rayon pool.
-pub fn trace_frames(s: &dyn ShadowStructure, variant: ShadowVariant, setup: &ShadowSetup) -> Traced {
+pub fn trace_frames(
+    s: &dyn ShadowStructure,
+    variant: ShadowVariant,
+    setup: &ShadowSetup,
+) -> Traced {
     let mut out = Traced {
         answers: Vec::with_capacity(setup.frames.len()),
         split: [Counters::default(); 2],
@@ -519,7 +561,7 @@ pub struct VariantResult {
     pub links_followed_per_ray: f64,
     pub restarts_per_ray: f64,
     /// Change against `standard`, percent: node and triangle tests per occluded and per
-    /// unoccluded ray.
+    /// unoccluded ray (the standard walk is always traced, for the answers).
     pub change: Option<Change>,
     pub prediction: Option<Prediction>,
     /// (threads, Mrays/s) over all frames, best of `reps`.
@@ -589,9 +631,14 @@ pub fn run(
         params: opts.params,
     };
     let mut results: Vec<VariantResult> = Vec::new();
-    let mut standard: Option<(Vec<Vec<u8>>, ByOcclusion, Vec<(usize, f64)>)> = None;
-    // The reference answers: the standard walk's, traced first whatever the order asked.
-    let reference = trace_frames(&KdShadow::new(&base, ShadowVariant::Standard, &prep), ShadowVariant::Standard, &setup).answers;
+    // The reference answers and work: the standard walk's, traced first whatever was asked.
+    let reference = trace_frames(
+        &KdShadow::new(&base, ShadowVariant::Standard, &prep),
+        ShadowVariant::Standard,
+        &setup,
+    );
+    let standard = ByOcclusion::of(&reference.split);
+    let reference = reference.answers;
     for &v in variants {
         let s = KdShadow::new(&base, v, &prep);
         let pre = s.precompute();
@@ -621,9 +668,6 @@ pub fn run(
         let all = traced.split[0] + traced.split[1];
         let per = |x: u64| x as f64 / all.rays.max(1) as f64;
         let by = ByOcclusion::of(&traced.split);
-        if v == ShadowVariant::Standard {
-            standard = Some((traced.answers.clone(), by, speeds.clone()));
-        }
         results.push(VariantResult {
             variant: v,
             structure: "kdtree",
@@ -641,28 +685,31 @@ pub fn run(
             time_change: Vec::new(),
         });
     }
-    if let Some((_, by, speeds)) = &standard {
-        for r in &mut results {
-            let b = &r.by_occlusion;
-            r.change = Some(Change {
-                nodes_occluded: pct(b.nodes_per_occluded_ray, by.nodes_per_occluded_ray),
-                triangles_occluded: pct(b.triangles_per_occluded_ray, by.triangles_per_occluded_ray),
-                nodes_unoccluded: pct(b.nodes_per_unoccluded_ray, by.nodes_per_unoccluded_ray),
-                triangles_unoccluded: pct(
-                    b.triangles_per_unoccluded_ray,
-                    by.triangles_per_unoccluded_ray,
-                ),
-            });
-            // Time is the inverse of speed.
-            r.time_change = r
-                .mrays_per_s
-                .iter()
-                .filter_map(|&(th, m)| {
-                    let (_, s) = speeds.iter().find(|(t, _)| *t == th)?;
-                    Some((th, pct(*s / m, 1.0)))
-                })
-                .collect();
-        }
+    let standard_speeds = results
+        .iter()
+        .find(|r| r.variant == ShadowVariant::Standard)
+        .map(|r| r.mrays_per_s.clone())
+        .unwrap_or_default();
+    for r in &mut results {
+        let (b, by) = (&r.by_occlusion, &standard);
+        r.change = Some(Change {
+            nodes_occluded: pct(b.nodes_per_occluded_ray, by.nodes_per_occluded_ray),
+            triangles_occluded: pct(b.triangles_per_occluded_ray, by.triangles_per_occluded_ray),
+            nodes_unoccluded: pct(b.nodes_per_unoccluded_ray, by.nodes_per_unoccluded_ray),
+            triangles_unoccluded: pct(
+                b.triangles_per_unoccluded_ray,
+                by.triangles_per_unoccluded_ray,
+            ),
+        });
+        // Time is the inverse of speed (measured only if standard was asked for).
+        r.time_change = r
+            .mrays_per_s
+            .iter()
+            .filter_map(|&(th, m)| {
+                let (_, s) = standard_speeds.iter().find(|(t, _)| *t == th)?;
+                Some((th, pct(*s / m, 1.0)))
+            })
+            .collect();
     }
     Ok(ShadowSceneResult {
         scene: String::new(),
@@ -734,11 +781,10 @@ pub fn batch_file(
         .map(|(rays, out)| {
             let mut c = Counters::default();
             let mut p = Prediction::default();
-            let guess = (variant == ShadowVariant::Multi)
-                .then(|| {
-                    p.warmup_rays += 1;
-                    s.occluded_by(&rays[0], ShadowWalk::Standard, &mut c)
-                });
+            let guess = (variant == ShadowVariant::Multi).then(|| {
+                p.warmup_rays += 1;
+                s.occluded_by(&rays[0], ShadowWalk::Standard, &mut c)
+            });
             for (r, o) in rays.iter().zip(out) {
                 let walk = match (variant, guess) {
                     (ShadowVariant::Standard, _) => ShadowWalk::Standard,

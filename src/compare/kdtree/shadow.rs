@@ -301,7 +301,11 @@ impl PrimitiveIndex {
             }
             for &t in kd.leaf_list(nd) {
                 if let Some(l) = lca.get_mut(t as usize) {
-                    *l = if *l == NONE { i as u32 } else { join(*l, i as u32) };
+                    *l = if *l == NONE {
+                        i as u32
+                    } else {
+                        join(*l, i as u32)
+                    };
                 }
             }
         }
@@ -325,7 +329,8 @@ impl PrimitiveIndex {
                 let i = node as usize;
                 let nd = kd.nodes[i];
                 let cell = &shape.cell[i];
-                let hit = clip(b, cell).map_or(0.0, |c| area(&c)) / area(cell).max(f64::MIN_POSITIVE);
+                let hit =
+                    clip(b, cell).map_or(0.0, |c| area(&c)) / area(cell).max(f64::MIN_POSITIVE);
                 let kids = cost[i + 1] + cost[nd.upper() as usize];
                 let with = ISECT_COST + (1.0 - hit.min(1.0)) * kids;
                 let d = shape.depth[home as usize].saturating_sub(shape.depth[i]) as f64;
@@ -344,8 +349,8 @@ impl PrimitiveIndex {
         let mut starts = vec![0u32; n + 1];
         let mut tris = Vec::new();
         let mut k = 0;
-        for i in 0..n {
-            starts[i] = tris.len() as u32;
+        for (i, st) in starts.iter_mut().enumerate().take(n) {
+            *st = tris.len() as u32;
             let mut m = 0;
             while k < chosen.len() && chosen[k].0 as usize == i {
                 if m < p.per_node {
@@ -445,7 +450,12 @@ pub struct Adjacency {
 impl Adjacency {
     /// Links for `kd` where shadow rays go from the points `visible` (the primary hits) to the
     /// points `lights` (module docs).
-    pub fn build(kd: &KdTree, visible: &[[f32; 3]], lights: &[[f32; 3]], p: &ShadowParams) -> Adjacency {
+    pub fn build(
+        kd: &KdTree,
+        visible: &[[f32; 3]],
+        lights: &[[f32; 3]],
+        p: &ShadowParams,
+    ) -> Adjacency {
         let start = Instant::now();
         let n = kd.nodes.len();
         let shape = kd.shape();
@@ -468,7 +478,10 @@ impl Adjacency {
             std::array::from_fn(|k| (root[1][k] as f64 - root[0][k] as f64).max(f64::MIN_POSITIVE));
         let cell_of = |x: [f64; 3]| -> [usize; 3] {
             std::array::from_fn(|k| {
-                (((x[k] - root[0][k] as f64) / size[k] * g as f64).floor().max(0.0) as usize).min(g - 1)
+                (((x[k] - root[0][k] as f64) / size[k] * g as f64)
+                    .floor()
+                    .max(0.0) as usize)
+                    .min(g - 1)
             })
         };
         let mut marked = vec![false; g * g * g];
@@ -584,8 +597,9 @@ impl Adjacency {
         adj.linked_leaves = adj.links.len();
         adj.cost = Precompute {
             seconds: start.elapsed().as_secs_f64(),
-            bytes: (4 * adj.slot.len() + std::mem::size_of::<Links>() * adj.links.len() + 4 * adj.starts.len())
-                as u64,
+            bytes: (4 * adj.slot.len()
+                + std::mem::size_of::<Links>() * adj.links.len()
+                + 4 * adj.starts.len()) as u64,
         };
         adj
     }
