@@ -8,14 +8,18 @@
 mod common;
 
 use common::{bin, run, shared_scene};
+use oavm::BuildOptions;
 use oavm::Ray;
+use oavm::compare::OavmAccel;
 use oavm::compare::bench::BenchScene;
 use oavm::compare::kdtree::{Adjacency, KdTree, PrimitiveIndex, SatoOrder, ShadowParams};
 use oavm::compare::shadow::{
-    self, KdShadow, LightKind, ShadowOptions, ShadowPrep, ShadowSetup, ShadowVariant, ViewOverride,
+    self, KdShadow, LightKind, OavmShadow, ShadowOptions, ShadowPrep, ShadowSetup, ShadowVariant,
+    ViewOverride,
 };
 use oavm::geom::reference;
 use oavm::logical::Counters;
+use oavm::logical::Walk;
 
 fn options(light: LightKind) -> ShadowOptions {
     ShadowOptions {
@@ -127,6 +131,35 @@ fn check_scene(rel: &str, light: LightKind) -> [Counters; 4] {
         multi_answers, standard,
         "{rel}: multi differs from standard"
     );
+    // OAVM's variants (its SATO order, its rope walk for predicted-unoccluded rays).
+    let build = BuildOptions::default();
+    let plain = OavmAccel::build_walk(&scene.mesh, &build, Walk::TopDown).expect("oavm");
+    for v in [
+        ShadowVariant::Standard,
+        ShadowVariant::Sato,
+        ShadowVariant::Multi,
+    ] {
+        let o = OavmShadow::new(&plain, v, &scene.mesh, &build).expect("oavm variant");
+        let traced = shadow::trace_frames(&o, v, &w.setup);
+        let answers: Vec<bool> = traced.answers.iter().flatten().map(|&o| o == 1).collect();
+        let differ = answers
+            .iter()
+            .zip(&standard)
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(
+            differ, 0,
+            "{rel}: OAVM {v:?} differs from the KD-tree's standard walk"
+        );
+        // (A scene of fewer triangles than a leaf holds is one leaf: no rope to follow.)
+        if v == ShadowVariant::Multi && scene.tris.len() > build.leaf_size as usize {
+            let all = traced.split[0] + traced.split[1];
+            assert!(
+                all.ropes_followed > 0,
+                "{rel}: OAVM's multi followed no rope"
+            );
+        }
+    }
 
     // Brute force on a strided subset.
     let tris = &scene.tris.v;
@@ -287,13 +320,29 @@ fn bench_reports_variants_and_traces_ray_files() {
     assert!(o.status.success(), "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).expect("json");
     let variants = v["scenes"][0]["variants"].as_array().expect("variants");
-    let names: Vec<&str> = variants
+    let names: Vec<(&str, &str)> = variants
         .iter()
-        .map(|x| x["variant"].as_str().unwrap())
+        .map(|x| {
+            (
+                x["structure"].as_str().unwrap(),
+                x["variant"].as_str().unwrap(),
+            )
+        })
         .collect();
-    assert_eq!(names, ["standard", "sato", "multi"]);
+    assert_eq!(
+        names,
+        [
+            ("kdtree", "standard"),
+            ("kdtree", "sato"),
+            ("kdtree", "multi"),
+            ("oavm", "standard"),
+            ("oavm", "sato"),
+            ("oavm", "multi")
+        ]
+    );
     for x in variants {
         assert_eq!(x["disagree_with_standard"], 0);
+        assert_eq!(x["disagree_with_kdtree"], 0);
         assert!(x["rays"].as_u64().unwrap() > 1000);
         assert!(x["occluded_rays"].as_u64().unwrap() > 0);
         assert!(x["unoccluded_rays"].as_u64().unwrap() > 0);
@@ -310,11 +359,22 @@ fn bench_reports_variants_and_traces_ray_files() {
     let rays_path = dir.path().join("shadow.rays");
     oavm::rays::write_rays(&rays_path, rays).unwrap();
     let mut files = Vec::new();
-    for variant in ["standard", "multi"] {
-        let occl = dir.path().join(format!("{variant}.occl"));
+    for (structure, variant) in [
+        ("kdtree", "standard"),
+        ("kdtree", "multi"),
+        ("oavm", "multi"),
+    ] {
+        let occl = dir.path().join(format!("{structure}-{variant}.occl"));
         let (o, out, err) = run(bin("oavm-bench")
             .arg(&cornell)
-            .args(["--closed-box", "--shadow-variant", variant, "--rays"])
+            .args([
+                "--closed-box",
+                "--structure",
+                structure,
+                "--shadow-variant",
+                variant,
+                "--rays",
+            ])
             .arg(&rays_path)
             .arg("--occluded")
             .arg(&occl));
@@ -323,7 +383,8 @@ fn bench_reports_variants_and_traces_ray_files() {
         files.push(std::fs::read(&occl).unwrap());
     }
     assert_eq!(files[0], files[1]);
-    let occ = oavm::rays::read_occlusion(&dir.path().join("multi.occl"), u64::MAX).unwrap();
+    assert_eq!(files[0], files[2]);
+    let occ = oavm::rays::read_occlusion(&dir.path().join("oavm-multi.occl"), u64::MAX).unwrap();
     let want: Vec<u8> = rays
         .iter()
         .map(|r| w.kd.occluded_standard(r, &mut Counters::default()) as u8)

@@ -2,15 +2,18 @@
 """Writes docs/results.md from the JSON of `oavm-bench --json`. Run by tools/results.sh:
 
     python3 tools/results.py BENCH.json [--clusters CLUSTERS.json] [--scaling SCALING.json] \\
-        [--stackless STACKLESS.json [--stackless-lists LISTS.json]] \\
+        [--stackless STACKLESS.json [--stackless-lists LISTS.json]] [--shadow SHADOW.json] \\
         [--kitchen-png PATH] [--commit COMMIT] [--command CMD] > docs/results.md
+    python3 tools/results.py --shadow SHADOW.json [--commit COMMIT]   # that section alone
 
 BENCH.json is one `oavm-bench --json --leaf list` run over the scenes (OAVM as its paper builds
 it: leaves that list their triangles); CLUSTERS.json (optional) the same run with the default
 leaves (clusters: a wide BVH per solid leaf); SCALING.json (optional) one over the dragon's
-decimations, for build times against triangle count. The page names the commit and the file
-format version it measured (`format_version` of the JSON), which tests/docs.rs compares with the
-code's. Rebuilds, from our measurements, the
+decimations, for build times against triangle count. SHADOW.json (optional: without it, or
+when the file does not exist, the page has no shadow-ray section) is tools/results.sh's merge of
+its `oavm-bench --json --shadow-variant` runs, one per scene, each scene with the `args` it was
+run with. The page names the commit and the file format version it measured (`format_version`
+of the JSON), which tests/docs.rs compares with the code's. Rebuilds, from our measurements, the
 tables of the OAVM paper (Yuan et al., Acta Optica Sinica 37(1), 2017, 120001,
 DOI 10.3788/aos201737.0120001): Table 2 (creation time, total nodes, total pointers), Fig. 7
 (nodes visited per ray), Fig. 8 (intersection time), and checks each of the paper's claims.
@@ -18,6 +21,7 @@ Standard library only.
 """
 import json
 import math
+import os
 import sys
 
 # The paper's claims: percentage change of OAVM against another structure, averaged over the
@@ -458,10 +462,177 @@ STACKLESS_NOTES = """### Why the CPU ranks the traversals differently
 """
 
 
+# The multi-index tree's paper (Liang and Huang 2019): the percent change of each count against
+# the standard walk, (lowest, highest) over its scenes; the traversal time claim is a bound.
+PAPER_SHADOW_SETUP = "KD-tree, 1024x1024; Bedroom, Sponza, Conference, Fairy Forest"
+PAPER_SHADOW = [
+    ("node tests per occluded ray", "nodes_occluded", (-31.7, -18.5)),
+    ("primitive tests per occluded ray", "triangles_occluded", (-33.0, -0.4)),
+    ("node tests per unoccluded ray", "nodes_unoccluded", (-36.8, -28.3)),
+    ("traversal time", "time", (None, -20.0)),
+]
+PAPER_SHADOW_SATO = "gains less"
+SHADOW_ORDER = ["standard", "sato", "multi"]
+SHADOW_NAMES = {"standard": "standard", "sato": "SATO", "multi": "multi-index"}
+LIGHT_SOURCES = {"scene": "the scene's", "view": "in the view", "default": "default"}
+
+
+def shadow_light_source(sc):
+    """Where a scene's lights came from (`--light-at` replaces the scene's)."""
+    if "--light-at" in sc.get("args", ""):
+        return "at --light-at"
+    return LIGHT_SOURCES.get(sc["light_source"], sc["light_source"])
+
+
+def shadow_groups(data):
+    """The (structure, variant) pairs measured, in table order."""
+    pairs = {(v["structure"], v["variant"]) for sc in data["scenes"] for v in sc["variants"]}
+
+    def key(p):
+        st, var = p
+        return (ORDER.index(st) if st in ORDER else len(ORDER), st,
+                SHADOW_ORDER.index(var) if var in SHADOW_ORDER else len(SHADOW_ORDER), var)
+    return sorted(pairs, key=key)
+
+
+def shadow_label(structure, variant):
+    return f"{NAMES.get(structure, structure)}, {SHADOW_NAMES.get(variant, variant)}"
+
+
+def shadow_scene_name(sc):
+    name = SCENE_NAMES.get(sc["scene"], sc["scene"])
+    return f"{name} in a closed box" if sc.get("closed_box") else name
+
+
+def shadow_change(v, what, threads=1):
+    """Percent change of variant result `v` against its structure's standard walk: a count of
+    `change`, or with what == "time" the traversal time at `threads`."""
+    if what == "time":
+        return next((c for t, c in v.get("time_change", []) if t == threads), None)
+    return (v.get("change") or {}).get(what)
+
+
+def fmt_pct_range(lo, hi):
+    """'lo to hi %' (one value when they are equal); None for an open end."""
+    if lo is None and hi is None:
+        return "-"
+    if lo is None:
+        return f"{hi:+g} % or more"
+    if hi is None or lo == hi:
+        return f"{lo:+.1f} %"
+    return f"{lo:+.1f} to {hi:+.1f} %"
+
+
+def our_range(data, structure, variant, what, threads=1):
+    vals = [shadow_change(v, what, threads) for sc in data["scenes"] for v in sc["variants"]
+            if (v["structure"], v["variant"]) == (structure, variant)]
+    vals = [x for x in vals if x is not None]
+    return fmt_pct_range(min(vals), max(vals)) if vals else "-"
+
+
+def shadow_section(w, data, commit):
+    """The multi-index tree (Liang and Huang 2019) and SATO order against the standard shadow
+    walk, per scene: rays by outcome, work per ray with its change, time, speed, precomputation
+    and prediction; then the paper's claims beside our range over the scenes."""
+    o = data["shadow"]
+    threads = sorted({t for sc in data["scenes"] for v in sc["variants"]
+                      for t, _ in v["mrays_per_s"]})
+    groups = shadow_groups(data)
+    light = ("point lights" if o["light"] == "point" else
+             f"square area lights ({o['samples']} samples per pixel)")
+    scenes = "; ".join(
+        f"`{sc.get('args', sc['scene'])}` ({sc['triangles']:,} triangles, {sc['lights']} "
+        f"light{'s' if sc['lights'] != 1 else ''}: {shadow_light_source(sc)})"
+        for sc in data["scenes"])
+    w("## Shadow rays: the multi-index tree (Liang and Huang 2019)\n")
+    w(f"Commit `{commit}`, file format version {data['format_version']}: `oavm-bench --json "
+      f"--shadow-variant {','.join(dict.fromkeys(v for _, v in groups))}`, "
+      f"{o['width']}x{o['height']} pixels, {o['frames']} frames (the camera turning "
+      f"{o['orbit_step']:g} degree{'s' if o['orbit_step'] != 1 else ''} a frame), prediction "
+      f"tiles of {o['tile']} pixels, {light}, best of {o['reps']} "
+      f"run{'s' if o['reps'] != 1 else ''} at {' and '.join(map(str, threads))} thread{'s' if threads != [1] else ''}; scenes: "
+      f"{scenes}.\n")
+
+    def work(v, field, what):
+        c = shadow_change(v, what)
+        if v["variant"] == "standard" or c is None:
+            return f"{v[field]:.2f}"
+        return f"{v[field]:.2f} ({c:+.1f} %)"
+
+    def per_thread(label):
+        return " | ".join(f"{label}, {t} thread{'s' if t > 1 else ''}" for t in threads)
+
+    w(f"| scene | walk | occluded rays | unoccluded rays | nodes / occluded ray | "
+      f"triangles / occluded ray | nodes / unoccluded ray | triangles / unoccluded ray | "
+      f"{per_thread('time change')} | {per_thread('Mrays/s')} | precomputation (s) | "
+      f"precomputation (MB) | prediction accuracy | promoted triangles | "
+      f"linked leaves / leaves | disagreements |")
+    w("|---|---|" + "---:|" * (6 + 2 * len(threads) + 6))
+    for sc in data["scenes"]:
+        by = {(v["structure"], v["variant"]): v for v in sc["variants"]}
+        for g in groups:
+            v = by.get(g)
+            if not v:
+                continue
+            times = [shadow_change(v, "time", t) for t in threads]
+            times = ["-" if v["variant"] == "standard" or c is None else f"{c:+.1f} %"
+                     for c in times]
+            speeds = [f"{m:.2f}" if m else "-" for m in (mrays(v, t) for t in threads)]
+            pre = v["precompute"]
+            built = pre["seconds"] > 0 or pre["bytes"] > 0
+            p = v.get("prediction")
+            cells = [
+                shadow_scene_name(sc), shadow_label(*g),
+                f"{v['occluded_rays']:,}", f"{v['unoccluded_rays']:,}",
+                work(v, "nodes_per_occluded_ray", "nodes_occluded"),
+                work(v, "triangles_per_occluded_ray", "triangles_occluded"),
+                work(v, "nodes_per_unoccluded_ray", "nodes_unoccluded"),
+                work(v, "triangles_per_unoccluded_ray", "triangles_unoccluded"),
+                *times, *speeds,
+                f"{pre['seconds']:.3f}" if built else "-",
+                f"{pre['bytes'] / 1e6:,.2f}" if built else "-",
+                f"{100 * p['accuracy']:.1f} %" if p else "-",
+                f"{pre['promoted']:,}" if pre["candidates"] or pre["leaves"] else "-",
+                f"{pre['linked_leaves']:,} / {pre['leaves']:,}" if pre["leaves"] else "-",
+                f"{v['disagree_with_standard']:,}",
+            ]
+            w("| " + " | ".join(cells) + " |")
+    w("")
+    n = len(data["scenes"])
+    mine = [g for g in groups if g[1] == "multi"]
+    sato = [g for g in groups if g[1] == "sato"]
+    w("| " + " | ".join(
+        ["claim, change against the standard walk",
+         f"the paper: multi-index tree ({PAPER_SHADOW_SETUP})",
+         *(f"ours: {shadow_label(*g)} ({n} scenes)" for g in mine), "the paper: SATO",
+         *(f"ours: {shadow_label(*g)} ({n} scenes)" for g in sato)]) + " |")
+    w("|---|---:|" + "---:|" * len(mine) + "---:|" + "---:|" * len(sato))
+    for label, what, (lo, hi) in PAPER_SHADOW:
+        def ours(g):
+            if what != "time":
+                return our_range(data, *g, what)
+            return "; ".join(f"{our_range(data, *g, what, t)} ({t} thread{'s' if t > 1 else ''})"
+                             for t in threads)
+        w("| " + " | ".join([label, fmt_pct_range(lo, hi), *(ours(g) for g in mine),
+                              PAPER_SHADOW_SATO, *(ours(g) for g in sato)]) + " |")
+    w("")
+
+
 def main():
     args = sys.argv[1:]
+    shadow_path = arg(args, "--shadow")
+    shadow = None
+    if shadow_path and os.path.exists(shadow_path):
+        shadow = json.load(open(shadow_path))
+    elif shadow_path:
+        print(f"results.py: no {shadow_path}: the page has no shadow-ray section", file=sys.stderr)
     if not args or args[0].startswith("-"):
-        sys.exit(__doc__)
+        if not shadow:
+            sys.exit(__doc__)
+        out = []
+        shadow_section(out.append, shadow, arg(args, "--commit") or "unknown")
+        print("\n".join(out))
+        return
     data = json.load(open(args[0]))
     clusters = json.load(open(arg(args, "--clusters"))) if arg(args, "--clusters") else None
     commit = arg(args, "--commit") or "unknown"
@@ -473,6 +644,8 @@ def main():
     if clusters and (clusters.get("format_version") != version
                      or clusters["options"].get("leaf") != "cluster"):
         sys.exit("results.py: CLUSTERS.json must be a run with --leaf cluster, same format version")
+    if shadow and shadow.get("format_version") != version:
+        sys.exit("results.py: SHADOW.json must have the format version of BENCH.json")
     scaling = json.load(open(arg(args, "--scaling"))) if arg(args, "--scaling") else None
     kitchen_png = arg(args, "--kitchen-png")
     command = arg(args, "--command")
@@ -556,6 +729,8 @@ def main():
                        if arg(args, "--stackless-lists") else None)
     if stackless:
         stackless_section(w, stackless, stackless_lists, commit)
+    if shadow:
+        shadow_section(w, shadow, commit)
     if kitchen_png:
         w("## The kitchen from its own viewpoint\n")
         w(f"![BART kitchen, rendered by oavm-trace from the scene's own viewpoint]({kitchen_png})\n")

@@ -2,19 +2,98 @@
 # Regenerates docs/results.md (and docs/kitchen.png): the OAVM paper's comparison on our scenes.
 #
 #   tools/results.sh [--reps N] [--random N] ...   # extra flags go to every oavm-bench run
+#   tools/results.sh --shadow-only [--reps N] ...  # only the shadow-ray runs (below)
 #
 # Runs `oavm-bench --json` over the seven scenes (all five structures, 1 and 2 threads), with
 # OAVM's leaves as lists (the paper's structure) and as clusters (the default), then
-# over the dragon's decimations for build-time scaling, renders the kitchen from its own
-# viewpoint, and writes the page with tools/results.py. The JSON is kept in target/results/
-# (not in git). About 40 minutes on a 2-core machine.
+# over the dragon's decimations for build-time scaling, the shadow-ray walks (standard, SATO,
+# multi-index tree) over four scenes, renders the kitchen from its own viewpoint, and writes the
+# page with tools/results.py. The JSON is kept in target/results/ (not in git; RESULTS_DIR=DIR
+# puts it elsewhere). About 40 minutes on a 2-core machine.
+#
+# --shadow-only runs just the shadow-ray benchmark (flags given override its defaults, e.g.
+# `--width 128 --height 96 --frames 2 --reps 1` for a quick look) and writes RESULTS_DIR/shadow.json
+# and that section alone to RESULTS_DIR/shadow.md; docs/results.md is left as it is.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 S=../shared/scenes
-OUT=target/results
-mkdir -p "$OUT" docs
-cargo build --release --bin oavm-bench --bin oavm-pack --bin oavm-trace
+OUT=${RESULTS_DIR:-target/results}
+SHADOW_ONLY=0
+ARGS=()
+for a in "$@"; do
+  if [[ $a == --shadow-only ]]; then SHADOW_ONLY=1; else ARGS+=("$a"); fi
+done
+set -- ${ARGS[@]+"${ARGS[@]}"}
+mkdir -p "$OUT"
 BIN=target/release
+commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
+git diff --quiet HEAD -- src Cargo.toml 2>/dev/null || commit="$commit-dirty"
+
+# Whether flag $1 is among the rest (as `--flag value` or `--flag=value`).
+given() {
+  local flag=$1 a
+  shift
+  for a in "$@"; do
+    [[ $a == "$flag" || $a == "$flag="* ]] && return 0
+  done
+  return 1
+}
+
+# Shadow rays: the multi-index tree of Liang and Huang (2019) against the standard walk and SATO
+# order, on each structure oavm-bench has them for, over the frames of a camera orbit. One run
+# per scene (each needs its own camera or box), merged into $OUT/shadow.json with each scene's
+# arguments. The defaults are the table's; the same flags given to this script replace them.
+SHADOW_SCENES=(
+  "$S/bart/kitchen/kitchen.aff"
+  "$S/bart/robot/Robot.aff"
+  "$S/sibenik/sibenik.obj --eye=-17,-10,0 --target=10,-9,0 --fov 60 --light-at=3,-3,2"
+  "$S/dragon/dragon_vrip.ply --closed-box"
+)
+shadow_runs() {
+  local defaults=(--width 1024 --height 768 --frames 8 --orbit-step 1 --tile 16 --threads 1,2
+                  --light point)
+  local common=() merge=() scene entry i n=0
+  for ((i = 0; i < ${#defaults[@]}; i += 2)); do
+    given "${defaults[i]}" "$@" || common+=("${defaults[i]}" "${defaults[i + 1]}")
+  done
+  for entry in "${SHADOW_SCENES[@]}"; do
+    read -ra scene <<< "$entry"
+    n=$((n + 1))
+    "$BIN/oavm-bench" --json --shadow-variant standard,sato,multi "${common[@]}" "$@" \
+      "${scene[@]}" > "$OUT/shadow_$n.json.tmp"
+    merge+=("$OUT/shadow_$n.json.tmp" "$entry")
+  done
+  python3 - "$OUT/shadow.json.tmp" "${merge[@]}" <<'EOF'
+import json, sys
+out, rest = sys.argv[1], sys.argv[2:]
+merged = None
+for path, args in zip(rest[::2], rest[1::2]):
+    d = json.load(open(path))
+    opts = {k: v for k, v in d["shadow"].items() if k != "closed_box"}  # per scene
+    if merged is None:
+        merged = {"format_version": d["format_version"], "shadow": opts, "scenes": []}
+    elif (d["format_version"], opts) != (merged["format_version"], merged["shadow"]):
+        sys.exit(f"results.sh: {path} has other shadow options or format version")
+    for sc in d["scenes"]:
+        sc["args"] = args
+        merged["scenes"].append(sc)
+json.dump(merged, open(out, "w"), indent=1)
+EOF
+  rm -f "$OUT"/shadow_[0-9]*.json.tmp
+  mv "$OUT/shadow.json.tmp" "$OUT/shadow.json"
+}
+
+if ((SHADOW_ONLY)); then
+  cargo build --release --bin oavm-bench
+  shadow_runs "$@"
+  python3 tools/results.py --shadow "$OUT/shadow.json" --commit "$commit" > "$OUT/shadow.md.tmp"
+  mv "$OUT/shadow.md.tmp" "$OUT/shadow.md"
+  echo "wrote $OUT/shadow.json and $OUT/shadow.md"
+  exit 0
+fi
+
+mkdir -p docs
+cargo build --release --bin oavm-bench --bin oavm-pack --bin oavm-trace
 
 SCENES=(
   "$S/bunny/bun_zipper.ply"
@@ -50,14 +129,17 @@ mv "$OUT/stackless.json.tmp" "$OUT/stackless.json"
   "${T1_SCENES[@]}" > "$OUT/stackless_lists.json.tmp"
 mv "$OUT/stackless_lists.json.tmp" "$OUT/stackless_lists.json"
 
+shadow_runs "$@"
+
 "$BIN/oavm-pack" "$S/bart/kitchen/kitchen.aff" "$OUT/kitchen.oavm" > /dev/null
 "$BIN/oavm-trace" "$OUT/kitchen.oavm" --view "$S/bart/kitchen/kitchen.aff" -o docs/kitchen.png
 
-commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
-git diff --quiet HEAD -- src Cargo.toml 2>/dev/null || commit="$commit-dirty"
+SHADOW=()
+[[ -f $OUT/shadow.json ]] && SHADOW=(--shadow "$OUT/shadow.json")
 python3 tools/results.py "$OUT/bench.json" --clusters "$OUT/clusters.json" \
   --scaling "$OUT/scaling.json" --stackless "$OUT/stackless.json" \
-  --stackless-lists "$OUT/stackless_lists.json" --kitchen-png kitchen.png --commit "$commit" \
+  --stackless-lists "$OUT/stackless_lists.json" ${SHADOW[@]+"${SHADOW[@]}"} \
+  --kitchen-png kitchen.png --commit "$commit" \
   --command "tools/results.sh $*" > docs/results.md.tmp
 mv docs/results.md.tmp docs/results.md
 echo "wrote docs/results.md and docs/kitchen.png"

@@ -153,7 +153,7 @@ fn run(args: &Args) -> Result<(), Error> {
     };
     opts.build.validate()?;
     if !args.shadow_variant.is_empty() {
-        return shadow(args);
+        return shadow(args, &opts.build);
     }
     if let Some(rays_path) = &args.rays {
         return batch(args, rays_path, &names, &opts.build);
@@ -227,21 +227,29 @@ fn batch(
 }
 
 /// The shadow-ray benchmark (`--shadow-variant`).
-fn shadow(args: &Args) -> Result<(), Error> {
+fn shadow(args: &Args, build: &BuildOptions) -> Result<(), Error> {
     let variants = args
         .shadow_variant
         .iter()
         .map(|v| ShadowVariant::parse(v))
         .collect::<Result<Vec<_>, _>>()?;
-    let structure = match &args.structure[..] {
-        [s] if s == "all" => "kdtree",
-        [s] if shadow::SHADOW_STRUCTURES.contains(&s.as_str()) => "kdtree",
-        _ => {
-            return Err(Error::Invalid(format!(
-                "--shadow-variant runs on one --structure: {}",
-                shadow::SHADOW_STRUCTURES.join(", ")
-            )));
+    // The default `all` means the KD-tree and OAVM here.
+    let structures: Vec<&str> = if args.structure == ["all"] {
+        shadow::SHADOW_STRUCTURES.to_vec()
+    } else {
+        let mut v = Vec::new();
+        for s in &args.structure {
+            match shadow::SHADOW_STRUCTURES.iter().find(|&&k| k == s) {
+                Some(k) => v.push(*k),
+                None => {
+                    return Err(Error::Invalid(format!(
+                        "--shadow-variant runs on {} (not {s:?})",
+                        shadow::SHADOW_STRUCTURES.join(", ")
+                    )));
+                }
+            }
         }
+        v
     };
     let fine = |x: f64| x.is_finite() && x >= 0.0;
     if ![args.candidate_ratio, args.depth_k, args.min_benefit]
@@ -266,17 +274,23 @@ fn shadow(args: &Args) -> Result<(), Error> {
         closed_box: args.closed_box,
     };
     if let Some(rays_path) = &args.rays {
-        let ([variant], [scene], Some(out)) = (&variants[..], &args.scenes[..], &args.occluded)
-        else {
+        let ([variant], [scene], [structure], Some(out)) = (
+            &variants[..],
+            &args.scenes[..],
+            &structures[..],
+            &args.occluded,
+        ) else {
             return Err(Error::Invalid(
-                "--rays with --shadow-variant needs exactly one scene, one variant and --occluded"
+                "--rays with --shadow-variant needs exactly one scene, one variant, one \
+                 --structure and --occluded"
                     .into(),
             ));
         };
         let out = oavm::output::Output::create(out, &[scene.as_path(), rays_path])?;
         let rays = rays::read_rays(rays_path, u32::MAX as u64)?;
         let scene = shadow::load_scene(scene, &view)?;
-        let (result, answers) = shadow::batch_file(&scene, *variant, &rays, params)?;
+        let (result, answers) =
+            shadow::batch_file(&scene, structure, *variant, &rays, params, build)?;
         rays::write_into(out, &answers)?;
         cli::print_json(&result)?;
         if result.disagree_with_standard > 0 {
@@ -318,7 +332,7 @@ fn shadow(args: &Args) -> Result<(), Error> {
             path.display(),
             scene.tris.len()
         ));
-        let mut r = shadow::run(&scene, structure, &variants, &sopts, &progress)?;
+        let mut r = shadow::run(&scene, &structures, &variants, &sopts, build, &progress)?;
         r.scene = bench::scene_name(path);
         failed += r
             .variants
@@ -347,13 +361,14 @@ fn shadow(args: &Args) -> Result<(), Error> {
 
 fn print_shadow(r: &shadow::ShadowSceneResult) -> Result<(), Error> {
     let mut t = format!(
-        "\n{} ({} triangles, {} lights: {}, {} frames, {} shadow rays)\n{:<9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10} {:>8} {:>22}\n",
+        "\n{} ({} triangles, {} lights: {}, {} frames, {} shadow rays)\n{:<7} {:<9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10} {:>8} {:>22}\n",
         r.scene,
         r.triangles,
         r.lights,
         r.light_source,
         r.frames,
         r.rays_per_frame.iter().sum::<usize>(),
+        "struct",
         "variant",
         "occluded",
         "nodes/occ",
@@ -377,7 +392,8 @@ fn print_shadow(r: &shadow::ShadowSceneResult) -> Result<(), Error> {
             .prediction
             .map_or("-".to_string(), |p| format!("{:.1} %", 100.0 * p.accuracy));
         t.push_str(&format!(
-            "{:<9} {:>9} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>8} {:>10.3} {:>10} {:>8} {:>22}\n",
+            "{:<7} {:<9} {:>9} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>8} {:>10.3} {:>10} {:>8} {:>22}\n",
+            v.structure,
             v.variant.name(),
             v.occluded,
             b.nodes_per_occluded_ray,
@@ -387,7 +403,7 @@ fn print_shadow(r: &shadow::ShadowSceneResult) -> Result<(), Error> {
             acc,
             v.precompute.seconds,
             v.precompute.bytes,
-            v.disagree_with_standard,
+            v.disagree_with_standard + v.disagree_with_kdtree,
             speed.join(" ")
         ));
     }

@@ -6,6 +6,7 @@ use crate::error::Error;
 use crate::geom::{Hit, Ray};
 use crate::logical::{Counters, Scene, SceneOptions, Walk};
 use crate::mesh::Mesh;
+use crate::physical::format::SectionKind;
 use crate::physical::{AlignedBytes, OavmFile};
 
 /// OAVM packed in memory (the same bytes a file holds), behind the common interface.
@@ -58,6 +59,52 @@ impl OavmAccel {
     pub fn scene(&self) -> &Scene<AlignedBytes> {
         &self.scene
     }
+
+    /// The same file with ropes added (spec §8.4), and what adding them cost: the pass's
+    /// seconds and the bytes added.
+    pub fn with_ropes(&self) -> Result<(OavmAccel, f64, u64), Error> {
+        let t = std::time::Instant::now();
+        let (roped, _, report) = crate::build::ropes::add_ropes(self.scene.file(), Vec::new())?;
+        let seconds = t.elapsed().as_secs_f64();
+        let added = (roped.len() as u64).saturating_sub(self.scene.file().bytes().len() as u64);
+        let scene = Scene::from_bytes_with(
+            AlignedBytes::from_slice(&roped),
+            "memory",
+            &SceneOptions {
+                walk: Walk::Ropes,
+                ..SceneOptions::default()
+            },
+        )?;
+        let stats = StructureStats {
+            name: "oavm:ropes",
+            build_seconds: self.stats.build_seconds + seconds,
+            pointers: self.stats.pointers + report.ropes,
+            bytes: scene.file().bytes().len() as u64,
+            ..self.stats.clone()
+        };
+        Ok((OavmAccel { scene, stats }, seconds, added))
+    }
+
+    /// Any hit by `walk` (a leaf-to-leaf walk by ropes needs a file with them: [`Self::with_ropes`]),
+    /// the top-down walk taking children in the SATO order if `sato` ([`crate::logical::Tree::sato`]).
+    pub fn occluded_walk(&self, ray: &Ray, walk: Walk, sato: bool, c: &mut Counters) -> bool {
+        let ropes = self.scene.file().records(SectionKind::Ropes);
+        let tree = self.scene.tree().walking(walk, ropes).sato(sato);
+        let before = self.count_start(c);
+        let hit = tree.occluded(ray, c);
+        self.count_end(c, before);
+        matches!(hit, Ok(true))
+    }
+
+    fn count_start(&self, c: &Counters) -> (u64, u64) {
+        (c.rays, c.cluster_nodes_visited)
+    }
+
+    /// The batch counts the rays; nodes include the clusters' (see [`Accelerator`] below).
+    fn count_end(&self, c: &mut Counters, (rays, before): (u64, u64)) {
+        c.rays = rays;
+        c.nodes_visited += c.cluster_nodes_visited - before;
+    }
 }
 
 /// The comparison counts every node a structure's traversal visits: for a file of clusters,
@@ -85,10 +132,9 @@ impl Accelerator for OavmAccel {
     }
 
     fn occluded(&self, ray: &Ray, c: &mut Counters) -> bool {
-        let (rays, before) = (c.rays, c.cluster_nodes_visited);
+        let before = self.count_start(c);
         let hit = self.scene.tree().occluded(ray, c);
-        c.rays = rays;
-        c.nodes_visited += c.cluster_nodes_visited - before;
+        self.count_end(c, before);
         matches!(hit, Ok(true))
     }
 }

@@ -28,17 +28,19 @@ use serde::Serialize;
 
 use super::bench::{BenchScene, ByOcclusion};
 use super::kdtree::{Adjacency, KdTree, Precompute, PrimitiveIndex, SatoOrder, ShadowParams};
-use super::{Accelerator, Triangles};
+use super::{Accelerator, OavmAccel, Triangles};
+use crate::build::BuildOptions;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
 use crate::logical::Counters;
+use crate::logical::Walk;
 use crate::rays::{Bounds, Camera, Light, ShadowFrame, orbit};
 
 /// The variants `--shadow-variant` knows, in the order they are reported.
 pub const SHADOW_VARIANTS: [&str; 3] = ["standard", "sato", "multi"];
 
 /// The structures the variants are built for.
-pub const SHADOW_STRUCTURES: [&str; 1] = ["kdtree"];
+pub const SHADOW_STRUCTURES: [&str; 2] = ["kdtree", "oavm"];
 
 /// A shadow-ray traversal (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -180,6 +182,66 @@ impl ShadowStructure for KdShadow<'_> {
             r.leaves = a.leaves;
         }
         r
+    }
+}
+
+/// OAVM (a file of clusters, packed in memory) with what one variant needs: `standard` is
+/// its top-down walk; `sato` the same walk taking children in the SATO order
+/// ([`crate::logical::Tree::sato`]), which needs no precomputation (the boxes it orders by are
+/// in the file already); `multi` adds ropes (spec §8.4) for its adjacency walk, the leaf-to-leaf
+/// walk from rope to rope (the step OAVM already has: what the source's adjacency index adds is
+/// where it starts, and where it is built), and its primitive walk is the top-down walk (the
+/// occluders promoted into blocks are not stored yet).
+pub struct OavmShadow {
+    acc: OavmAccel,
+    precompute: PrecomputeReport,
+}
+
+impl OavmShadow {
+    pub fn new(
+        plain: &OavmAccel,
+        variant: ShadowVariant,
+        mesh: &crate::mesh::Mesh,
+        build: &BuildOptions,
+    ) -> Result<OavmShadow, Error> {
+        let (acc, precompute) = match variant {
+            ShadowVariant::Multi => {
+                let (acc, seconds, bytes) = plain.with_ropes()?;
+                (
+                    acc,
+                    PrecomputeReport {
+                        seconds,
+                        bytes,
+                        ..PrecomputeReport::default()
+                    },
+                )
+            }
+            _ => (
+                OavmAccel::build_walk(mesh, build, Walk::TopDown)?,
+                PrecomputeReport::default(),
+            ),
+        };
+        Ok(OavmShadow { acc, precompute })
+    }
+}
+
+impl ShadowStructure for OavmShadow {
+    fn occluded_by(&self, ray: &Ray, walk: ShadowWalk, c: &mut Counters) -> bool {
+        match walk {
+            ShadowWalk::Sato => self.acc.occluded_walk(ray, Walk::TopDown, true, c),
+            ShadowWalk::Adjacency => self.acc.occluded_walk(ray, Walk::Ropes, false, c),
+            ShadowWalk::Standard | ShadowWalk::Primitive => {
+                self.acc.occluded_walk(ray, Walk::TopDown, false, c)
+            }
+        }
+    }
+
+    fn intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
+        Accelerator::intersect(&self.acc, ray, c)
+    }
+
+    fn precompute(&self) -> PrecomputeReport {
+        self.precompute
     }
 }
 
@@ -553,8 +615,10 @@ pub struct VariantResult {
     pub precompute: PrecomputeReport,
     pub rays: u64,
     pub occluded: u64,
-    /// Rays answered otherwise than by `standard` (must be 0).
+    /// Rays answered otherwise than by the structure's `standard` (must be 0).
     pub disagree_with_standard: u64,
+    /// Rays answered otherwise than by the KD-tree's standard walk (must be 0).
+    pub disagree_with_kdtree: u64,
     #[serde(flatten)]
     pub by_occlusion: ByOcclusion,
     pub promoted_tested_per_ray: f64,
@@ -579,6 +643,20 @@ pub struct Change {
     pub triangles_unoccluded: f64,
 }
 
+impl Change {
+    fn of(b: &ByOcclusion, by: &ByOcclusion) -> Change {
+        Change {
+            nodes_occluded: pct(b.nodes_per_occluded_ray, by.nodes_per_occluded_ray),
+            triangles_occluded: pct(b.triangles_per_occluded_ray, by.triangles_per_occluded_ray),
+            nodes_unoccluded: pct(b.nodes_per_unoccluded_ray, by.nodes_per_unoccluded_ray),
+            triangles_unoccluded: pct(
+                b.triangles_per_unoccluded_ray,
+                by.triangles_per_unoccluded_ray,
+            ),
+        }
+    }
+}
+
 /// Every variant over one scene.
 #[derive(Clone, Debug, Serialize)]
 pub struct ShadowSceneResult {
@@ -600,23 +678,25 @@ fn pct(new: f64, old: f64) -> f64 {
     }
 }
 
-/// Builds `structure` for each of `variants` over `scene` and traces its frames (module docs);
-/// `progress` hears what is being done.
+/// Builds each of `structures` (of [`SHADOW_STRUCTURES`]) for each of `variants` over
+/// `scene` and traces its frames (module docs), checking every answer against the structure's
+/// standard walk and the KD-tree's; `progress` hears what is being done.
 pub fn run(
     scene: &BenchScene,
-    structure: &str,
+    structures: &[&str],
     variants: &[ShadowVariant],
     opts: &ShadowOptions,
+    build: &BuildOptions,
     progress: &dyn Fn(&str),
 ) -> Result<ShadowSceneResult, Error> {
-    if !SHADOW_STRUCTURES.contains(&structure) {
+    if let Some(s) = structures.iter().find(|s| !SHADOW_STRUCTURES.contains(s)) {
         return Err(Error::Invalid(format!(
-            "--shadow-variant runs on {} (not {structure:?})",
+            "--shadow-variant runs on {} (not {s:?})",
             SHADOW_STRUCTURES.join(", ")
         )));
     }
-    let base = KdTree::build(&scene.tris);
-    let setup = ShadowSetup::new(scene, &base, &scene.lights, opts);
+    let kd = KdTree::build(&scene.tris);
+    let setup = ShadowSetup::new(scene, &kd, &scene.lights, opts);
     progress(&format!(
         "{} frames, {} shadow rays, {} lights ({})",
         setup.frames.len(),
@@ -630,86 +710,108 @@ pub fn run(
         lights: &lights,
         params: opts.params,
     };
-    let mut results: Vec<VariantResult> = Vec::new();
-    // The reference answers and work: the standard walk's, traced first whatever was asked.
-    let reference = trace_frames(
-        &KdShadow::new(&base, ShadowVariant::Standard, &prep),
+    // The KD-tree's standard answers: every structure's must be these.
+    let kd_answers = trace_frames(
+        &KdShadow::new(&kd, ShadowVariant::Standard, &prep),
         ShadowVariant::Standard,
         &setup,
-    );
-    let standard = ByOcclusion::of(&reference.split);
-    let reference = reference.answers;
-    for &v in variants {
-        let s = KdShadow::new(&base, v, &prep);
-        let pre = s.precompute();
-        progress(&format!("  {}: prepared in {:.3} s", v.name(), pre.seconds));
-        let traced = trace_frames(&s, v, &setup);
-        let disagree: u64 = traced
-            .answers
-            .iter()
-            .zip(&reference)
-            .map(|(a, b)| a.iter().zip(b).filter(|(x, y)| x != y).count() as u64)
-            .sum();
-        let mut speeds = Vec::new();
-        for &threads in &opts.threads {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .map_err(|e| Error::Invalid(format!("cannot start {threads} threads: {e}")))?;
-            let best = (0..opts.reps.max(1))
-                .map(|_| {
-                    let t = Instant::now();
-                    pool.install(|| trace_frames(&s, v, &setup));
-                    t.elapsed().as_secs_f64()
-                })
-                .fold(f64::INFINITY, f64::min);
-            speeds.push((threads, setup.rays() as f64 / best / 1e6));
-        }
-        let all = traced.split[0] + traced.split[1];
-        let per = |x: u64| x as f64 / all.rays.max(1) as f64;
-        let by = ByOcclusion::of(&traced.split);
-        results.push(VariantResult {
-            variant: v,
-            structure: "kdtree",
-            precompute: pre,
-            rays: all.rays,
-            occluded: traced.split[1].rays,
-            disagree_with_standard: disagree,
-            by_occlusion: by,
-            promoted_tested_per_ray: per(all.promoted_tested),
-            links_followed_per_ray: per(all.ropes_followed),
-            restarts_per_ray: per(all.restarts),
-            change: None,
-            prediction: traced.prediction,
-            mrays_per_s: speeds,
-            time_change: Vec::new(),
-        });
-    }
-    let standard_speeds = results
-        .iter()
-        .find(|r| r.variant == ShadowVariant::Standard)
-        .map(|r| r.mrays_per_s.clone())
-        .unwrap_or_default();
-    for r in &mut results {
-        let (b, by) = (&r.by_occlusion, &standard);
-        r.change = Some(Change {
-            nodes_occluded: pct(b.nodes_per_occluded_ray, by.nodes_per_occluded_ray),
-            triangles_occluded: pct(b.triangles_per_occluded_ray, by.triangles_per_occluded_ray),
-            nodes_unoccluded: pct(b.nodes_per_unoccluded_ray, by.nodes_per_unoccluded_ray),
-            triangles_unoccluded: pct(
-                b.triangles_per_unoccluded_ray,
-                by.triangles_per_unoccluded_ray,
-            ),
-        });
-        // Time is the inverse of speed (measured only if standard was asked for).
-        r.time_change = r
-            .mrays_per_s
-            .iter()
-            .filter_map(|&(th, m)| {
-                let (_, s) = standard_speeds.iter().find(|(t, _)| *t == th)?;
-                Some((th, pct(*s / m, 1.0)))
+    )
+    .answers;
+    let plain = if structures.contains(&"oavm") {
+        Some(OavmAccel::build_walk(&scene.mesh, build, Walk::TopDown)?)
+    } else {
+        None
+    };
+    let mut results: Vec<VariantResult> = Vec::new();
+    for &structure in structures {
+        let make = |v: ShadowVariant| -> Result<Box<dyn ShadowStructure + '_>, Error> {
+            Ok(match (structure, &plain) {
+                ("oavm", Some(plain)) => Box::new(OavmShadow::new(plain, v, &scene.mesh, build)?),
+                _ => Box::new(KdShadow::new(&kd, v, &prep)),
             })
-            .collect();
+        };
+        // The structure's own standard walk: the reference its variants are measured against.
+        let reference = trace_frames(
+            make(ShadowVariant::Standard)?.as_ref(),
+            ShadowVariant::Standard,
+            &setup,
+        );
+        let standard = ByOcclusion::of(&reference.split);
+        let first = results.len();
+        for &v in variants {
+            let s = make(v)?;
+            let pre = s.precompute();
+            progress(&format!(
+                "  {structure} {}: prepared in {:.3} s",
+                v.name(),
+                pre.seconds
+            ));
+            let traced = trace_frames(s.as_ref(), v, &setup);
+            let differ = |b: &[Vec<u8>]| -> u64 {
+                traced
+                    .answers
+                    .iter()
+                    .zip(b)
+                    .map(|(a, b)| a.iter().zip(b).filter(|(x, y)| x != y).count() as u64)
+                    .sum()
+            };
+            let mut speeds = Vec::new();
+            for &threads in &opts.threads {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .map_err(|e| Error::Invalid(format!("cannot start {threads} threads: {e}")))?;
+                let best = (0..opts.reps.max(1))
+                    .map(|_| {
+                        let t = Instant::now();
+                        pool.install(|| trace_frames(s.as_ref(), v, &setup));
+                        t.elapsed().as_secs_f64()
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                speeds.push((threads, setup.rays() as f64 / best / 1e6));
+            }
+            let all = traced.split[0] + traced.split[1];
+            let per = |x: u64| x as f64 / all.rays.max(1) as f64;
+            let by = ByOcclusion::of(&traced.split);
+            results.push(VariantResult {
+                variant: v,
+                structure: if structure == "oavm" {
+                    "oavm"
+                } else {
+                    "kdtree"
+                },
+                precompute: pre,
+                rays: all.rays,
+                occluded: traced.split[1].rays,
+                disagree_with_standard: differ(&reference.answers),
+                disagree_with_kdtree: differ(&kd_answers),
+                change: Some(Change::of(&by, &standard)),
+                by_occlusion: by,
+                promoted_tested_per_ray: per(all.promoted_tested),
+                links_followed_per_ray: per(all.ropes_followed),
+                restarts_per_ray: per(all.restarts),
+                prediction: traced.prediction,
+                mrays_per_s: speeds,
+                time_change: Vec::new(),
+            });
+        }
+        // Time is the inverse of speed (measured only if standard was asked for).
+        let ours = &mut results[first..];
+        let standard_speeds = ours
+            .iter()
+            .find(|r| r.variant == ShadowVariant::Standard)
+            .map(|r| r.mrays_per_s.clone())
+            .unwrap_or_default();
+        for r in ours {
+            r.time_change = r
+                .mrays_per_s
+                .iter()
+                .filter_map(|&(th, m)| {
+                    let (_, s) = standard_speeds.iter().find(|(t, _)| *t == th)?;
+                    Some((th, pct(*s / m, 1.0)))
+                })
+                .collect();
+        }
     }
     Ok(ShadowSceneResult {
         scene: String::new(),
@@ -740,6 +842,7 @@ pub struct ShadowBatchResult {
     pub precompute: PrecomputeReport,
     pub nodes_visited: u64,
     pub triangles_tested: u64,
+    /// Rays answered otherwise than by the KD-tree's standard walk (must be 0).
     pub disagree_with_standard: usize,
     pub prediction: Option<Prediction>,
 }
@@ -751,9 +854,11 @@ pub struct ShadowBatchResult {
 /// first by the standard walk.
 pub fn batch_file(
     scene: &BenchScene,
+    structure: &str,
     variant: ShadowVariant,
     rays: &[Ray],
     params: ShadowParams,
+    build: &BuildOptions,
 ) -> Result<(ShadowBatchResult, Vec<u8>), Error> {
     let kd = KdTree::build(&scene.tris);
     let visible: Vec<[f32; 3]> = rays.iter().take(1 << 20).map(|r| r.origin).collect();
@@ -772,7 +877,13 @@ pub fn batch_file(
         lights: &lights,
         params,
     };
-    let s = KdShadow::new(&kd, variant, &prep);
+    let plain;
+    let s: Box<dyn ShadowStructure + '_> = if structure == "oavm" {
+        plain = OavmAccel::build_walk(&scene.mesh, build, Walk::TopDown)?;
+        Box::new(OavmShadow::new(&plain, variant, &scene.mesh, build)?)
+    } else {
+        Box::new(KdShadow::new(&kd, variant, &prep))
+    };
     let t = Instant::now();
     let mut out = vec![0u8; rays.len()];
     let (c, pred) = rays
@@ -827,7 +938,11 @@ pub fn batch_file(
         ..pred
     });
     let result = ShadowBatchResult {
-        structure: "kdtree",
+        structure: if structure == "oavm" {
+            "oavm"
+        } else {
+            "kdtree"
+        },
         variant,
         rays: rays.len(),
         occluded: out.iter().filter(|&&o| o == 1).count(),
