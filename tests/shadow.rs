@@ -139,7 +139,7 @@ fn check_scene(rel: &str, light: LightKind) -> [Counters; 4] {
         ShadowVariant::Sato,
         ShadowVariant::Multi,
     ] {
-        let o = OavmShadow::new(&plain, v, &scene.mesh, &build).expect("oavm variant");
+        let o = OavmShadow::new(&plain, v, &ShadowParams::default()).expect("oavm variant");
         let traced = shadow::trace_frames(&o, v, &w.setup);
         let answers: Vec<bool> = traced.answers.iter().flatten().map(|&o| o == 1).collect();
         let differ = answers
@@ -398,4 +398,72 @@ fn bench_reports_variants_and_traces_ray_files() {
         .arg("--occluded")
         .arg(dir.path().join("x.occl")));
     assert!(!o.status.success() && err.contains("one variant"), "{err}");
+}
+
+/// Occluders in the file (format-spec §8.5), as `oavm-pack --occluders` adds them: the file
+/// verifies; OAVM's top-down walk testing them answers every shadow ray of the frames as the
+/// walk that ignores them (which the tests above hold to the KD-tree's and brute force); it
+/// tests them, and stops some occluded rays at one, with fewer nodes. A file of lists (walked
+/// leaf to leaf) is refused.
+#[test]
+fn occluders_in_the_file_answer_alike_and_verify() {
+    let scene = scene("bart/kitchen/kitchen.aff");
+    let w = walks(&scene, LightKind::Point);
+    let rays: Vec<Ray> = w
+        .setup
+        .frames
+        .iter()
+        .flat_map(|f| f.rays.iter().copied())
+        .collect();
+    let params = ShadowParams::default();
+    let lists = BuildOptions::with_leaf(oavm::build::LeafKind::List);
+    let (parts, _) = oavm::build::build(&scene.mesh, &lists, &oavm::build::Quiet).expect("build");
+    let file =
+        oavm::physical::OavmFile::open(oavm::build::encode(&parts).expect("encode")).unwrap();
+    let e = oavm::build::occluders::add_occluders(&file, &params, Vec::new()).unwrap_err();
+    assert!(e.to_string().contains("clusters"), "{e}");
+    for leaf in [oavm::build::LeafKind::Cluster] {
+        let opts = BuildOptions::with_leaf(leaf);
+        let (parts, _) =
+            oavm::build::build(&scene.mesh, &opts, &oavm::build::Quiet).expect("build");
+        let plain = oavm::build::encode(&parts).expect("encode");
+        let file = oavm::physical::OavmFile::open(plain).expect("open");
+        let (bytes, _, report) =
+            oavm::build::occluders::add_occluders(&file, &ShadowParams::default(), Vec::new())
+                .expect("occluders");
+        assert!(
+            report.occluders > 0 && report.occluder_nodes > 0,
+            "{report:?}"
+        );
+        assert_eq!(report.bytes_after, bytes.len() as u64);
+        // The top-down walk, which tests occluders (a file of lists is walked leaf to leaf by
+        // default).
+        let s = oavm::Scene::from_bytes_with(
+            oavm::physical::AlignedBytes::from_slice(&bytes),
+            "occ.oavm",
+            &oavm::logical::SceneOptions {
+                walk: Walk::TopDown,
+                ..Default::default()
+            },
+        )
+        .expect("open");
+        let v = s.verify().expect("verify");
+        assert!(v.is_ok(), "{leaf:?}: {:?}", v.defects);
+        let tree = s.tree();
+        let (mut promoted, mut earlier, mut occluded) = (0u64, 0usize, 0usize);
+        for r in &rays {
+            let (mut a, mut b) = (Counters::default(), Counters::default());
+            let with = tree.occluders(true).occluded(r, &mut a).expect("trace");
+            let without = tree.occluders(false).occluded(r, &mut b).expect("trace");
+            assert_eq!(with, without, "{leaf:?}: occluders changed an answer");
+            promoted += a.promoted_tested;
+            occluded += with as usize;
+            earlier += (with && a.nodes_visited < b.nodes_visited) as usize;
+        }
+        assert!(promoted > 0, "{leaf:?}: no occluder was tested");
+        assert!(
+            occluded > 1000 && earlier > 10,
+            "{leaf:?}: {earlier} of {occluded} occluded rays stopped earlier"
+        );
+    }
 }

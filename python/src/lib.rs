@@ -460,6 +460,7 @@ fn pack_options(
         time: None,
         mem_budget,
         ropes,
+        occluders: false,
     };
     opts.validate().map_err(to_py)?;
     Ok(opts)

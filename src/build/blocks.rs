@@ -455,6 +455,8 @@ fn extract(
         cluster_nodes,
         groups,
         ropes: Vec::new(),
+        occluder_nodes: Vec::new(),
+        occluders: Vec::new(),
     })
 }
 
@@ -555,5 +557,7 @@ pub fn assemble_top(mut nodes: Vec<TopNode>) -> Result<UnitParts, Error> {
         cluster_nodes: Vec::new(),
         groups: Vec::new(),
         ropes: Vec::new(),
+        occluder_nodes: Vec::new(),
+        occluders: Vec::new(),
     })
 }

@@ -178,6 +178,8 @@ pub(super) fn layout_from(
             cluster_nodes: Vec::new(),
             groups: Vec::new(),
             ropes: Vec::new(),
+            occluder_nodes: Vec::new(),
+            occluders: Vec::new(),
         },
         empty_leaves,
         solid_leaves,

@@ -18,6 +18,7 @@ pub(crate) mod blocks;
 mod cluster;
 mod layout;
 mod merge;
+pub mod occluders;
 mod pack;
 mod prepare;
 pub mod ropes;

@@ -27,6 +27,9 @@ pub struct PackOptions {
     pub mem_budget: Option<u64>,
     /// Add ropes (format-spec §8.4) once the file is written ([`super::ropes::add_ropes`]).
     pub ropes: bool,
+    /// Add occluders (format-spec §8.5) once the file is written, chosen with the default
+    /// [`super::occluders::ShadowParams`] ([`super::occluders::add_occluders`]).
+    pub occluders: bool,
 }
 
 impl PackOptions {
@@ -64,6 +67,9 @@ pub struct PackReport {
     /// What adding ropes did (`--ropes`); `file_bytes` counts them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ropes: Option<super::ropes::RopeReport>,
+    /// What adding occluders did (`--occluders`); `file_bytes` counts them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub occluders: Option<super::occluders::OccluderReport>,
     pub total_seconds: f64,
     /// The process's peak resident set size when the file was written (`VmHWM`; what the
     /// memory budget of the streaming pack bounds), where the system says.
@@ -99,9 +105,9 @@ pub fn pack(
     with_ropes(report, out, opts, progress, t0)
 }
 
-/// Adds ropes to the file just packed at `out` if `opts` ask for them. The file without ropes
-/// is complete and in place; the one with them replaces it atomically (a crash in between
-/// leaves a valid file, without ropes).
+/// Adds occluders, then ropes, to the file just packed at `out` if `opts` ask for them. The
+/// file without them is complete and in place; each pass replaces it atomically (a crash in
+/// between leaves a valid file, without what the pass adds).
 fn with_ropes(
     mut report: PackReport,
     out: &Path,
@@ -109,6 +115,20 @@ fn with_ropes(
     progress: &dyn Progress,
     t0: Instant,
 ) -> Result<PackReport, Error> {
+    if opts.occluders {
+        progress.phase("adding occluders", None, false);
+        let r = super::occluders::add_occluders_file(
+            out,
+            out,
+            &super::occluders::ShadowParams::default(),
+        )?;
+        report.file_bytes = r.bytes_after;
+        report.bytes_per_triangle =
+            r.bytes_after as f64 / report.stats.input_triangles.max(1) as f64;
+        report.occluders = Some(r);
+        report.total_seconds = t0.elapsed().as_secs_f64();
+        report.peak_rss_bytes = crate::os::peak_rss_bytes();
+    }
     if opts.ropes {
         progress.phase("adding ropes", None, false);
         let r = super::ropes::add_ropes_file(out, out)?;
@@ -259,6 +279,7 @@ fn pack_built(
         block_count,
         streaming: None,
         ropes: None,
+        occluders: None,
         total_seconds: t0.elapsed().as_secs_f64(),
         peak_rss_bytes: crate::os::peak_rss_bytes(),
     })

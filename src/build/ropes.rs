@@ -274,6 +274,8 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
             cluster_nodes: view.cluster_nodes,
             groups: view.groups,
             ropes: &ropes,
+            occluder_nodes: view.occluder_nodes,
+            occluders: view.occluders,
         };
         let opts = BlockOptions {
             compress: (entry.codec == CODEC_ZSTD).then_some(DEFAULT_ZSTD_LEVEL),
@@ -293,6 +295,8 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
         cluster_nodes: &[],
         groups: &[],
         ropes: &top_ropes,
+        occluder_nodes: &[],
+        occluders: &[],
     };
     let (sink, size) = w.finish(&header, top_unit).map_err(io)?;
     report.bytes_after = size;

@@ -60,6 +60,22 @@ impl OavmAccel {
         &self.scene
     }
 
+    /// Another scene over a copy of the same bytes, walked top-down.
+    pub fn clone_scene(&self) -> Result<OavmAccel, Error> {
+        let scene = Scene::from_bytes_with(
+            AlignedBytes::from_slice(self.scene.file().bytes()),
+            "memory",
+            &SceneOptions {
+                walk: Walk::TopDown,
+                ..SceneOptions::default()
+            },
+        )?;
+        Ok(OavmAccel {
+            scene,
+            stats: self.stats.clone(),
+        })
+    }
+
     /// The same file with ropes added (spec §8.4), and what adding them cost: the pass's
     /// seconds and the bytes added.
     pub fn with_ropes(&self) -> Result<(OavmAccel, f64, u64), Error> {
@@ -85,11 +101,49 @@ impl OavmAccel {
         Ok((OavmAccel { scene, stats }, seconds, added))
     }
 
+    /// The same file with occluders added (spec §8.5) as `params` choose them, and what the
+    /// pass reported.
+    pub fn with_occluders(
+        &self,
+        params: &crate::build::occluders::ShadowParams,
+    ) -> Result<(OavmAccel, crate::build::occluders::OccluderReport), Error> {
+        let (bytes, _, report) =
+            crate::build::occluders::add_occluders(self.scene.file(), params, Vec::new())?;
+        let scene = Scene::from_bytes_with(
+            AlignedBytes::from_slice(&bytes),
+            "memory",
+            &SceneOptions {
+                walk: Walk::TopDown,
+                ..SceneOptions::default()
+            },
+        )?;
+        let stats = StructureStats {
+            build_seconds: self.stats.build_seconds + report.seconds,
+            bytes: scene.file().bytes().len() as u64,
+            ..self.stats.clone()
+        };
+        Ok((OavmAccel { scene, stats }, report))
+    }
+
     /// Any hit by `walk` (a leaf-to-leaf walk by ropes needs a file with them: [`Self::with_ropes`]),
-    /// the top-down walk taking children in the SATO order if `sato` ([`crate::logical::Tree::sato`]).
-    pub fn occluded_walk(&self, ray: &Ray, walk: Walk, sato: bool, c: &mut Counters) -> bool {
+    /// the top-down walk taking children in the SATO order if `sato` ([`crate::logical::Tree::sato`])
+    /// and testing the occluders of the nodes it enters if `occluders` (and the file has them,
+    /// [`crate::logical::Tree::occluders`]).
+    pub fn occluded_walk(
+        &self,
+        ray: &Ray,
+        walk: Walk,
+        sato: bool,
+        occluders: bool,
+        c: &mut Counters,
+    ) -> bool {
         let ropes = self.scene.file().records(SectionKind::Ropes);
-        let tree = self.scene.tree().walking(walk, ropes).sato(sato);
+        let tree = self
+            .scene
+            .tree()
+            .walking(walk, ropes)
+            .sato(sato)
+            .occluders(occluders);
         let before = self.count_start(c);
         let hit = tree.occluded(ray, c);
         self.count_end(c, before);

@@ -188,10 +188,10 @@ impl ShadowStructure for KdShadow<'_> {
 /// OAVM (a file of clusters, packed in memory) with what one variant needs: `standard` is
 /// its top-down walk; `sato` the same walk taking children in the SATO order
 /// ([`crate::logical::Tree::sato`]), which needs no precomputation (the boxes it orders by are
-/// in the file already); `multi` adds ropes (spec §8.4) for its adjacency walk, the leaf-to-leaf
-/// walk from rope to rope (the step OAVM already has: what the source's adjacency index adds is
-/// where it starts, and where it is built), and its primitive walk is the top-down walk (the
-/// occluders promoted into blocks are not stored yet).
+/// in the file already); `multi` adds occluders (spec §8.5) for its primitive walk (the
+/// top-down walk testing them) and ropes (spec §8.4) for its adjacency walk (the leaf-to-leaf
+/// walk from rope to rope, the step OAVM already has: what the source's adjacency index would
+/// add is where the walk starts, and where links are built).
 pub struct OavmShadow {
     acc: OavmAccel,
     precompute: PrecomputeReport,
@@ -201,25 +201,25 @@ impl OavmShadow {
     pub fn new(
         plain: &OavmAccel,
         variant: ShadowVariant,
-        mesh: &crate::mesh::Mesh,
-        build: &BuildOptions,
+        params: &ShadowParams,
     ) -> Result<OavmShadow, Error> {
         let (acc, precompute) = match variant {
             ShadowVariant::Multi => {
-                let (acc, seconds, bytes) = plain.with_ropes()?;
+                let (occ, report) = plain.with_occluders(params)?;
+                let (acc, seconds, bytes) = occ.with_ropes()?;
+                let added = bytes + report.bytes_after.saturating_sub(report.bytes_before);
                 (
                     acc,
                     PrecomputeReport {
-                        seconds,
-                        bytes,
+                        seconds: seconds + report.seconds,
+                        bytes: added,
+                        candidates: report.candidates as usize,
+                        promoted: report.occluders as usize,
                         ..PrecomputeReport::default()
                     },
                 )
             }
-            _ => (
-                OavmAccel::build_walk(mesh, build, Walk::TopDown)?,
-                PrecomputeReport::default(),
-            ),
+            _ => (plain.clone_scene()?, PrecomputeReport::default()),
         };
         Ok(OavmShadow { acc, precompute })
     }
@@ -228,11 +228,10 @@ impl OavmShadow {
 impl ShadowStructure for OavmShadow {
     fn occluded_by(&self, ray: &Ray, walk: ShadowWalk, c: &mut Counters) -> bool {
         match walk {
-            ShadowWalk::Sato => self.acc.occluded_walk(ray, Walk::TopDown, true, c),
-            ShadowWalk::Adjacency => self.acc.occluded_walk(ray, Walk::Ropes, false, c),
-            ShadowWalk::Standard | ShadowWalk::Primitive => {
-                self.acc.occluded_walk(ray, Walk::TopDown, false, c)
-            }
+            ShadowWalk::Sato => self.acc.occluded_walk(ray, Walk::TopDown, true, false, c),
+            ShadowWalk::Adjacency => self.acc.occluded_walk(ray, Walk::Ropes, false, false, c),
+            ShadowWalk::Primitive => self.acc.occluded_walk(ray, Walk::TopDown, false, true, c),
+            ShadowWalk::Standard => self.acc.occluded_walk(ray, Walk::TopDown, false, false, c),
         }
     }
 
@@ -726,7 +725,7 @@ pub fn run(
     for &structure in structures {
         let make = |v: ShadowVariant| -> Result<Box<dyn ShadowStructure + '_>, Error> {
             Ok(match (structure, &plain) {
-                ("oavm", Some(plain)) => Box::new(OavmShadow::new(plain, v, &scene.mesh, build)?),
+                ("oavm", Some(plain)) => Box::new(OavmShadow::new(plain, v, &opts.params)?),
                 _ => Box::new(KdShadow::new(&kd, v, &prep)),
             })
         };
@@ -880,7 +879,7 @@ pub fn batch_file(
     let plain;
     let s: Box<dyn ShadowStructure + '_> = if structure == "oavm" {
         plain = OavmAccel::build_walk(&scene.mesh, build, Walk::TopDown)?;
-        Box::new(OavmShadow::new(&plain, variant, &scene.mesh, build)?)
+        Box::new(OavmShadow::new(&plain, variant, &params)?)
     } else {
         Box::new(KdShadow::new(&kd, variant, &prep))
     };

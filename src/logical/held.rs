@@ -12,8 +12,8 @@
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::BlockView;
 use crate::physical::format::{
-    BLOCK_PARTS, BlockEntry, ClusterNode, LevelEntry, NodeRecord, RankWord, RopeRecord, TriGroup,
-    TriRecord, block_layout,
+    BLOCK_PARTS, BlockEntry, ClusterNode, LevelEntry, NodeRecord, OccluderNode, RankWord,
+    RopeRecord, TriGroup, TriRecord, block_layout,
 };
 
 /// What a block's bytes hold, checked once ([`BlockView::parse`]): where its parts are and the
@@ -63,6 +63,31 @@ pub(crate) struct Held<'v> {
     pub groups: &'v [TriGroup],
     /// Ropes (spec §8.4), by node record; empty in a block without them.
     pub ropes: &'v [RopeRecord],
+    /// Occluders (spec §8.5): the internal nodes holding some, by node record, and their
+    /// triangles; empty in a block without them.
+    pub occluder_nodes: &'v [OccluderNode],
+    pub occluders: &'v [TriRecord],
+}
+
+impl Held<'_> {
+    /// The occluders of node record `at` (spec §8.5; none if it holds none, or if the records
+    /// say nonsense: a walk reads them only to stop early, so wrong records cost answers that
+    /// verify reports, never a panic).
+    #[inline]
+    pub fn occluders_of(&self, at: u64) -> &[TriRecord] {
+        let Ok(at) = u32::try_from(at) else {
+            return &[];
+        };
+        let Ok(i) = self.occluder_nodes.binary_search_by_key(&at, |n| n.node) else {
+            return &[];
+        };
+        let first = self.occluder_nodes[i].first as usize;
+        let end = self
+            .occluder_nodes
+            .get(i + 1)
+            .map_or(self.occluders.len(), |n| n.first as usize);
+        self.occluders.get(first..end).unwrap_or(&[])
+    }
 }
 
 impl<'v> Held<'v> {
@@ -83,6 +108,8 @@ impl<'v> Held<'v> {
             cluster_nodes: ready.part(raw, 6),
             groups: ready.part(raw, 7),
             ropes: ready.part(raw, 8),
+            occluder_nodes: ready.part(raw, 9),
+            occluders: ready.part(raw, 10),
         }
     }
 }

@@ -48,8 +48,9 @@ use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
 use crate::mapping::{Corruption, TreeMap};
 use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
-    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, FLAG_CLUSTERS, Header, KIND_EMPTY, KIND_INTERNAL,
-    KIND_LINK, KIND_SOLID, MAX_CLUSTER_DEPTH, NodeRecord, ROPE_TOP, RopeRecord, leaf_refs,
+    BlockEntry, CELL_MARGIN, CLUSTER_WIDTH, FLAG_CLUSTERS, FLAG_OCCLUDERS, Header, KIND_EMPTY,
+    KIND_INTERNAL, KIND_LINK, KIND_SOLID, MAX_CLUSTER_DEPTH, NodeRecord, ROPE_TOP, RopeRecord,
+    leaf_refs,
 };
 
 /// Work counters of a batch of rays (summed over its rays).
@@ -242,6 +243,9 @@ pub struct Tree<'a> {
     /// surface area first, whatever the ray's direction; [`Self::sato`]) instead of nearest
     /// first.
     sato: bool,
+    /// Any-hit queries of the top-down walk test the occluders (spec §8.5) of each internal
+    /// node of a block they enter, before its children ([`Self::occluders`]).
+    occluders: bool,
     /// The CPU's AVX2, if it has it.
     avx2: Option<Avx2>,
 }
@@ -314,6 +318,7 @@ impl<'a> Tree<'a> {
             follow_ropes: false,
             top_ropes: &[],
             sato: false,
+            occluders: header.flags & FLAG_OCCLUDERS != 0,
             top,
             top_boxes,
             directory,
@@ -347,6 +352,15 @@ impl<'a> Tree<'a> {
     /// (an any hit does not depend on order); closest hits keep the nearest-first order.
     pub fn sato(mut self, on: bool) -> Tree<'a> {
         self.sato = on;
+        self
+    }
+
+    /// The same tree, whose top-down walk tests, for any-hit queries, the occluders a node
+    /// holds (spec §8.5) when it enters the node, and stops there if one is hit (the primitive
+    /// index of Liang and Huang's multi-index tree). On by default in a file that has them; off,
+    /// the walk ignores them (the triangles are in their leaves too). The answers are the same.
+    pub fn occluders(mut self, on: bool) -> Tree<'a> {
+        self.occluders = on;
         self
     }
 
@@ -1188,6 +1202,25 @@ impl<'a> Tree<'a> {
             }
             // An internal node: its children's cells, nearest first.
             k.nodes_visited += 1;
+            // Its occluders first (spec §8.5): an any hit may stop here.
+            if ANY
+                && self.occluders
+                && let Some(h) = held
+            {
+                let tris = h.occluders_of(h.map.node_start(level) + e.index as u64);
+                for tri in tris {
+                    k.promoted_tested += 1;
+                    k.triangles_tested += 1;
+                    if let Some(t) = r.shear.intersect(&tri.v, r.tmin, w.t_best) {
+                        w.best = Some(HitInfo {
+                            t,
+                            prim: tri.prim,
+                            v: tri.v,
+                        });
+                        return Ok(None);
+                    }
+                }
+            }
             let map = match held {
                 Some(h) => &h.map,
                 None => &self.top,

@@ -332,14 +332,9 @@ fn check_block(
         ropes: view.ropes,
     };
     let mut totals = check_unit(&unit, header, d);
-    check_ropes(
-        &unit,
-        &level_codes(&unit, &mut Defects::default()),
-        top,
-        Some(b),
-        header,
-        d,
-    );
+    let codes = level_codes(&unit, &mut Defects::default());
+    check_ropes(&unit, &codes, top, Some(b), header, d);
+    check_occluders(&unit, &codes, &view, header, d);
     if unit.clusters.is_none() {
         totals.triangles = view.triangles.len() as u64;
     }
@@ -672,6 +667,122 @@ fn level_codes(u: &Unit, d: &mut Defects) -> Vec<Vec<u64>> {
         codes.push(next);
     }
     codes
+}
+
+/// Spec §8.5: a block's occluders are there only in a file that says so; their node entries
+/// name internal nodes of the block, in increasing order, each with at least one occluder, and
+/// tile the occluder records; and each occluder is a triangle of the block (a leaf of it holds
+/// the same primitive id with the same corners) that overlaps its node's cell widened by the
+/// cell margin (the exact triangle-box test of spec §6): so a ray stopped by one is stopped by
+/// a triangle of the scene, where the walk would have met it below.
+fn check_occluders(
+    u: &Unit,
+    codes: &[Vec<u64>],
+    view: &BlockView<'_>,
+    header: &Header,
+    d: &mut Defects,
+) {
+    let label = &u.label;
+    let (entries, occ) = (view.occluder_nodes, view.occluders);
+    if header.flags & FLAG_OCCLUDERS == 0 {
+        if !entries.is_empty() || !occ.is_empty() {
+            d.push(format!("{label}: occluders in a file without them"));
+        }
+        return;
+    }
+    if entries.is_empty() {
+        if !occ.is_empty() {
+            d.push(format!("{label}: occluders with no node entry"));
+        }
+        return;
+    }
+    if u.clusters.is_none() {
+        d.push(format!("{label}: occluders in a file of leaf lists"));
+        return;
+    }
+    // The block's triangles by primitive id (a triangle of two leaves has the same corners in
+    // both: verify checks the leaves against each other elsewhere).
+    let mut tris: std::collections::HashMap<u32, [[f32; 3]; 3]> = std::collections::HashMap::new();
+    for t in u.tris {
+        tris.insert(t.prim, t.v);
+    }
+    for g in u.groups {
+        for l in 0..(g.count as usize).min(8) {
+            tris.insert(g.prim[l], g.triangle(l));
+        }
+    }
+    // Level and index in the level of every node record.
+    let levels = u.map.levels();
+    let base = u.map.base();
+    let locate = |at: u64| -> Option<(u32, u64)> {
+        levels
+            .iter()
+            .enumerate()
+            .find(|(_, e)| at >= e.node_start && at < e.node_start + e.node_count)
+            .map(|(l, e)| (base + l as u32, at - e.node_start))
+    };
+    let scale = LATTICE_SIZE as f64 / header.root_size;
+    let m = CELL_MARGIN;
+    for (i, e) in entries.iter().enumerate() {
+        let end = entries
+            .get(i + 1)
+            .map_or(occ.len() as u64, |n| n.first as u64);
+        let ordered = i == 0 && e.first == 0
+            || i > 0 && e.node > entries[i - 1].node && e.first > entries[i - 1].first;
+        if !ordered || e.first as u64 >= end || end > occ.len() as u64 {
+            d.push(format!(
+                "{label}: occluder entry {i} (node {}, first {}) is out of order or empty",
+                e.node, e.first
+            ));
+            return;
+        }
+        let Some((level, idx)) = locate(e.node as u64) else {
+            d.push(format!(
+                "{label}: occluder entry {i} names node {}, past the block's",
+                e.node
+            ));
+            continue;
+        };
+        match u.map.node(level, idx) {
+            Ok(rec) if rec.kind_bits() == KIND_INTERNAL => {}
+            _ => {
+                d.push(format!(
+                    "{label}: occluder entry {i} names node {}, not an internal node",
+                    e.node
+                ));
+                continue;
+            }
+        }
+        let Some(&code) = codes
+            .get((level - base) as usize)
+            .and_then(|c| c.get(idx as usize))
+        else {
+            continue;
+        };
+        let lo = cell_origin(code, level).map(|x| x as f64 - m);
+        let hi: [f64; 3] = std::array::from_fn(|k| lo[k] + cell_size(level) as f64 + 2.0 * m);
+        let c: [f64; 3] = std::array::from_fn(|k| (lo[k] + hi[k]) * 0.5);
+        let h: [f64; 3] = std::array::from_fn(|k| (hi[k] - lo[k]) * 0.5);
+        for (j, t) in occ[e.first as usize..end as usize].iter().enumerate() {
+            let at = e.first as usize + j;
+            if tris.get(&t.prim) != Some(&t.v) {
+                d.push(format!(
+                    "{label}: occluder {at} (primitive {}) is not a triangle of the block",
+                    t.prim
+                ));
+                continue;
+            }
+            let v: [[f64; 3]; 3] = std::array::from_fn(|i| {
+                std::array::from_fn(|k| (t.v[i][k] as f64 - header.root_min[k]) * scale)
+            });
+            if !triangle_overlaps_box(&v, c, h) {
+                d.push(format!(
+                    "{label}: occluder {at} (primitive {}) does not lie in its node {} (level {level})",
+                    t.prim, e.node
+                ));
+            }
+        }
+    }
 }
 
 /// Spec §8.4: a unit's ropes are there exactly when the file says so; an internal node's are

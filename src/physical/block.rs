@@ -238,6 +238,9 @@ pub struct BlockView<'a> {
     pub groups: &'a [TriGroup],
     /// Ropes (spec §8.4): one per node, or none.
     pub ropes: &'a [RopeRecord],
+    /// Occluders (spec §8.5): the internal nodes holding some, and their triangles.
+    pub occluder_nodes: &'a [OccluderNode],
+    pub occluders: &'a [TriRecord],
 }
 
 impl<'a> BlockView<'a> {
@@ -278,6 +281,12 @@ impl<'a> BlockView<'a> {
         if header.rope_count != 0 && header.rope_count != header.node_count {
             return Err("block rope count is neither 0 nor its node count");
         }
+        if (header.occluder_node_count == 0) != (header.occluder_count == 0)
+            || header.occluder_node_count > header.node_count
+            || header.occluder_count > u32::MAX as u64
+        {
+            return Err("block occluder counts are inconsistent");
+        }
         let Some((ranges, len)) = block_layout(&header) else {
             return Err("block counts overflow");
         };
@@ -295,6 +304,8 @@ impl<'a> BlockView<'a> {
             Ok(cluster_nodes),
             Ok(groups),
             Ok(ropes),
+            Ok(occluder_nodes),
+            Ok(occluders),
         ) = (
             bytemuck::try_cast_slice::<u8, LevelEntry>(cast(0)),
             bytemuck::try_cast_slice::<u8, NodeRecord>(cast(1)),
@@ -305,6 +316,8 @@ impl<'a> BlockView<'a> {
             bytemuck::try_cast_slice::<u8, ClusterNode>(cast(6)),
             bytemuck::try_cast_slice::<u8, TriGroup>(cast(7)),
             bytemuck::try_cast_slice::<u8, RopeRecord>(cast(8)),
+            bytemuck::try_cast_slice::<u8, OccluderNode>(cast(9)),
+            bytemuck::try_cast_slice::<u8, TriRecord>(cast(10)),
         )
         else {
             return Err("block bytes are not aligned");
@@ -340,6 +353,8 @@ impl<'a> BlockView<'a> {
             cluster_nodes,
             groups,
             ropes,
+            occluder_nodes,
+            occluders,
         })
     }
 }

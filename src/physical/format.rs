@@ -43,8 +43,13 @@ pub const FLAG_CLUSTERS: u32 = 4;
 /// across each face of the box a walk crosses there, in an eighth section (the top tree) and
 /// a ninth part of every block (`oavm-pack --ropes`).
 pub const FLAG_ROPES: u32 = 8;
+/// Spec §2, `flags` bit 4: the file holds occluders (spec §8.5): large triangles also stored at
+/// internal nodes of the blocks, where shadow rays test them before descending (the primitive
+/// index of Liang and Huang's multi-index tree; `oavm-pack --occluders`).
+pub const FLAG_OCCLUDERS: u32 = 16;
 /// Every flag this version knows; any other bit set is an error at open.
-pub const KNOWN_FLAGS: u32 = FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS | FLAG_ROPES;
+pub const KNOWN_FLAGS: u32 =
+    FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS | FLAG_ROPES | FLAG_OCCLUDERS;
 
 /// Spec §2: the file header, at offset 0 (256 bytes).
 #[repr(C)]
@@ -709,7 +714,7 @@ pub const MAX_ZSTD_RATIO: u64 = 64;
 /// Spec §8.3: the tag that starts every block's raw bytes ("OBLK", little-endian).
 pub const BLOCK_TAG: u32 = u32::from_le_bytes(*b"OBLK");
 
-/// Spec §8.3: the header of a block's raw bytes (80 bytes), followed by the block's records as
+/// Spec §8.3: the header of a block's raw bytes (104 bytes), followed by the block's records as
 /// [`block_layout`] places them.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
@@ -737,11 +742,30 @@ pub struct BlockHeader {
     /// Rope records (spec §8.4): `node_count` in a file with [`FLAG_ROPES`], else 0 (bytes
     /// 80..88 were padding before ropes, so blocks written before read 0 here).
     pub rope_count: u64,
+    /// Internal nodes holding occluders (spec §8.5; 0 in a file without [`FLAG_OCCLUDERS`]).
+    /// Bytes 88..104 were padding before occluders, so blocks written before read 0 here.
+    pub occluder_node_count: u64,
+    /// Occluder triangle records (spec §8.5).
+    pub occluder_count: u64,
 }
-const _: () = assert!(std::mem::size_of::<BlockHeader>() == 88);
+const _: () = assert!(std::mem::size_of::<BlockHeader>() == 104);
 
 /// Spec §8.3: the parts of a block, in the order they are stored.
-pub const BLOCK_PARTS: usize = 9;
+pub const BLOCK_PARTS: usize = 11;
+
+/// The parts added to blocks after the first version of the layout (ropes, occluder nodes,
+/// occluders), which take no place when they are empty.
+const LATE_PARTS: usize = 8;
+
+/// Spec §8.5: an internal node of a block that holds occluders (8 bytes): its index in the
+/// block's node records, and the index of its first occluder in the block's occluder records
+/// (its occluders run to the next entry's `first`, or to the end).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct OccluderNode {
+    pub node: u32,
+    pub first: u32,
+}
 
 /// Spec §8.4: a rope that leads out of the root cube (the face is on its boundary).
 pub const ROPE_EXIT: u32 = u32::MAX;
@@ -775,13 +799,15 @@ pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; BLOCK_PAR
         (h.cluster_node_count, std::mem::size_of::<ClusterNode>()),
         (h.group_count, std::mem::size_of::<TriGroup>()),
         (h.rope_count, std::mem::size_of::<RopeRecord>()),
+        (h.occluder_node_count, std::mem::size_of::<OccluderNode>()),
+        (h.occluder_count, std::mem::size_of::<TriRecord>()),
     ];
     let mut at = std::mem::size_of::<BlockHeader>() as u64;
     let mut out: [std::ops::Range<u64>; BLOCK_PARTS] = Default::default();
     for (i, (count, size)) in sizes.into_iter().enumerate() {
-        // The ropes, added later, take no place when absent: a block without them ends where
-        // it always did, at the end of its groups.
-        if i < BLOCK_PARTS - 1 || count > 0 {
+        // The ropes and occluders, added later, take no place when absent: a block without
+        // them ends where it always did, at the end of its groups.
+        if i < LATE_PARTS || count > 0 {
             at = at.checked_next_multiple_of(SECTION_ALIGN)?;
         }
         let end = at.checked_add(count.checked_mul(size as u64)?)?;

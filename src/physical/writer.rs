@@ -24,6 +24,9 @@ pub struct UnitParts {
     pub groups: Vec<TriGroup>,
     /// Ropes (spec §8.4): one record per node, or none (a file without ropes).
     pub ropes: Vec<RopeRecord>,
+    /// Occluders (spec §8.5): the internal nodes holding some, and their triangles.
+    pub occluder_nodes: Vec<OccluderNode>,
+    pub occluders: Vec<TriRecord>,
 }
 
 impl UnitParts {
@@ -38,6 +41,8 @@ impl UnitParts {
             cluster_nodes: &self.cluster_nodes,
             groups: &self.groups,
             ropes: &self.ropes,
+            occluder_nodes: &self.occluder_nodes,
+            occluders: &self.occluders,
         }
     }
 }
@@ -54,6 +59,8 @@ pub struct UnitRef<'a> {
     pub cluster_nodes: &'a [ClusterNode],
     pub groups: &'a [TriGroup],
     pub ropes: &'a [RopeRecord],
+    pub occluder_nodes: &'a [OccluderNode],
+    pub occluders: &'a [TriRecord],
 }
 
 impl UnitRef<'_> {
@@ -169,6 +176,8 @@ fn block_header(unit: UnitRef<'_>, root_level: u32, id: u32) -> BlockHeader {
         group_count: unit.groups.len() as u64,
         block_id: id as u64,
         rope_count: unit.ropes.len() as u64,
+        occluder_node_count: unit.occluder_nodes.len() as u64,
+        occluder_count: unit.occluders.len() as u64,
     }
 }
 
@@ -190,6 +199,8 @@ pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
         bytemuck::cast_slice(unit.cluster_nodes),
         bytemuck::cast_slice(unit.groups),
         bytemuck::cast_slice(unit.ropes),
+        bytemuck::cast_slice(unit.occluder_nodes),
+        bytemuck::cast_slice(unit.occluders),
     ];
     for (r, bytes) in ranges.iter().zip(parts) {
         out[r.start as usize..r.end as usize].copy_from_slice(bytes);
@@ -531,7 +542,9 @@ impl<S: Sink> FileWriter<S> {
             self.at += bytes.len() as u64;
         }
         let file_size = self.at;
-        let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS);
+        // Occluders (spec §8.5) may be in some blocks and not others: the pass that adds them
+        // says so in `meta`.
+        let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS | FLAG_OCCLUDERS);
         if self.compressed {
             flags |= FLAG_COMPRESSED;
         }
@@ -610,6 +623,8 @@ mod tests {
             cluster_nodes: Vec::new(),
             groups: Vec::new(),
             ropes: Vec::new(),
+            occluder_nodes: Vec::new(),
+            occluders: Vec::new(),
         }
     }
 

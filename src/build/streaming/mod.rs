@@ -220,6 +220,7 @@ pub(super) fn pack_streaming(
             histogram_level: plan.h,
         }),
         ropes: None,
+        occluders: None,
         total_seconds: t0.elapsed().as_secs_f64(),
         peak_rss_bytes: crate::os::peak_rss_bytes(),
     })

@@ -49,33 +49,8 @@ use crate::logical::Counters;
 /// leaves, which costs tests but not answers).
 pub const REMEMBER: usize = 32;
 
-/// The knobs of the multi-index tree (module docs); the defaults are the source's middle values.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-pub struct ShadowParams {
-    /// A triangle is a candidate occluder if its box's surface area is more than this times the
-    /// mean (the source: 0.45 to 0.60 by scene).
-    pub candidate_ratio: f64,
-    /// The depth weight `exp(-k d)` (the source: about 0.6).
-    pub depth_k: f64,
-    /// A candidate is promoted if its best weighted saving exceeds this.
-    pub min_benefit: f64,
-    /// Most triangles promoted to one node.
-    pub per_node: usize,
-    /// Cells per side of the adjacency index's virtual grid.
-    pub grid: u32,
-}
-
-impl Default for ShadowParams {
-    fn default() -> Self {
-        ShadowParams {
-            candidate_ratio: 0.5,
-            depth_k: 0.6,
-            min_benefit: 1.0,
-            per_node: 8,
-            grid: 64,
-        }
-    }
-}
+/// The knobs of the multi-index tree (module docs), shared with OAVM's occluders.
+pub use crate::build::occluders::ShadowParams;
 
 type Cell = [[f32; 3]; 2];
 
