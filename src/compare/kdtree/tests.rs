@@ -440,3 +440,11 @@ fn split_stack_walk_past_its_register_takes_the_stack_walk() {
         }
     }
 }
+
+/// OAVM's occluders (`build::occluders`) estimate costs with the SAH constants of this tree's
+/// build, so that the two primitive indices are chosen alike.
+#[test]
+fn occluders_share_the_sah_constants() {
+    assert_eq!(crate::build::occluders::ISECT_COST, super::ISECT_COST);
+    assert_eq!(crate::build::occluders::TRAVERSAL_COST, super::TRAVERSAL_COST);
+}
