@@ -27,7 +27,10 @@
 //! zstd-compressed; and the default file (raw) and the file of lists (zstd) again, with ropes
 //! (§8.4: an eighth section and a ninth part in every block, added by `add_ropes` as
 //! `oavm-pack --ropes` adds them), traced by the walk that follows them (`Walk::Ropes`; the
-//! other files by the default walk). The byte layout used to corrupt them, to recompute
+//! other files by the default walk); and the deep file, raw and zstd, with occluders (§8.5: a
+//! tenth and an eleventh part in the blocks that hold some, added by `add_occluders` with the
+//! default parameters as `oavm-pack --occluders` adds them), traced by the default top-down
+//! walk, whose any-hit queries test them. The byte layout used to corrupt them, to recompute
 //! checksums and to re-lay a file out after a compressed block changed size, as a tool that
 //! rewrites a file would, is taken from format-spec.md §2–§8, not from the code;
 //! [`layout_matches_the_spec`] checks that the two agree.
@@ -55,8 +58,8 @@ use oavm::logical::{BlockReads, SceneOptions, Walk};
 use oavm::physical::AlignedBytes;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::{
-    BlockEntry, BlockHeader, ClusterNode, Header, LevelEntry, NodeRecord, RankWord, RopeRecord,
-    SectionEntry, SectionKind, TriGroup, TriRecord, VolumeRecord,
+    BlockEntry, BlockHeader, ClusterNode, Header, LevelEntry, NodeRecord, OccluderNode, RankWord,
+    RopeRecord, SectionEntry, SectionKind, TriGroup, TriRecord, VolumeRecord,
 };
 use oavm::rays::{Bounds, Camera, SplitMix64, random_rays};
 use oavm::{BuildOptions, Error, FormatError, Hit, Mesh, Ray, Scene};
@@ -65,10 +68,11 @@ use xxhash_rust::xxh3::xxh3_64;
 // ---------------------------------------------------------------------------------------------
 use common::layout::*;
 
-// Ropes (§8.4) changed the layout: the items below are format-spec.md's, as of ropes, and
-// shadow `common::layout`'s older ones of the same name (that file is shared with the fuzz
-// targets). `SECTION_COUNT` and `TABLE_END` there are a file's without ropes; with flag
-// `ROPES` the table has an eighth entry ([`section_count`], [`table_end`]).
+// Ropes (§8.4) and occluders (§8.5) changed the layout: the items below are format-spec.md's,
+// as of occluders (a 104-byte block header, eleven block parts), and shadow `common::layout`'s
+// older ones of the same name (that file is shared with the fuzz targets). `SECTION_COUNT` and
+// `TABLE_END` there are a file's without ropes; with flag `ROPES` the table has an eighth entry
+// ([`section_count`], [`table_end`]). Occluders add no section.
 
 /// §2: flag bit 3, `ROPES`: an eighth section and a ninth part in every block (§8.4).
 const FLAG_ROPES: u32 = 8;
@@ -77,11 +81,25 @@ const SECTION_COUNT_ROPES: usize = 8;
 const TABLE_END_ROPES: usize = HEADER_LEN + SECTION_COUNT_ROPES * ENTRY_LEN;
 /// §3: the ropes' position in the section table (kind 8).
 const ROPES: usize = 7;
-/// §8.3: a block's header is 88 bytes; its last count, `rope_count`, at 80 (after `block_id`).
-const BLOCK_HEADER_LEN: usize = 88;
+/// §2: flag bit 4, `OCCLUDERS`: blocks may hold occluders (§8.5), a tenth and an eleventh part.
+const FLAG_OCCLUDERS: u32 = 16;
+/// §8.3: a block's header is 104 bytes: after `block_id`, `rope_count` at 80, then
+/// `occluder_node_count` at 88 and `occluder_count` at 96 (bytes 80..104 were padding before
+/// ropes and occluders; the level table still starts at 128, the next multiple of 64).
+const BLOCK_HEADER_LEN: usize = 104;
 const BH_ROPE_COUNT: usize = 80;
-/// §8.3: a block's parts, the level table first, the ropes ninth.
-const BLOCK_PART_COUNT: usize = 9;
+const BH_OCCLUDER_NODE_COUNT: usize = 88;
+const BH_OCCLUDER_COUNT: usize = 96;
+/// §8.3: a block's parts, the level table first, the ropes ninth, the occluder nodes and the
+/// occluders tenth and eleventh.
+const BLOCK_PART_COUNT: usize = 11;
+/// §8.3: the parts from this one on (ropes, occluder nodes, occluders), added to the format
+/// later, take no place when empty; the first eight have their place all the same.
+const FIRST_LATE_PART: usize = 8;
+/// §8.5: an occluder node entry (`OccluderNode`: `node`, `first`) and an occluder (a
+/// `TriRecord`, §7: three corners and the primitive id).
+const OCCLUDER_NODE_LEN: usize = 8;
+const TRI_LEN: usize = 40;
 /// §8.4: a rope record (u32[6], one rope per face) and its special values.
 const ROPE_LEN: usize = 24;
 const ROPE_EXIT: u32 = 0xffff_ffff;
@@ -123,6 +141,10 @@ const ROPE_FIELDS: Fields = &[
     (16, "-z"),
     (20, "+z"),
 ];
+/// §7: a triangle record (a file of lists' triangles, and every file's occluders, §8.5).
+const TRI_FIELDS: Fields = &[(0, "v"), (36, "prim")];
+/// §8.5: an occluder node entry: an internal node of the block, its first occluder.
+const OCCLUDER_NODE_FIELDS: Fields = &[(0, "node"), (4, "first")];
 /// §7.1: a cluster node: its quantisation grid, its children, their boxes.
 const CLUSTER_NODE_FIELDS: Fields = &[
     (CN_ORIGIN, "origin"),
@@ -171,24 +193,30 @@ const SECTIONS: [(&str, usize, Fields); SECTION_COUNT_ROPES - 1] = [
 
 /// §8.3: the parts of a block after its header, in order, with their record sizes and fields.
 /// A file of lists has no cluster nodes or groups, a file of clusters no refs or triangles; a
-/// file without ropes no ropes (§8.4).
+/// file without ropes no ropes (§8.4); a file without occluders, or a block that holds none,
+/// no occluder nodes or occluders (§8.5).
 const BLOCK_PARTS: [(&str, usize, Fields); BLOCK_PART_COUNT] = [
     ("levels", 32, LEVEL_FIELDS),
     ("nodes", 8, NODE_FIELDS),
     ("ranks", 16, RANK_FIELDS),
     ("volumes", 24, VOLUME_FIELDS),
     ("refs", 4, &[(0, "reference")]),
-    ("triangles", 40, &[(0, "v"), (36, "prim")]),
+    ("triangles", TRI_LEN, TRI_FIELDS),
     ("cluster nodes", CLUSTER_NODE_LEN, CLUSTER_NODE_FIELDS),
     ("groups", TRI_GROUP_LEN, GROUP_FIELDS),
     ("ropes", ROPE_LEN, ROPE_FIELDS),
+    ("occluder nodes", OCCLUDER_NODE_LEN, OCCLUDER_NODE_FIELDS),
+    ("occluders", TRI_LEN, TRI_FIELDS),
 ];
 /// Indices into [`BLOCK_PARTS`].
+const PART_NODES: usize = 1;
 const PART_REFS: usize = 4;
 const PART_TRIANGLES: usize = 5;
 const PART_CLUSTER_NODES: usize = 6;
 const PART_GROUPS: usize = 7;
 const PART_ROPES: usize = 8;
+const PART_OCCLUDER_NODES: usize = 9;
+const PART_OCCLUDERS: usize = 10;
 
 /// §8.3: the fields of a block's header.
 const BLOCK_HEADER_FIELDS: Fields = &[
@@ -205,6 +233,8 @@ const BLOCK_HEADER_FIELDS: Fields = &[
     (64, "group_count"),
     (BH_BLOCK_ID, "block_id"),
     (BH_ROPE_COUNT, "rope_count"),
+    (BH_OCCLUDER_NODE_COUNT, "occluder_node_count"),
+    (BH_OCCLUDER_COUNT, "occluder_count"),
 ];
 
 /// §2: the header's fields (offset, name).
@@ -310,26 +340,58 @@ fn dir_entry_at(b: &[u8], i: usize) -> usize {
     section(b, DIRECTORY).0 + i * DIR_LEN
 }
 
-/// §8.3: the byte ranges of a decoded block's nine parts, from its header's counts:
+/// §8.3: the byte ranges of a decoded block's eleven parts, from its header's counts:
 /// `level_count` (u32), the seven u64 counts from `node_count` on (nodes, ranks, volumes, refs,
-/// triangles, cluster nodes, groups), then, past `block_id`, `rope_count`. Each part at the
-/// next multiple of 64, but absent ropes (count 0) take no place: the block then ends at the
-/// end of its groups.
+/// triangles, cluster nodes, groups), then, past `block_id`, `rope_count`,
+/// `occluder_node_count` and `occluder_count`. Each part at the next multiple of 64, but the
+/// late parts (ropes, occluder nodes, occluders) take no place when absent (count 0): a block
+/// without them ends at the end of its groups.
 fn block_parts(raw: &[u8]) -> [Range<usize>; BLOCK_PART_COUNT] {
     let counts: [usize; BLOCK_PART_COUNT] = std::array::from_fn(|i| match i {
         0 => read_u32(raw, BH_LEVEL_COUNT) as usize,
         PART_ROPES => read_u64(raw, BH_ROPE_COUNT) as usize,
+        PART_OCCLUDER_NODES => read_u64(raw, BH_OCCLUDER_NODE_COUNT) as usize,
+        PART_OCCLUDERS => read_u64(raw, BH_OCCLUDER_COUNT) as usize,
         _ => read_u64(raw, BH_NODE_COUNT + 8 * (i - 1)) as usize,
     });
     let mut at = BLOCK_HEADER_LEN;
     std::array::from_fn(|i| {
-        if i != PART_ROPES || counts[i] > 0 {
+        if i < FIRST_LATE_PART || counts[i] > 0 {
             at = at.next_multiple_of(ALIGN);
         }
         let r = at..at + counts[i] * BLOCK_PARTS[i].1;
         at = r.end;
         r
     })
+}
+
+/// §7, §7.2: every triangle a decoded block stores, as the 40 bytes of a triangle record (§7:
+/// corners, then primitive id): its triangle records (a file of lists), or each lane in use of
+/// its groups (a file of clusters), the corners its slots name in their order. An occluder
+/// (§8.5) is one of these, byte for byte.
+fn block_triangles(raw: &[u8]) -> Vec<[u8; TRI_LEN]> {
+    let parts = block_parts(raw);
+    let mut out: Vec<[u8; TRI_LEN]> = parts[PART_TRIANGLES]
+        .clone()
+        .step_by(TRI_LEN)
+        .map(|at| raw[at..at + TRI_LEN].try_into().expect("40 bytes"))
+        .collect();
+    for g in parts[PART_GROUPS].clone().step_by(TRI_GROUP_LEN) {
+        for lane in 0..(read_u32(raw, g + TG_COUNT) as usize).min(8) {
+            let mut t = [0u8; TRI_LEN];
+            for c in 0..3 {
+                let slot = raw[g + TG_TRI + 8 * c + lane] as usize;
+                for k in 0..3 {
+                    let at = g + TG_CORNER + 4 * (8 * k + slot);
+                    t[12 * c + 4 * k..12 * c + 4 * k + 4].copy_from_slice(&raw[at..at + 4]);
+                }
+            }
+            let prim = g + TG_PRIM + 4 * lane;
+            t[36..].copy_from_slice(&raw[prim..prim + 4]);
+            out.push(t);
+        }
+    }
+    out
 }
 
 /// Recomputes the header checksum (§2: xxh3-64 of header bytes 0..248, then the section table:
@@ -675,14 +737,19 @@ struct Fixture {
     clusters: bool,
     /// The header's `ROPES` flag (§2, §8.4): the file holds ropes.
     ropes: bool,
+    /// The header's `OCCLUDERS` flag (§2, §8.5): blocks may hold occluders.
+    occluders: bool,
     /// How the file is traced: [`Walk::Ropes`] for a file with ropes, else [`Walk::Auto`].
     walk: Walk,
     dir: Vec<Entry>,
     /// Each block's decoded bytes.
     decoded: Vec<Vec<u8>>,
     links: Vec<Link>,
-    /// The blocks whose parts are regions of their own: the first, the largest and the last.
+    /// The blocks whose parts are regions of their own: the first, the largest and the last,
+    /// and the one holding the most occluders.
     detailed: Vec<usize>,
+    /// The block holding the most occluders (§8.5), if any does.
+    occluder_block: Option<usize>,
     /// The block with the largest `raw_len`.
     largest: usize,
     regions: Vec<Region>,
@@ -697,24 +764,50 @@ struct Fixture {
 
 impl Fixture {
     fn new(name: &str, mesh: &Mesh, opts: BuildOptions, blocks: BlockOptions) -> Fixture {
-        Fixture::build(name, mesh, opts, blocks, false)
+        Fixture::build(name, mesh, opts, blocks, false, false)
     }
 
     /// Built as [`Fixture::new`]; with `ropes`, given ropes afterwards as `oavm-pack --ropes`
     /// gives them (§8.4: `add_ropes` on the finished file) and traced by the walk that follows
-    /// them.
+    /// them; with `occluders`, given occluders afterwards as `oavm-pack --occluders` gives them
+    /// (§8.5: `add_occluders` with the default parameters on the finished file), traced by the
+    /// default walk (in a file of clusters the top-down walk, whose any-hit queries test them).
     fn build(
         name: &str,
         mesh: &Mesh,
         opts: BuildOptions,
         blocks: BlockOptions,
         ropes: bool,
+        occluders: bool,
     ) -> Fixture {
         let (parts, _) = oavm::build::build(mesh, &opts, &oavm::build::Quiet).expect("build");
         let mut bytes = encode_with(&parts, &blocks)
             .expect("encode")
             .as_ref()
             .to_vec();
+        // The file before occluders, whose answers the file with them must give.
+        let mut without_occluders = None;
+        let mut occluder_report = None;
+        if occluders {
+            let plain = open(&bytes).expect("the file without occluders opens");
+            let (with, size, report) = oavm::build::occluders::add_occluders(
+                plain.file(),
+                &oavm::build::occluders::ShadowParams::default(),
+                Vec::new(),
+            )
+            .expect("add occluders");
+            assert_eq!(
+                size,
+                with.len() as u64,
+                "{name}: the size add_occluders reports"
+            );
+            assert!(
+                report.occluders > 0 && report.occluder_nodes > 0,
+                "{name}: add_occluders chose none: {report:?}"
+            );
+            without_occluders = Some(std::mem::replace(&mut bytes, with));
+            occluder_report = Some(report);
+        }
         if ropes {
             let plain = open(&bytes).expect("the file without ropes opens");
             let (roped, size, _) =
@@ -734,6 +827,11 @@ impl Fixture {
             read_u32(&bytes, FLAGS_AT) & FLAG_ROPES != 0,
             ropes,
             "{name}: the ROPES flag"
+        );
+        assert_eq!(
+            read_u32(&bytes, FLAGS_AT) & FLAG_OCCLUDERS != 0,
+            occluders,
+            "{name}: the OCCLUDERS flag"
         );
         assert_eq!(
             read_u32(&bytes, 20) as usize,
@@ -782,11 +880,56 @@ impl Fixture {
             );
             // §8.4: a block of a file with ropes has one rope record per node record, and
             // one of a file without none.
-            let nodes = parts[1].len() / 8;
+            let nodes = parts[PART_NODES].len() / 8;
             assert_eq!(
                 parts[PART_ROPES].len(),
                 if ropes { nodes * ROPE_LEN } else { 0 },
                 "{name}: block {b}'s ropes {parts:?}"
+            );
+            // §8.5: occluder entries and occluders together, or neither (none without the
+            // flag); every occluder is one of the block's triangles, corners and id.
+            let (entries, occ) = (
+                parts[PART_OCCLUDER_NODES].len() / OCCLUDER_NODE_LEN,
+                parts[PART_OCCLUDERS].len() / TRI_LEN,
+            );
+            assert!(
+                (entries == 0) == (occ == 0) && (occluders || occ == 0) && entries <= nodes,
+                "{name}: block {b}'s occluders {parts:?}"
+            );
+            if occ > 0 {
+                let tris = block_triangles(raw);
+                for o in parts[PART_OCCLUDERS].clone().step_by(TRI_LEN) {
+                    assert!(
+                        tris.iter().any(|t| t[..] == raw[o..o + TRI_LEN]),
+                        "{name}: block {b}: the occluder at byte {o} is not a triangle of the block"
+                    );
+                }
+            }
+        }
+        let occluder_counts: Vec<(usize, usize)> = decoded
+            .iter()
+            .map(|raw| {
+                let parts = block_parts(raw);
+                (
+                    parts[PART_OCCLUDER_NODES].len() / OCCLUDER_NODE_LEN,
+                    parts[PART_OCCLUDERS].len() / TRI_LEN,
+                )
+            })
+            .collect();
+        if let Some(report) = occluder_report {
+            // The blocks hold what add_occluders reports: some blocks hold occluders.
+            let entries: usize = occluder_counts.iter().map(|c| c.0).sum();
+            let occ: usize = occluder_counts.iter().map(|c| c.1).sum();
+            assert_eq!(
+                (entries as u64, occ as u64),
+                (report.occluder_nodes, report.occluders),
+                "{name}: the blocks' occluder counts"
+            );
+            let holding = occluder_counts.iter().filter(|c| c.1 > 0).count();
+            assert!(holding > 0, "{name}: no block holds occluders");
+            eprintln!(
+                "{name}: {occ} occluders at {entries} nodes in {holding} of {} blocks",
+                dir.len()
             );
         }
         let links = top_links(&bytes);
@@ -794,6 +937,12 @@ impl Fixture {
             .max_by_key(|&b| dir[b].raw_len)
             .expect("blocks");
         let mut detailed = vec![0, largest, dir.len() - 1];
+        // With occluders, also the block holding the most (§8.5), so that its two occluder
+        // parts are regions.
+        let occluder_block = (0..dir.len())
+            .filter(|&b| occluder_counts[b].1 > 0)
+            .max_by_key(|&b| (occluder_counts[b].1, occluder_counts[b].0));
+        detailed.extend(occluder_block);
         detailed.sort_unstable();
         detailed.dedup();
 
@@ -815,10 +964,58 @@ impl Fixture {
                 f32::INFINITY,
             ));
         }
+        // With occluders, one ray through each occluder of the block holding the most, from
+        // just before its centroid: its any-hit walk enters the nodes around it, so that the
+        // occluders rewritten in that block are tested by the tracer, not only by verify.
+        let aimed = rays.len();
+        if let Some(ob) = occluder_block {
+            let raw = &decoded[ob];
+            let back = bounds.diagonal() as f32 * 1e-3;
+            for o in block_parts(raw)[PART_OCCLUDERS].clone().step_by(TRI_LEN) {
+                let v = |c: usize, k: usize| f32::from_bits(read_u32(raw, o + 12 * c + 4 * k));
+                let d = random_dir(&mut rng);
+                let origin =
+                    std::array::from_fn(|k| (v(0, k) + v(1, k) + v(2, k)) / 3.0 - d[k] * back);
+                rays.push(Ray::new(origin, d, 0.0, f32::INFINITY));
+            }
+        }
         let mut hits = vec![Hit::MISS; rays.len()];
         scene.intersect_batch(&rays, &mut hits).expect("trace");
         let mut occluded = vec![0u8; rays.len()];
-        scene.occluded_batch(&rays, &mut occluded).expect("trace");
+        let counters = scene.occluded_batch(&rays, &mut occluded).expect("trace");
+        if let Some(plain) = &without_occluders {
+            // Occluders change no answer (§8.5): the file before them gives the same, bit for
+            // bit; and the walk of a file of clusters tests them, so that damaged occluders are
+            // traced as well as verified.
+            let plain = open_walking(plain, walk).expect("opens");
+            let mut h = vec![Hit::MISS; rays.len()];
+            plain.intersect_batch(&rays, &mut h).expect("trace");
+            let mut o = vec![0u8; rays.len()];
+            plain.occluded_batch(&rays, &mut o).expect("trace");
+            let same = |a: &Hit, b: &Hit| a.t.to_bits() == b.t.to_bits() && a.prim == b.prim;
+            let differ = (0..rays.len()).find(|&i| !same(&h[i], &hits[i]) || o[i] != occluded[i]);
+            assert!(
+                differ.is_none(),
+                "{name}: ray {differ:?}: the answers with and without occluders differ"
+            );
+            assert!(
+                counters.promoted_tested > 0,
+                "{name}: the any-hit walk tested no occluder: {counters:?}"
+            );
+            let mut o = vec![0u8; rays.len() - aimed];
+            let c = scene.occluded_batch(&rays[aimed..], &mut o).expect("trace");
+            assert!(
+                c.promoted_tested > 0,
+                "{name}: the rays through block {occluder_block:?}'s occluders tested none: {c:?}"
+            );
+            eprintln!(
+                "{name}: the any-hit walk tested {} occluders, {} on the {} rays through block \
+                 {occluder_block:?}'s",
+                counters.promoted_tested,
+                c.promoted_tested,
+                rays.len() - aimed
+            );
+        }
         if ropes {
             // The walk that follows ropes gives the answers of the same walk finding each next
             // leaf from Morton codes (§8.4, §10), bit for bit.
@@ -853,11 +1050,13 @@ impl Fixture {
             bytes,
             clusters,
             ropes,
+            occluders,
             walk,
             dir,
             decoded,
             links,
             detailed,
+            occluder_block,
             largest,
             regions: Vec::new(),
             rays,
@@ -1216,6 +1415,7 @@ fn roped_file() -> &'static Fixture {
             BuildOptions::default(),
             blocks_16k(false),
             true,
+            false,
         )
     })
 }
@@ -1230,6 +1430,44 @@ fn roped_list_zstd_file() -> &'static Fixture {
             dragon(),
             BuildOptions::with_leaf(LeafKind::List),
             blocks_16k(true),
+            true,
+            false,
+        )
+    })
+}
+
+/// The deep file's mesh (part of the dragon, clusters of leaf size 4) in raw blocks of 16 KiB,
+/// with occluders (§8.5), added by `add_occluders` with the default parameters as `oavm-pack
+/// --occluders` adds them; traced by the default walk (top-down, in a file of clusters), whose
+/// any-hit queries test them. (With the default leaf size of 512 a block's tree is too shallow
+/// for the default parameters to choose any: the deep trees of leaf size 4 get hundreds.)
+/// `add_occluders` refuses a file of lists (only the top-down walk, of files of clusters,
+/// tests occluders), so there is no file of lists with occluders.
+fn occluded_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        Fixture::build(
+            "dragon res4, 600 triangles, K=4, 16 KiB blocks, occluders, raw",
+            &dragon_part(600),
+            leaf4(),
+            blocks_16k(false),
+            false,
+            true,
+        )
+    })
+}
+
+/// The same, zstd-compressed blocks (each block decoded, given its occluders and compressed
+/// again).
+fn occluded_zstd_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        Fixture::build(
+            "dragon res4, 600 triangles, K=4, 16 KiB blocks, occluders, zstd",
+            &dragon_part(600),
+            leaf4(),
+            blocks_16k(true),
+            false,
             true,
         )
     })
@@ -1479,6 +1717,7 @@ fn layout_matches_the_spec() {
     assert_eq!(oavm::physical::format::FLAG_COMPRESSED, FLAG_COMPRESSED);
     assert_eq!(oavm::physical::format::FLAG_CLUSTERS, FLAG_CLUSTERS);
     assert_eq!(oavm::physical::format::FLAG_ROPES, FLAG_ROPES);
+    assert_eq!(oavm::physical::format::FLAG_OCCLUDERS, FLAG_OCCLUDERS);
     assert_eq!(offset_of!(Header, section_count), 20);
     assert_eq!(offset_of!(Header, file_size), FILE_SIZE_AT);
     assert_eq!(offset_of!(Header, root_min), ROOT_MIN_AT);
@@ -1525,6 +1764,8 @@ fn layout_matches_the_spec() {
         offset_of!(BlockHeader, group_count),
         offset_of!(BlockHeader, block_id),
         offset_of!(BlockHeader, rope_count),
+        offset_of!(BlockHeader, occluder_node_count),
+        offset_of!(BlockHeader, occluder_count),
     ];
     assert_eq!(
         bh_fields.to_vec(),
@@ -1540,8 +1781,22 @@ fn layout_matches_the_spec() {
         size_of::<ClusterNode>(),
         size_of::<TriGroup>(),
         size_of::<RopeRecord>(),
+        size_of::<OccluderNode>(),
+        size_of::<TriRecord>(),
     ];
     assert_eq!(part_sizes, BLOCK_PARTS.map(|p| p.1));
+    assert_eq!(
+        [
+            offset_of!(OccluderNode, node),
+            offset_of!(OccluderNode, first)
+        ]
+        .to_vec(),
+        OCCLUDER_NODE_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
+    assert_eq!(
+        [offset_of!(TriRecord, v), offset_of!(TriRecord, prim)].to_vec(),
+        TRI_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
     assert_eq!(size_of::<RopeRecord>(), ROPE_LEN);
     assert_eq!(
         ROPE_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>(),
@@ -1602,6 +1857,8 @@ fn layout_matches_the_spec() {
         deep_zstd_file(),
         roped_file(),
         roped_list_zstd_file(),
+        occluded_file(),
+        occluded_zstd_file(),
     ] {
         // The section table is as long as the flags say (§2, §3).
         assert_eq!(
@@ -1641,6 +1898,19 @@ fn layout_matches_the_spec() {
         // Every link is found, one per root of every block.
         let roots: usize = fix.dir.iter().map(|e| e.root_count as usize).sum();
         assert_eq!(fix.links.len(), roots, "{}: links", fix.name);
+        // Blocks hold occluders only in a file whose flags say so (§8.5), and those fixtures'
+        // do.
+        let holding = fix
+            .decoded
+            .iter()
+            .filter(|raw| !block_parts(raw)[PART_OCCLUDERS].is_empty())
+            .count();
+        assert_eq!(
+            holding > 0,
+            fix.occluders,
+            "{}: {holding} blocks hold occluders",
+            fix.name
+        );
     }
     // After a change, recomputing the checksums leaves verify nothing to say about checksums,
     // in a raw block and in a compressed one, of clusters and of lists, with ropes and without.
@@ -1651,6 +1921,8 @@ fn layout_matches_the_spec() {
         list_zstd_file(),
         roped_file(),
         roped_list_zstd_file(),
+        occluded_file(),
+        occluded_zstd_file(),
     ] {
         let blk = fix.detailed[0];
         let r = fix
@@ -1716,6 +1988,7 @@ fn truncated_files_fail_at_open() {
         default_zstd_file(),
         list_file(),
         roped_file(),
+        occluded_file(),
     ] {
         truncated_file_fails_at_open(fix);
     }
@@ -1813,6 +2086,7 @@ fn extended_files_fail_at_open() {
         list_zstd_file(),
         deep_zstd_file(),
         roped_list_zstd_file(),
+        occluded_zstd_file(),
     ] {
         let n = fix.bytes.len();
         for extra in [1usize, 7, 64, 4096] {
@@ -2333,6 +2607,15 @@ fn bit_flips_in_roped_list_zstd_file_are_caught() {
     }
 }
 
+/// With occluders (§8.5): the occluder nodes and occluders of the block holding the most are
+/// regions too, and the file is traced by the top-down walk, whose any-hit queries test them.
+#[test]
+fn bit_flips_in_occluded_file_are_caught() {
+    if let Err(e) = check_bit_flips(occluded_file(), 12, false, 41) {
+        panic!("{e}");
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // 4. Rewritten files (checksums recomputed): never a panic or a hang, traced or verified
 
@@ -2412,7 +2695,10 @@ const F64_EDGES: [f64; 9] = [
 /// or (cluster nodes) an inner child sent back to the node itself or to one before it (a cycle
 /// the walk must not follow forever, §11), or child counts and bases set to edge values, or
 /// (ropes, §8.4) a rope sent to another node of its unit or of the other one, made an exit, a
-/// near node of the same level, or a record's two ropes of one axis swapped.
+/// near node of the same level, or a record's two ropes of one axis swapped; or (occluder
+/// entries, §8.5) an entry sent to another node, two entries swapped, an entry's `first` moved;
+/// or (occluders) an occluder made another triangle of its block, moved by an ulp or far, or
+/// given another id.
 fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
     let bytes = fix.space(region.space);
     // The header's checksum is recomputed anyway: corrupt the fields it covers.
@@ -2433,8 +2719,12 @@ fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
     let is_nodes = fields == NODE_FIELDS && len >= 8;
     let is_cluster_nodes = fields == CLUSTER_NODE_FIELDS && len >= CLUSTER_NODE_LEN;
     let is_ropes = fields == ROPE_FIELDS && len >= ROPE_LEN;
+    let is_occluder_nodes = matches!(region.kind, RegionKind::BlockPart(_, PART_OCCLUDER_NODES))
+        && len >= OCCLUDER_NODE_LEN;
+    let is_occluders =
+        matches!(region.kind, RegionKind::BlockPart(_, PART_OCCLUDERS)) && len >= TRI_LEN;
     let choice = rng.next_u64()
-        % if is_nodes || is_cluster_nodes || is_ropes {
+        % if is_nodes || is_cluster_nodes || is_ropes || is_occluder_nodes || is_occluders {
             14
         } else {
             12
@@ -2495,6 +2785,101 @@ fn mutate(rng: &mut SplitMix64, fix: &Fixture, region: &Region) -> Mutation {
             let to = pick(record, rng);
             let from = pick(record, rng);
             (to, bytes[from..from + record].to_vec(), "record copied")
+        }
+        12 if is_occluder_nodes => {
+            // §8.5: an entry sent to another node of the block (a leaf, most often), to a
+            // neighbour of its node, or just past the block's nodes.
+            let at = pick(OCCLUDER_NODE_LEN, rng);
+            let old = read_u32(bytes, at);
+            let nodes = block_parts(bytes)[PART_NODES].len() / 8;
+            let r = rng.next_u64();
+            let v = match r % 4 {
+                0 => ((r >> 8) % nodes.max(1) as u64) as u32,
+                1 => old.wrapping_add(1),
+                2 => old.wrapping_sub(1),
+                _ => nodes as u32,
+            };
+            (
+                at,
+                v.to_le_bytes().to_vec(),
+                "occluder entry sent to another node",
+            )
+        }
+        13 if is_occluder_nodes => {
+            // §8.5: two neighbouring entries swapped (out of order), or an entry's `first` moved
+            // by one or made `occluder_count` (an entry with none, or one past the records).
+            let r = rng.next_u64();
+            let entries = len / OCCLUDER_NODE_LEN;
+            if r.is_multiple_of(3) && entries >= 2 {
+                let at = base + ((r >> 8) % (entries as u64 - 1)) as usize * OCCLUDER_NODE_LEN;
+                let mut new = bytes[at + OCCLUDER_NODE_LEN..at + 2 * OCCLUDER_NODE_LEN].to_vec();
+                new.extend_from_slice(&bytes[at..at + OCCLUDER_NODE_LEN]);
+                (at, new, "occluder entries swapped")
+            } else {
+                let at = pick(OCCLUDER_NODE_LEN, rng) + 4;
+                let old = read_u32(bytes, at);
+                let v = match (r >> 8) % 3 {
+                    0 => old.wrapping_add(1),
+                    1 => old.wrapping_sub(1),
+                    _ => read_u64(bytes, BH_OCCLUDER_COUNT) as u32,
+                };
+                (at, v.to_le_bytes().to_vec(), "occluder entry's first moved")
+            }
+        }
+        12 if is_occluders => {
+            // §8.5: an occluder made another triangle of its block (corners and id, as its
+            // leaves hold it): verify reports it if it misses its node's cell; if not, it is a
+            // valid occluder and the answers must stay as they were.
+            let at = pick(TRI_LEN, rng);
+            let tris = block_triangles(bytes);
+            let t = tris[(rng.next_u64() % tris.len() as u64) as usize];
+            (
+                at,
+                t.to_vec(),
+                "occluder made another triangle of the block",
+            )
+        }
+        13 if is_occluders => {
+            // §8.5: an occluder's corner moved by one ulp, the whole triangle moved by an
+            // eighth of the root cube, or its primitive id moved by one.
+            let at = pick(TRI_LEN, rng);
+            let r = rng.next_u64();
+            match r % 3 {
+                0 => {
+                    let c = at + 4 * ((r >> 8) % 9) as usize;
+                    let f = f32::from_bits(read_u32(bytes, c));
+                    let moved = f32::from_bits(f.to_bits().wrapping_add(1));
+                    (
+                        c,
+                        moved.to_le_bytes().to_vec(),
+                        "occluder corner moved by an ulp",
+                    )
+                }
+                1 => {
+                    let k = ((r >> 8) % 3) as usize;
+                    let d = (f64::from_bits(read_u64(&fix.bytes, ROOT_SIZE_AT)) / 8.0) as f32;
+                    let mut new = bytes[at..at + 36].to_vec();
+                    for c in 0..3 {
+                        let i = 12 * c + 4 * k;
+                        let f = f32::from_le_bytes(new[i..i + 4].try_into().expect("4 bytes"));
+                        new[i..i + 4].copy_from_slice(&(f + d).to_le_bytes());
+                    }
+                    (at, new, "occluder moved by an eighth of the root cube")
+                }
+                _ => {
+                    let old = read_u32(bytes, at + 36);
+                    let v = if r >> 8 & 1 == 0 {
+                        old.wrapping_add(1)
+                    } else {
+                        old.wrapping_sub(1)
+                    };
+                    (
+                        at + 36,
+                        v.to_le_bytes().to_vec(),
+                        "occluder's id moved by one",
+                    )
+                }
+            }
         }
         12 if is_cluster_nodes => {
             // §7.1: node `j`'s first inner child made node `j` itself or one of the two nodes
@@ -2662,6 +3047,10 @@ struct MutTally {
 ///   references every triangle overlapping it): that would redo the builder's triangle–box
 ///   tests over all triangles.
 ///
+/// - An occluder (§8.5) changed alike with the triangle of the block it copies: in a
+///   compressed block, one byte of the frame can stand for both (a repeat), so that the frame
+///   changed decodes to the block of another mesh whose occluder is still its triangle.
+///
 /// Not among them: the root cube (`root_min`, `root_size`). §2 derives it from `mesh_min` and
 /// `mesh_max`, which bound the stored triangles, so a change to it alone is checkable. Nor
 /// anything in a cluster node (§7.1): its boxes must contain its triangles and its children
@@ -2700,8 +3089,21 @@ fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8], m: &Mutat
                 },
             };
             let old = &fix.decoded[blk];
-            decoded.len() == old.len()
-                && (0..old.len()).all(|i| decoded[i] == old[i] || is_mesh(blk, i))
+            if decoded.len() != old.len() {
+                return false;
+            }
+            // An occluder changed alike with its triangle in the leaves (one byte of the frame
+            // can stand for both, compressed as a repeat): still a triangle of the block.
+            let occ = block_parts(old)[PART_OCCLUDERS].clone();
+            let tris = OnceLock::new();
+            let occluder_of_mesh = |i: usize| {
+                let at = i - (i - occ.start) % TRI_LEN;
+                let tris = tris.get_or_init(|| block_triangles(&decoded));
+                tris.iter().any(|t| t[..] == decoded[at..at + TRI_LEN])
+            };
+            (0..old.len()).all(|i| {
+                decoded[i] == old[i] || is_mesh(blk, i) || occ.contains(&i) && occluder_of_mesh(i)
+            })
         }
         _ => false,
     }
@@ -3000,6 +3402,24 @@ fn rewritten_roped_list_zstd_file_never_panics_or_hangs() {
     }
 }
 
+/// With occluders (§8.5), traced by the top-down walk, whose any-hit queries test them: an
+/// occluder entry or an occluder rewritten (an entry sent to another node, entries swapped, a
+/// `first` moved; an occluder made another triangle of the block, moved, given another id) is
+/// reported by verify or leaves every answer as it was; never a panic or an endless walk.
+#[test]
+fn rewritten_occluded_file_never_panics_or_hangs() {
+    if let Err(e) = check_rewritten(occluded_file(), 12, 43) {
+        panic!("{e}");
+    }
+}
+
+#[test]
+fn rewritten_occluded_zstd_file_never_panics_or_hangs() {
+    if let Err(e) = check_rewritten(occluded_zstd_file(), 8, 44) {
+        panic!("{e}");
+    }
+}
+
 /// The long run: many more corruptions, and the whole dragon at leaf size 4 (16 levels) in
 /// default-sized blocks, raw and compressed.
 /// `cargo test --release --test corruption -- --ignored --nocapture`.
@@ -3040,6 +3460,8 @@ fn rewritten_files_long_run() {
         check_rewritten(deep_zstd_file(), 300, 16),
         check_rewritten(roped_file(), 400, 35),
         check_rewritten(roped_list_zstd_file(), 300, 36),
+        check_rewritten(occluded_file(), 300, 45),
+        check_rewritten(occluded_zstd_file(), 300, 46),
         check_rewritten(big(), 100, 7),
         check_rewritten(big_z(), 100, 17),
         check_bit_flips(big(), 200, false, 8),
@@ -3065,10 +3487,32 @@ fn expect_caught(
     trace_fails_on: &[usize],
     problems: &mut Vec<String>,
 ) {
-    let reported = |d: &String| match defect.strip_prefix("block ").map(str::parse::<usize>) {
+    let reported = |d: &str| match defect.strip_prefix("block ").map(str::parse::<usize>) {
         Some(Ok(b)) => names_block(d, b),
         _ => d.contains(defect),
     };
+    expect_reported(
+        fix,
+        what,
+        bytes,
+        defect,
+        &reported,
+        trace_fails_on,
+        problems,
+    );
+}
+
+/// [`expect_caught`] with the defect verify must report told by `reported` (described by
+/// `defect`).
+fn expect_reported(
+    fix: &'static Fixture,
+    what: String,
+    bytes: Vec<u8>,
+    defect: &str,
+    reported: &dyn Fn(&str) -> bool,
+    trace_fails_on: &[usize],
+    problems: &mut Vec<String>,
+) {
     let verdict = evaluate_guarded(fix, bytes, true, &what);
     let (traced, tight, defects) = match verdict {
         Err(panic) => return problems.push(format!("{what}: {panic}")),
@@ -3091,7 +3535,7 @@ fn expect_caught(
     }
     match defects {
         Err(panic) => problems.push(format!("{what}: verify: {panic}")),
-        Ok(d) if d.iter().any(reported) => {}
+        Ok(d) if d.iter().any(|d| reported(d)) => {}
         Ok(d) => problems.push(format!("{what}: verify should report {defect:?}: {d:?}")),
     }
 }
@@ -3528,6 +3972,414 @@ fn ropes_rewritten_are_caught() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
+/// §4, §8.1, §8.3: the level and Morton code of each node record of block `blk`, in record
+/// order: its roots' from the links to them (in root order), each internal node's children
+/// the next 8 nodes of the next level (§4).
+fn block_node_codes(fix: &Fixture, blk: usize) -> Vec<(u32, u64)> {
+    let raw = &fix.decoded[blk];
+    let parts = block_parts(raw);
+    let root_level = read_u32(raw, 8);
+    let mut roots: Vec<&Link> = fix.links.iter().filter(|l| l.block == blk as u32).collect();
+    roots.sort_by_key(|l| l.root);
+    assert!(
+        roots.iter().all(|l| l.level == root_level),
+        "{}: block {blk}'s links are at its root level",
+        fix.name
+    );
+    let mut codes: Vec<u64> = roots.iter().map(|l| l.code).collect();
+    let mut out = vec![(0, 0); parts[PART_NODES].len() / 8];
+    for l in 0..parts[0].len() / 32 {
+        let e = parts[0].start + 32 * l;
+        let (n, start) = (read_u64(raw, e) as usize, read_u64(raw, e + 16) as usize);
+        assert_eq!(codes.len(), n, "{}: block {blk} level {l}", fix.name);
+        let mut next = Vec::new();
+        for (i, &code) in codes.iter().enumerate() {
+            out[start + i] = (root_level + l as u32, code);
+            let meta = read_u32(raw, parts[PART_NODES].start + 8 * (start + i) + 4);
+            if meta >> 30 == KIND_INTERNAL {
+                next.extend((0..8).map(|o| code << 3 | o));
+            }
+        }
+        codes = next;
+    }
+    out
+}
+
+/// The cell of node `code` at `level` (§1: lattice and Morton codes, x lowest), widened by
+/// `margin` lattice units on every side, in world units: `(lo, hi)`.
+fn cell_box(b: &[u8], level: u32, code: u64, margin: f64) -> ([f64; 3], [f64; 3]) {
+    let mut c = [0u64; 3];
+    for i in 0..level {
+        let g = code >> (3 * i);
+        for (k, ck) in c.iter_mut().enumerate() {
+            *ck |= ((g >> k) & 1) << i;
+        }
+    }
+    let size = (1u64 << (21 - level)) as f64;
+    let unit = f64::from_bits(read_u64(b, ROOT_SIZE_AT)) / (1u64 << 21) as f64;
+    let min = |k: usize| f64::from_bits(read_u64(b, ROOT_MIN_AT + 8 * k));
+    (
+        std::array::from_fn(|k| min(k) + (c[k] as f64 * size - margin) * unit),
+        std::array::from_fn(|k| min(k) + ((c[k] + 1) as f64 * size + margin) * unit),
+    )
+}
+
+/// An occluder entry's first occluder (§8.5: block, entry, node, offset in the decoded block)
+/// and a triangle of its block to put there: one whose box is clear of the node's cell widened
+/// by 4 lattice units (the cell margin of §6 and 2 more), which verify must report; and
+/// another, whose box is inside the cell, which is a valid occluder. Deepest nodes first, over
+/// the blocks holding occluders.
+type OccluderSwap = (usize, usize, u32, usize, [u8; TRI_LEN]);
+fn occluder_swaps(fix: &Fixture) -> (Option<OccluderSwap>, Option<OccluderSwap>) {
+    let (mut outside, mut inside) = (None, None);
+    for (blk, raw) in fix.decoded.iter().enumerate() {
+        let parts = block_parts(raw);
+        let (entries, occ) = (&parts[PART_OCCLUDER_NODES], &parts[PART_OCCLUDERS]);
+        if entries.is_empty() {
+            continue;
+        }
+        let codes = block_node_codes(fix, blk);
+        let tris = block_triangles(raw);
+        let mut by_depth: Vec<usize> = (0..entries.len() / OCCLUDER_NODE_LEN).collect();
+        let node_of = |i: usize| read_u32(raw, entries.start + OCCLUDER_NODE_LEN * i);
+        by_depth.sort_by_key(|&i| std::cmp::Reverse(codes[node_of(i) as usize].0));
+        for i in by_depth {
+            let node = node_of(i);
+            let (level, code) = codes[node as usize];
+            let (lo, hi) = cell_box(&fix.bytes, level, code, 4.0);
+            let (ilo, ihi) = cell_box(&fix.bytes, level, code, -1.0);
+            let first = read_u32(raw, entries.start + OCCLUDER_NODE_LEN * i + 4) as usize;
+            let at = occ.start + TRI_LEN * first;
+            for t in &tris {
+                let (tlo, thi) = tri_bounds(t);
+                if outside.is_none() && (0..3).any(|k| thi[k] < lo[k] || tlo[k] > hi[k]) {
+                    outside = Some((blk, i, node, at, *t));
+                }
+                if inside.is_none()
+                    && t[..] != raw[at..at + TRI_LEN]
+                    && (0..3).all(|k| tlo[k] > ilo[k] && thi[k] < ihi[k])
+                {
+                    inside = Some((blk, i, node, at, *t));
+                }
+            }
+            if outside.is_some() && inside.is_some() {
+                return (outside, inside);
+            }
+        }
+    }
+    (outside, inside)
+}
+
+/// The bounding box of a triangle record's corners (§7), in f64.
+fn tri_bounds(t: &[u8]) -> ([f64; 3], [f64; 3]) {
+    let c = |i: usize, k: usize| f32::from_bits(read_u32(t, 12 * i + 4 * k)) as f64;
+    (
+        std::array::from_fn(|k| c(0, k).min(c(1, k)).min(c(2, k))),
+        std::array::from_fn(|k| c(0, k).max(c(1, k)).max(c(2, k))),
+    )
+}
+
+/// Occluders (§8.5) rewritten one field at a time, checksums recomputed, in the block holding
+/// the most, raw and compressed: an occluder's corners moved far away or by one ulp, its id
+/// changed, an occluder made a triangle of the block that lies outside its node's widened
+/// cell; an entry naming a leaf, a node past the block, `u32::MAX`; entries out of order or
+/// naming one node twice; a `first` that is not 0 for the first entry, that leaves an entry
+/// without occluders, or that runs past the records; the block header's counts made
+/// inconsistent (one 0 and not the other, more entries than nodes, one occluder more than the
+/// block holds) or entries added over the padding; and the header's `OCCLUDERS` flag cleared
+/// with the occluders left in the blocks. Verify reports each, naming the block (and for the
+/// records, the occluders); tracing (the top-down walk, whose any-hit queries test the
+/// occluders), unbounded and under a tight budget, returns answers or an error, never a panic
+/// or an endless walk, and fails naming the block whose header the pager refuses. And an
+/// occluder made another triangle of the block that does lie in its node's cell is valid:
+/// verify reports nothing and the answers are the intact file's.
+#[test]
+fn occluders_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    for fix in [occluded_file(), occluded_zstd_file()] {
+        let blk = fix.occluder_block.expect("a block holds occluders");
+        let raw = &fix.decoded[blk];
+        let parts = block_parts(raw);
+        let (entries, occ) = (
+            parts[PART_OCCLUDER_NODES].clone(),
+            parts[PART_OCCLUDERS].clone(),
+        );
+        let (n_entries, n_occ) = (entries.len() / OCCLUDER_NODE_LEN, occ.len() / TRI_LEN);
+        assert!(
+            n_entries >= 2,
+            "{}: block {blk} has {n_entries} occluder entries, want two",
+            fix.name
+        );
+        let entry_at = |i: usize| entries.start + OCCLUDER_NODE_LEN * i;
+        let occ_at = |i: usize| occ.start + TRI_LEN * i;
+        let node_of = |i: usize| read_u32(raw, entry_at(i));
+        let first_of = |i: usize| read_u32(raw, entry_at(i) + 4);
+        let kinds: Vec<u32> = parts[PART_NODES]
+            .clone()
+            .step_by(8)
+            .map(|at| read_u32(raw, at + 4) >> 30)
+            .collect();
+        let n_nodes = kinds.len() as u32;
+        let leaf = kinds
+            .iter()
+            .position(|&k| k != KIND_INTERNAL)
+            .expect("a leaf") as u32;
+        assert!(
+            (0..n_entries).all(|i| kinds[node_of(i) as usize] == KIND_INTERNAL),
+            "{}: block {blk}: occluder entries name internal nodes (§8.5)",
+            fix.name
+        );
+        let u32le = |v: u32| v.to_le_bytes().to_vec();
+        let u64le = |v: u64| v.to_le_bytes().to_vec();
+        let b = Space::Block(blk);
+        let last = n_entries - 1;
+        // (what, space, offset in the space, new bytes, what verify must say besides the block,
+        // whether the pager refuses the block)
+        type Case = (String, Space, usize, Vec<u8>, &'static str, bool);
+        let mut cases: Vec<Case> = Vec::new();
+        // The records.
+        let d = (f64::from_bits(read_u64(&fix.bytes, ROOT_SIZE_AT)) / 2.0) as f32;
+        let mut far = raw[occ_at(0)..occ_at(0) + 36].to_vec();
+        for c in 0..3 {
+            let x = f32::from_le_bytes(far[12 * c..12 * c + 4].try_into().expect("4 bytes"));
+            far[12 * c..12 * c + 4].copy_from_slice(&(x + d).to_le_bytes());
+        }
+        let x0 = f32::from_bits(read_u32(raw, occ_at(0)));
+        let prim0 = read_u32(raw, occ_at(0) + 36);
+        cases.extend([
+            (
+                "occluder 0 moved by half the root cube along x".to_string(),
+                b,
+                occ_at(0),
+                far,
+                "occluder",
+                false,
+            ),
+            (
+                "occluder 0's first corner's x moved by one ulp".into(),
+                b,
+                occ_at(0),
+                u32le(f32::from_bits(x0.to_bits() + 1).to_bits()),
+                "occluder",
+                false,
+            ),
+            (
+                format!("occluder 0's id {prim0} made {}", prim0 + 1),
+                b,
+                occ_at(0) + 36,
+                u32le(prim0 + 1),
+                "occluder",
+                false,
+            ),
+            (
+                format!("occluder {}'s id made u32::MAX", n_occ - 1),
+                b,
+                occ_at(n_occ - 1) + 36,
+                u32le(u32::MAX),
+                "occluder",
+                false,
+            ),
+        ]);
+        // The entries.
+        cases.extend([
+            (
+                format!("entry 0 names leaf {leaf}"),
+                b,
+                entry_at(0),
+                u32le(leaf),
+                "occluder",
+                false,
+            ),
+            (
+                format!("entry {last} names node {n_nodes}, past the block's"),
+                b,
+                entry_at(last),
+                u32le(n_nodes),
+                "occluder",
+                false,
+            ),
+            (
+                format!("entry {last} names node u32::MAX"),
+                b,
+                entry_at(last),
+                u32le(u32::MAX),
+                "occluder",
+                false,
+            ),
+            (
+                "entries 0 and 1 swapped".into(),
+                b,
+                entry_at(0),
+                [
+                    raw[entry_at(1)..entry_at(2)].to_vec(),
+                    raw[entry_at(0)..entry_at(1)].to_vec(),
+                ]
+                .concat(),
+                "occluder",
+                false,
+            ),
+            (
+                "entries 0 and 1 name the same node".into(),
+                b,
+                entry_at(1),
+                u32le(node_of(0)),
+                "occluder",
+                false,
+            ),
+            (
+                "entry 0's first is 1".into(),
+                b,
+                entry_at(0) + 4,
+                u32le(1),
+                "occluder",
+                false,
+            ),
+            (
+                "entry 1's first made entry 0's (entry 0 holds none)".into(),
+                b,
+                entry_at(1) + 4,
+                u32le(first_of(0)),
+                "occluder",
+                false,
+            ),
+            (
+                format!("entry {last}'s first made occluder_count {n_occ} (it holds none)"),
+                b,
+                entry_at(last) + 4,
+                u32le(n_occ as u32),
+                "occluder",
+                false,
+            ),
+            (
+                format!("entry {last}'s first made u32::MAX"),
+                b,
+                entry_at(last) + 4,
+                u32le(u32::MAX),
+                "occluder",
+                false,
+            ),
+        ]);
+        // The block header's counts (§8.3): the pager refuses the block.
+        let (bh_entries, bh_occ) = (n_entries as u64, n_occ as u64);
+        for (what, at, v) in [
+            ("occluder_count 0", BH_OCCLUDER_COUNT, 0),
+            ("occluder_node_count 0", BH_OCCLUDER_NODE_COUNT, 0),
+            (
+                "occluder_node_count one more than its nodes",
+                BH_OCCLUDER_NODE_COUNT,
+                n_nodes as u64 + 1,
+            ),
+            ("occluder_count one more", BH_OCCLUDER_COUNT, bh_occ + 1),
+            ("occluder_count 2^32", BH_OCCLUDER_COUNT, 1 << 32),
+            ("occluder_count u64::MAX", BH_OCCLUDER_COUNT, u64::MAX),
+            (
+                "occluder_node_count u64::MAX",
+                BH_OCCLUDER_NODE_COUNT,
+                u64::MAX,
+            ),
+        ] {
+            cases.push((format!("block header: {what}"), b, at, u64le(v), "", true));
+        }
+        // One entry more, over the padding before the occluders if there is room (the block's
+        // length is unchanged: the extra entry reads zeros, {node 0, first 0}), else past it.
+        let room = parts[PART_OCCLUDERS].start > entries.end;
+        cases.push((
+            format!(
+                "block header: occluder_node_count one more ({})",
+                if room {
+                    "over the padding"
+                } else {
+                    "the block too short"
+                }
+            ),
+            b,
+            BH_OCCLUDER_NODE_COUNT,
+            u64le(bh_entries + 1),
+            if room { "occluder" } else { "" },
+            !room,
+        ));
+        let mut cases: Vec<(usize, Case)> = cases.into_iter().map(|c| (blk, c)).collect();
+        // The header's flag cleared: occluders in a file without them, in every block holding
+        // some (verify lists the first 50 defects: the first such block is named). Tracing
+        // ignores them.
+        let flags = read_u32(&fix.bytes, FLAGS_AT);
+        let first_holding = (0..fix.dir.len())
+            .find(|&b| !block_parts(&fix.decoded[b])[PART_OCCLUDERS].is_empty())
+            .expect("a block holds occluders");
+        cases.push((
+            first_holding,
+            (
+                "the header's OCCLUDERS flag cleared".into(),
+                Space::File,
+                FLAGS_AT,
+                u32le(flags & !FLAG_OCCLUDERS),
+                "occluders in a file without them",
+                false,
+            ),
+        ));
+        // An occluder made a triangle of its block outside its node's cell (widened by the
+        // cell margin of §6, 2 lattice units, and 2 more to keep clear of rounding), at the
+        // deepest such node of any block; and one made another triangle of its block inside
+        // the cell (its box inside the cell), which is valid.
+        let (outside, inside) = occluder_swaps(fix);
+        let (ob, oi, onode, oat, t) = outside.expect("a triangle outside a node with occluders");
+        cases.push((
+            ob,
+            (
+                format!(
+                    "entry {oi}'s first occluder made a triangle of the block outside node \
+                     {onode}'s cell"
+                ),
+                Space::Block(ob),
+                oat,
+                t.to_vec(),
+                "does not lie in its node",
+                false,
+            ),
+        ));
+        eprintln!(
+            "{}: block {blk} ({n_entries} occluder entries, {n_occ} occluders): {} rewrites",
+            fix.name,
+            cases.len()
+        );
+        for (blk, (what, space, at, new, says, refused)) in cases {
+            let bytes = fix.rewrite(space, at, &new);
+            assert!(bytes != fix.bytes, "{}: {what}: nothing changed", fix.name);
+            let what = format!("{}: block {blk}: {what}", fix.name);
+            let reported = |d: &str| names_block(d, blk) && d.contains(says);
+            let defect = format!("block {blk}: ...{says}");
+            let fails_on = if refused { vec![blk] } else { vec![] };
+            expect_reported(
+                fix,
+                what,
+                bytes,
+                &defect,
+                &reported,
+                &fails_on,
+                &mut problems,
+            );
+        }
+        // A valid rewrite: another triangle of the block, inside the node's cell.
+        let (ib, ii, inode, iat, t) = inside.expect("a triangle inside a node with occluders");
+        let what = format!(
+            "{}: block {ib}: entry {ii}'s first occluder made another triangle of the block \
+             inside node {inode}'s cell",
+            fix.name
+        );
+        match evaluate_guarded(fix, fix.rewrite(Space::Block(ib), iat, &t), true, &what) {
+            Ok(Verdict::Opened {
+                traced: Ok(Traced::Same),
+                tight: Some(Ok(Traced::Same)),
+                defects: Ok(d),
+            }) if d.is_empty() => {}
+            v => problems.push(format!(
+                "{what}: a valid occluder: should read as the intact file: {v:?}"
+            )),
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
 /// §4.2, §7.1: the cluster roots of a decoded block, the `payload` of each solid leaf, in the
 /// order of the block's node records.
 fn cluster_roots(raw: &[u8]) -> Vec<usize> {
@@ -3835,6 +4687,7 @@ fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
         list_zstd_file(),
         deep_file(),
         roped_file(),
+        occluded_zstd_file(),
     ] {
         let opts = tight_options(fix);
         let scene =
