@@ -446,5 +446,8 @@ fn split_stack_walk_past_its_register_takes_the_stack_walk() {
 #[test]
 fn occluders_share_the_sah_constants() {
     assert_eq!(crate::build::occluders::ISECT_COST, super::ISECT_COST);
-    assert_eq!(crate::build::occluders::TRAVERSAL_COST, super::TRAVERSAL_COST);
+    assert_eq!(
+        crate::build::occluders::TRAVERSAL_COST,
+        super::TRAVERSAL_COST
+    );
 }
