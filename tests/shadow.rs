@@ -78,6 +78,19 @@ fn walks(scene: &BenchScene, light: LightKind) -> Walks {
     }
 }
 
+/// The KD-tree prepared for the `multi` variant, as `oavm-bench` prepares it.
+fn multi(w: &Walks) -> KdShadow<'_> {
+    KdShadow::new(
+        &w.kd,
+        ShadowVariant::Multi,
+        &ShadowPrep {
+            visible: &w.setup.visible,
+            lights: &w.setup.light_points(),
+            params: ShadowParams::default(),
+        },
+    )
+}
+
 /// Per walk (standard, sato, primitive, adjacency), each ray's answer and work.
 fn trace_all(w: &Walks, rays: &[Ray]) -> [Vec<(bool, Counters)>; 4] {
     let each = |f: &dyn Fn(&Ray, &mut Counters) -> bool| -> Vec<(bool, Counters)> {
@@ -115,15 +128,7 @@ fn check_scene(rel: &str, light: LightKind) -> [Counters; 4] {
         assert_eq!(differ, 0, "{rel} {light:?}: {name} differs from standard");
     }
     // The multi variant, prediction and all.
-    let multi = KdShadow::new(
-        &w.kd,
-        ShadowVariant::Multi,
-        &ShadowPrep {
-            visible: &w.setup.visible,
-            lights: &w.setup.light_points(),
-            params: ShadowParams::default(),
-        },
-    );
+    let multi = multi(&w);
     let traced = shadow::trace_frames(&multi, ShadowVariant::Multi, &w.setup);
     let multi_answers: Vec<bool> = traced.answers.iter().flatten().map(|&o| o == 1).collect();
     let standard: Vec<bool> = all[0].iter().map(|a| a.0).collect();
@@ -249,15 +254,7 @@ fn the_indices_do_their_work() {
 fn prediction_comes_from_the_frame_before() {
     let scene = scene("bart/kitchen/kitchen.aff");
     let w = walks(&scene, LightKind::Point);
-    let multi = KdShadow::new(
-        &w.kd,
-        ShadowVariant::Multi,
-        &ShadowPrep {
-            visible: &w.setup.visible,
-            lights: &w.setup.light_points(),
-            params: ShadowParams::default(),
-        },
-    );
+    let multi = multi(&w);
     let traced = shadow::trace_frames(&multi, ShadowVariant::Multi, &w.setup);
     let p = traced.prediction.expect("multi predicts");
     let (mut predicted, mut correct, mut primitive) = (0u64, 0u64, 0u64);

@@ -25,11 +25,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::ropes::{block_root_codes, rewrite_file, roots_of};
 use crate::error::Error;
 use crate::mapping::morton::{self, LATTICE_SIZE, MAX_LEVEL};
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::format::*;
-use crate::physical::writer::{FileSink, FileWriter, Sink, UnitRef, store_block};
+use crate::physical::writer::{FileWriter, Sink, UnitRef, store_block};
 use crate::physical::{BlockOptions, BlockReader, BlockView, DEFAULT_ZSTD_LEVEL, OavmFile};
 
 /// The cost of a triangle test and of a node visit in the estimates (pbrt's, the comparison
@@ -379,23 +380,7 @@ pub fn add_occluders<D: AsRef<[u8]>, S: Sink>(
     let io = |e: std::io::Error| bad(e);
 
     // The codes of every block's roots, from the links to them.
-    let mut root_codes: HashMap<(u32, u32), u64> = HashMap::new();
-    let mut codes = vec![0u64];
-    for (l, e) in top_levels.iter().enumerate() {
-        let mut next = Vec::with_capacity(e.internal_count as usize * 8);
-        for (i, &code) in codes.iter().enumerate() {
-            let rec = top.node(l as u32, i as u64).map_err(bad)?;
-            match rec.kind_bits() {
-                KIND_INTERNAL => next.extend((0..8).map(|o| code << 3 | o)),
-                KIND_LINK => {
-                    let (b, root) = rec.link_bits();
-                    root_codes.insert((b, root), code);
-                }
-                _ => {}
-            }
-        }
-        codes = next;
-    }
+    let root_codes = block_root_codes(&top, top_levels).map_err(bad)?;
 
     // The mean box area of the distinct triangles.
     let reader = BlockReader::new(file);
@@ -445,14 +430,7 @@ pub fn add_occluders<D: AsRef<[u8]>, S: Sink>(
             .map_err(|e| bad(format!("{e}")))?;
         let view =
             BlockView::parse(&raw, id, entry).map_err(|what| bad(format!("block {id}: {what}")))?;
-        let roots = (0..view.header.root_count)
-            .map(|r| {
-                root_codes
-                    .get(&(id, r))
-                    .copied()
-                    .ok_or_else(|| bad(format!("root {r} of block {id} is not linked")))
-            })
-            .collect::<Result<Vec<u64>, Error>>()?;
+        let roots = roots_of(&root_codes, id, view.header.root_count).map_err(bad)?;
         let infos = LevelInfos::new(view.levels, view.header.root_level);
         let map = TreeMap::new(&infos, view.levels, view.nodes, view.ranks);
         let t = Instant::now();
@@ -464,17 +442,9 @@ pub fn add_occluders<D: AsRef<[u8]>, S: Sink>(
         report.occluders += occluders.len() as u64;
         report.occluder_bytes += (8 * entries.len() + 40 * occluders.len()) as u64;
         let unit = UnitRef {
-            levels: view.levels,
-            nodes: view.nodes,
-            ranks: view.ranks,
-            volumes: view.volumes,
-            refs: view.refs,
-            triangles: view.triangles,
-            cluster_nodes: view.cluster_nodes,
-            groups: view.groups,
-            ropes: view.ropes,
             occluder_nodes: &entries,
             occluders: &occluders,
+            ..UnitRef::from(&view)
         };
         let opts = BlockOptions {
             compress: (entry.codec == CODEC_ZSTD).then_some(DEFAULT_ZSTD_LEVEL),
@@ -510,15 +480,5 @@ pub fn add_occluders_file(
     dst: &std::path::Path,
     params: &ShadowParams,
 ) -> Result<OccluderReport, Error> {
-    let map = crate::os::MappedFile::open(src).map_err(|e| Error::io(src, e))?;
-    let file = OavmFile::open(map).map_err(|e| Error::format(src, e))?;
-    let inputs: &[&std::path::Path] = if src == dst { &[] } else { &[src] };
-    let mut out = crate::output::Output::create(dst, inputs)?;
-    let path = out.path().to_owned();
-    let ioe = |e: std::io::Error| Error::io(&path, e);
-    let f = out.file().try_clone().map_err(ioe)?;
-    let (sink, _, report) = add_occluders(&file, params, FileSink::new(f))?;
-    sink.into_file().map_err(ioe)?;
-    out.commit()?;
-    Ok(report)
+    rewrite_file(src, dst, |file, sink| add_occluders(file, params, sink))
 }

@@ -211,25 +211,7 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
 
     // The codes of every block's roots, from the links to them.
     let t = Instant::now();
-    let mut root_codes: HashMap<(u32, u32), u64> = HashMap::new();
-    {
-        let mut codes = vec![0u64];
-        for (l, e) in top_levels.iter().enumerate() {
-            let mut next = Vec::with_capacity(e.internal_count as usize * 8);
-            for (i, &code) in codes.iter().enumerate() {
-                let rec = top.node(l as u32, i as u64).map_err(bad)?;
-                match rec.kind_bits() {
-                    KIND_INTERNAL => next.extend((0..8).map(|o| code << 3 | o)),
-                    KIND_LINK => {
-                        let (b, root) = rec.link_bits();
-                        root_codes.insert((b, root), code);
-                    }
-                    _ => {}
-                }
-            }
-            codes = next;
-        }
-    }
+    let root_codes = block_root_codes(&top, top_levels).map_err(bad)?;
     let top_ropes = unit_ropes(&top, top_levels, 0, vec![0], &top, None, &mut report)?;
     report.compute_seconds += t.elapsed().as_secs_f64();
 
@@ -242,14 +224,7 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
             .map_err(|e| bad(format!("{e}")))?;
         let view =
             BlockView::parse(&raw, id, entry).map_err(|what| bad(format!("block {id}: {what}")))?;
-        let roots = (0..view.header.root_count)
-            .map(|r| {
-                root_codes
-                    .get(&(id, r))
-                    .copied()
-                    .ok_or_else(|| bad(format!("root {r} of block {id} is not linked")))
-            })
-            .collect::<Result<Vec<u64>, Error>>()?;
+        let roots = roots_of(&root_codes, id, view.header.root_count).map_err(bad)?;
         let infos = LevelInfos::new(view.levels, view.header.root_level);
         let map = TreeMap::new(&infos, view.levels, view.nodes, view.ranks);
         let t = Instant::now();
@@ -265,17 +240,8 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
         report.compute_seconds += t.elapsed().as_secs_f64();
         report.rope_bytes += (ropes.len() * std::mem::size_of::<RopeRecord>()) as u64;
         let unit = UnitRef {
-            levels: view.levels,
-            nodes: view.nodes,
-            ranks: view.ranks,
-            volumes: view.volumes,
-            refs: view.refs,
-            triangles: view.triangles,
-            cluster_nodes: view.cluster_nodes,
-            groups: view.groups,
             ropes: &ropes,
-            occluder_nodes: view.occluder_nodes,
-            occluders: view.occluders,
+            ..UnitRef::from(&view)
         };
         let opts = BlockOptions {
             compress: (entry.codec == CODEC_ZSTD).then_some(DEFAULT_ZSTD_LEVEL),
@@ -304,9 +270,55 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
     Ok((sink, size, report))
 }
 
-/// [`add_ropes`] from the file at `src` into `dst`, written atomically (`dst` may be `src`:
-/// the new file replaces it when complete).
-pub fn add_ropes_file(src: &std::path::Path, dst: &std::path::Path) -> Result<RopeReport, Error> {
+/// The codes of every block's roots, by (block, root), from the links to them in the top tree
+/// `top` (whose level table is `levels`).
+pub(super) fn block_root_codes(
+    top: &TreeMap<'_>,
+    levels: &[LevelEntry],
+) -> Result<HashMap<(u32, u32), u64>, String> {
+    let mut root_codes = HashMap::new();
+    let mut codes = vec![0u64];
+    for (l, e) in levels.iter().enumerate() {
+        let mut next = Vec::with_capacity(e.internal_count as usize * 8);
+        for (i, &code) in codes.iter().enumerate() {
+            let rec = top.node(l as u32, i as u64).map_err(|e| e.to_string())?;
+            match rec.kind_bits() {
+                KIND_INTERNAL => next.extend((0..8).map(|o| code << 3 | o)),
+                KIND_LINK => {
+                    let (b, root) = rec.link_bits();
+                    root_codes.insert((b, root), code);
+                }
+                _ => {}
+            }
+        }
+        codes = next;
+    }
+    Ok(root_codes)
+}
+
+/// The codes of the `count` roots of block `id` ([`block_root_codes`]).
+pub(super) fn roots_of(
+    root_codes: &HashMap<(u32, u32), u64>,
+    id: u32,
+    count: u32,
+) -> Result<Vec<u64>, String> {
+    (0..count)
+        .map(|r| {
+            root_codes
+                .get(&(id, r))
+                .copied()
+                .ok_or_else(|| format!("root {r} of block {id} is not linked"))
+        })
+        .collect()
+}
+
+/// Runs `pass` (which rewrites a file into a sink) from the file at `src` into `dst`, written
+/// atomically (`dst` may be `src`: the new file replaces it when complete).
+pub(super) fn rewrite_file<R>(
+    src: &std::path::Path,
+    dst: &std::path::Path,
+    pass: impl FnOnce(&OavmFile<crate::os::MappedFile>, FileSink) -> Result<(FileSink, u64, R), Error>,
+) -> Result<R, Error> {
     let map = crate::os::MappedFile::open(src).map_err(|e| Error::io(src, e))?;
     let file = OavmFile::open(map).map_err(|e| Error::format(src, e))?;
     let inputs: &[&std::path::Path] = if src == dst { &[] } else { &[src] };
@@ -314,8 +326,14 @@ pub fn add_ropes_file(src: &std::path::Path, dst: &std::path::Path) -> Result<Ro
     let path = out.path().to_owned();
     let ioe = |e: std::io::Error| Error::io(&path, e);
     let f = out.file().try_clone().map_err(ioe)?;
-    let (sink, _, report) = add_ropes(&file, FileSink::new(f))?;
+    let (sink, _, report) = pass(&file, FileSink::new(f))?;
     sink.into_file().map_err(ioe)?;
     out.commit()?;
     Ok(report)
+}
+
+/// [`add_ropes`] from the file at `src` into `dst`, written atomically (`dst` may be `src`:
+/// the new file replaces it when complete).
+pub fn add_ropes_file(src: &std::path::Path, dst: &std::path::Path) -> Result<RopeReport, Error> {
+    rewrite_file(src, dst, add_ropes)
 }

@@ -475,20 +475,33 @@ pub fn bench_scene(
 
 /// (threads, Mrays/s) of `set` through `acc` for every thread count, best of `reps` runs.
 fn speeds(acc: &dyn Accelerator, set: &RaySet, opts: &Options) -> Result<Vec<(usize, f64)>, Error> {
+    best_speeds(&opts.threads, opts.reps, set.rays.len(), || {
+        Answers::trace(acc, &set.rays, set.any);
+    })
+}
+
+/// (threads, Mrays/s) of `run`, which traces `rays` rays, on a pool of each thread count, best
+/// of `reps` runs.
+pub(crate) fn best_speeds(
+    threads: &[usize],
+    reps: usize,
+    rays: usize,
+    run: impl Fn() + Sync,
+) -> Result<Vec<(usize, f64)>, Error> {
     let mut out = Vec::new();
-    for &threads in &opts.threads {
+    for &threads in threads {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .map_err(|e| Error::Invalid(format!("cannot start {threads} threads: {e}")))?;
-        let best = (0..opts.reps.max(1))
+        let best = (0..reps.max(1))
             .map(|_| {
                 let t = Instant::now();
-                pool.install(|| Answers::trace(acc, &set.rays, set.any));
+                pool.install(&run);
                 t.elapsed().as_secs_f64()
             })
             .fold(f64::INFINITY, f64::min);
-        out.push((threads, set.rays.len() as f64 / best / 1e6));
+        out.push((threads, rays as f64 / best / 1e6));
     }
     Ok(out)
 }

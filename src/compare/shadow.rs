@@ -754,21 +754,9 @@ pub fn run(
                     .map(|(a, b)| a.iter().zip(b).filter(|(x, y)| x != y).count() as u64)
                     .sum()
             };
-            let mut speeds = Vec::new();
-            for &threads in &opts.threads {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .map_err(|e| Error::Invalid(format!("cannot start {threads} threads: {e}")))?;
-                let best = (0..opts.reps.max(1))
-                    .map(|_| {
-                        let t = Instant::now();
-                        pool.install(|| trace_frames(s.as_ref(), v, &setup));
-                        t.elapsed().as_secs_f64()
-                    })
-                    .fold(f64::INFINITY, f64::min);
-                speeds.push((threads, setup.rays() as f64 / best / 1e6));
-            }
+            let speeds = super::bench::best_speeds(&opts.threads, opts.reps, setup.rays(), || {
+                trace_frames(s.as_ref(), v, &setup);
+            })?;
             let all = traced.split[0] + traced.split[1];
             let per = |x: u64| x as f64 / all.rays.max(1) as f64;
             let by = ByOcclusion::of(&traced.split);

@@ -7,6 +7,7 @@ use std::io::Write;
 
 use bytemuck::Zeroable;
 
+use super::BlockView;
 use super::format::*;
 use crate::error::Error;
 
@@ -61,6 +62,26 @@ pub struct UnitRef<'a> {
     pub ropes: &'a [RopeRecord],
     pub occluder_nodes: &'a [OccluderNode],
     pub occluders: &'a [TriRecord],
+}
+
+impl<'a> From<&BlockView<'a>> for UnitRef<'a> {
+    /// A decoded block's parts, as they are (the passes that add ropes or occluders replace
+    /// theirs).
+    fn from(v: &BlockView<'a>) -> UnitRef<'a> {
+        UnitRef {
+            levels: v.levels,
+            nodes: v.nodes,
+            ranks: v.ranks,
+            volumes: v.volumes,
+            refs: v.refs,
+            triangles: v.triangles,
+            cluster_nodes: v.cluster_nodes,
+            groups: v.groups,
+            ropes: v.ropes,
+            occluder_nodes: v.occluder_nodes,
+            occluders: v.occluders,
+        }
+    }
 }
 
 impl UnitRef<'_> {
