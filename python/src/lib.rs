@@ -461,6 +461,7 @@ fn pack_options(
         mem_budget,
         ropes,
         occluders: false,
+        updatable: false,
     };
     opts.validate().map_err(to_py)?;
     Ok(opts)

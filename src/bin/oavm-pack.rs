@@ -72,6 +72,11 @@ struct Args {
     /// index of Liang and Huang's multi-index tree). Answers are unchanged.
     #[arg(long)]
     occluders: bool,
+    /// Store the primitive table (format-spec §8.6: every input triangle's corners by
+    /// primitive id, 36 bytes a triangle), so that `oavm-update` can bring the file to new
+    /// geometry in place. Not with --ropes, --occluders or --mem-budget.
+    #[arg(long)]
+    updatable: bool,
     /// Print the report as one JSON object.
     #[arg(long)]
     json: bool,
@@ -100,6 +105,7 @@ fn main() -> ExitCode {
             mem_budget: args.mem_budget,
             ropes: args.ropes,
             occluders: args.occluders,
+            updatable: args.updatable,
         };
         let progress = cli::Progress::new(std::io::stderr().is_terminal());
         let report = cli::with_threads(args.threads, || {

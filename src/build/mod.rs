@@ -21,6 +21,7 @@ mod merge;
 pub mod occluders;
 mod pack;
 mod prepare;
+pub mod prims;
 pub mod ropes;
 mod spill;
 mod stats;

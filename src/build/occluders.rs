@@ -366,6 +366,12 @@ pub fn add_occluders<D: AsRef<[u8]>, S: Sink>(
         ..OccluderReport::default()
     };
     let mut header = *file.header();
+    if header.flags & FLAG_PRIMS != 0 {
+        return Err(bad(
+            "an updatable file (it holds the primitive table, format-spec §8.6) cannot take them: \
+             an update would have to rewrite them in every block; pack without --updatable",
+        ));
+    }
     if header.flags & FLAG_CLUSTERS == 0 {
         return Err(bad(
             "occluders are tested by the top-down walk, which needs a file of clusters \

@@ -30,13 +30,32 @@ pub struct PackOptions {
     /// Add occluders (format-spec §8.5) once the file is written, chosen with the default
     /// [`super::occluders::ShadowParams`] ([`super::occluders::add_occluders`]).
     pub occluders: bool,
+    /// Store the primitive table (format-spec §8.6: every input triangle's corners by
+    /// primitive id, 36 bytes each), which `oavm-update` needs to find what changed.
+    pub updatable: bool,
 }
 
 impl PackOptions {
     /// Whether the build and block options are valid (the error says which is not).
     pub fn validate(&self) -> Result<(), Error> {
         self.build.validate()?;
-        self.blocks.validate()
+        self.blocks.validate()?;
+        if self.updatable && (self.ropes || self.occluders) {
+            return Err(Error::Invalid(
+                "--updatable with --ropes or --occluders: an update would have to rewrite every \
+                 block's ropes and occluders (ropes name top-tree nodes by index); pack an \
+                 updatable file without them"
+                    .into(),
+            ));
+        }
+        if self.updatable && self.mem_budget.is_some() {
+            return Err(Error::Invalid(
+                "--updatable with --mem-budget: the streaming pack does not write the \
+                 primitive table yet; pack in memory"
+                    .into(),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -165,6 +184,14 @@ fn pack_without_ropes(
         (None, Some(_)) => None,
     };
     if let Some(budget) = budget {
+        if opts.updatable {
+            return Err(Error::Invalid(format!(
+                "{}: too large to build in memory ({} bytes available), and the streaming \
+                 pack does not write the primitive table --updatable needs yet",
+                mesh_path.display(),
+                crate::os::available_memory().unwrap_or(0)
+            )));
+        }
         return streaming::pack_streaming(mesh_path, output, opts, budget, progress);
     }
     let t0 = Instant::now();
@@ -253,11 +280,13 @@ fn pack_built(
     t0: Instant,
 ) -> Result<PackReport, Error> {
     let (parts, stats) = build(&mesh, &opts.build, progress)?;
+    let prims = opts.updatable.then(|| super::prims::prim_records(&mesh));
     drop(mesh);
 
     progress.phase("writing", None, false);
     let t1 = Instant::now();
-    let (file_bytes, block_count) = write::write_file(output, &parts, &opts.blocks)?;
+    let (file_bytes, block_count) =
+        write::write_file(output, &parts, &opts.blocks, prims.as_deref())?;
     drop(parts);
     let write_seconds = t1.elapsed().as_secs_f64();
     Ok(PackReport {

@@ -202,6 +202,12 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
         ..RopeReport::default()
     };
     let header = *file.header();
+    if header.flags & FLAG_PRIMS != 0 {
+        return Err(bad(
+            "an updatable file (it holds the primitive table, format-spec §8.6) cannot take them: \
+             an update would have to rewrite them in every block; pack without --updatable",
+        ));
+    }
     let top_levels = file.levels();
     let top_infos = LevelInfos::new(top_levels, 0);
     let top_nodes: &[NodeRecord] = file.records(SectionKind::Nodes);

@@ -8,7 +8,7 @@ use super::blocks::{self, BlockParts, ClusterGeometry};
 use crate::error::Error;
 use crate::output::Output;
 use crate::physical::AlignedBytes;
-use crate::physical::format::{FLAG_CLUSTERS, Header};
+use crate::physical::format::{FLAG_CLUSTERS, Header, PrimRecord};
 use crate::physical::writer::{
     BlockOptions, FileSink, FileWriter, Sink, StoredBlock, UnitParts, UnitRef, store_block,
 };
@@ -96,16 +96,21 @@ pub fn encode(parts: &TreeParts) -> Result<AlignedBytes, Error> {
 /// Writes the file of `parts` into `out` (created before the build, so that a bad output path
 /// fails before the work) and commits it; returns its size and block count. Only one batch of
 /// encoded blocks is held at a time.
+/// With `prims`, the primitive table (spec §8.6) follows the blocks.
 pub fn write_file(
     mut out: Output,
     parts: &TreeParts,
     opts: &BlockOptions,
+    prims: Option<&[PrimRecord]>,
 ) -> Result<(u64, u32), Error> {
     let path = out.path().to_owned();
     let io = |e: std::io::Error| Error::io(&path, e);
     let file = out.file().try_clone().map_err(io)?;
     let mut w = FileWriter::new(FileSink::new(file)).map_err(io)?;
     let top = write_tree(parts, opts, &mut w, &io)?;
+    if let Some(p) = prims {
+        w.push_prims(p).map_err(io)?;
+    }
     let blocks = w.block_count();
     let (sink, size) = w.finish(&parts.header, top.as_ref()).map_err(io)?;
     sink.into_file().map_err(io)?;

@@ -17,7 +17,7 @@ use crate::mapping::morton::{self, cell_origin, cell_size};
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::format::*;
 use crate::physical::verify::{
-    Defects, check_block_padding, check_block_placement, check_sections,
+    Defects, check_block_padding, check_block_placement, check_prim_chunks, check_sections,
 };
 use crate::physical::{BlockReader, BlockView, OavmFile};
 
@@ -86,12 +86,25 @@ struct UnitTotals {
 
 fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
     let header = file.header();
-    // The root cube follows from the mesh bounds (spec §2).
+    // A file as packed has the root cube its mesh bounds give (spec §2); an update keeps the
+    // cube, which must still hold the mesh (spec §2.1).
     let (root_min, root_size) = root_cube(header.mesh_min, header.mesh_max);
-    if root_min != header.root_min || root_size != header.root_size {
+    if header.generation == FIRST_GENERATION
+        && (root_min != header.root_min || root_size != header.root_size)
+    {
         d.push(format!(
             "header: root cube (min {:?}, size {}) is not the one the mesh bounds give (min {root_min:?}, size {root_size})",
             header.root_min, header.root_size
+        ));
+    }
+    let inside = (0..3).all(|k| {
+        header.mesh_min[k] as f64 > header.root_min[k]
+            && (header.mesh_max[k] as f64) < header.root_min[k] + header.root_size
+    });
+    if !inside {
+        d.push(format!(
+            "header: mesh bounds {:?}..{:?} are not inside the root cube (min {:?}, size {})",
+            header.mesh_min, header.mesh_max, header.root_min, header.root_size
         ));
     }
 
@@ -174,6 +187,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
     // decoded block is dropped when checked).
     let bytes = file.bytes();
     let placed = check_block_placement(file, d);
+    let prims = check_prim_chunks(file, d);
     let reader = BlockReader::new(file);
     // Distinct triangles, by primitive id: a bitset of `input_triangles` bits, at most as many
     // bytes as the file has (a header claiming more is reported, and the count skipped), so
@@ -204,7 +218,11 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
                 id: b as u32,
                 entry: directory[b],
             };
-            let totals = check_block(&block, header, &roots, &top_index, &prims_seen, &mut bd);
+            let seen = Seen {
+                bits: &prims_seen,
+                table: &prims,
+            };
+            let totals = check_block(&block, header, &roots, &top_index, &seen, &mut bd);
             (bd, totals)
         })
         .collect();
@@ -251,10 +269,55 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
             header.stored_triangles
         ));
     }
+    check_table_complete(&prims, &prims_seen, d);
     if !first_bounds && (totals.lo != header.mesh_min || totals.hi != header.mesh_max) {
         d.push(format!(
             "header: mesh bounds {:?}..{:?} are not the triangles' bounds {:?}..{:?}",
             header.mesh_min, header.mesh_max, totals.lo, totals.hi
+        ));
+    }
+}
+
+/// Primitives seen in the blocks, and the primitive table (spec §8.6) by chunk, if the file
+/// has one (a damaged chunk is empty).
+struct Seen<'a> {
+    bits: &'a [std::sync::atomic::AtomicU64],
+    table: &'a [&'a [PrimRecord]],
+}
+
+/// Every primitive of the table that is present and not degenerate is stored in some block,
+/// and every other is not (spec §8.6).
+fn check_table_complete(
+    table: &[&[PrimRecord]],
+    seen: &[std::sync::atomic::AtomicU64],
+    d: &mut Defects,
+) {
+    if table.is_empty() || seen.is_empty() {
+        return;
+    }
+    let (mut missing, mut extra) = (0u64, 0u64);
+    let mut first = None;
+    for (c, chunk) in table.iter().enumerate() {
+        for (i, r) in chunk.iter().enumerate() {
+            let prim = c as u64 * PRIM_CHUNK + i as u64;
+            let stored = seen
+                .get(prim as usize / 64)
+                .is_some_and(|w| w.load(std::sync::atomic::Ordering::Relaxed) >> (prim % 64) & 1 != 0);
+            let should = !r.is_absent() && !crate::build::is_degenerate(&r.v);
+            if stored != should {
+                if should {
+                    missing += 1;
+                } else {
+                    extra += 1;
+                }
+                first.get_or_insert(prim);
+            }
+        }
+    }
+    if let Some(prim) = first {
+        d.push(format!(
+            "primitive table: {missing} triangles are in no block and {extra} stored triangles \
+             are absent or degenerate in the table (primitive {prim}, first)"
         ));
     }
 }
@@ -275,7 +338,7 @@ fn check_block(
     header: &Header,
     roots: &std::collections::HashMap<(u32, u32), (u64, LinkBounds)>,
     top: &TopNodes<'_>,
-    prims_seen: &[std::sync::atomic::AtomicU64],
+    seen: &Seen<'_>,
     d: &mut Defects,
 ) -> UnitTotals {
     let (b, e) = (block.id, block.entry);
@@ -338,14 +401,38 @@ fn check_block(
     if unit.clusters.is_none() {
         totals.triangles = view.triangles.len() as u64;
     }
-    let lanes = view
-        .groups
-        .iter()
-        .flat_map(|g| g.prim.iter().take(g.count.min(8) as usize));
-    for &prim in view.triangles.iter().map(|t| &t.prim).chain(lanes) {
-        if let Some(w) = prims_seen.get(prim as usize / 64) {
+    let lanes = view.groups.iter().flat_map(|g| {
+        (0..g.count.min(8) as usize).map(move |l| (g.prim[l], g.triangle(l)))
+    });
+    let records = view.triangles.iter().chain(view.occluders);
+    let mut mismatched = 0u64;
+    let mut example = None;
+    for (prim, v) in records.map(|t| (t.prim, t.v)).chain(lanes) {
+        if let Some(w) = seen.bits.get(prim as usize / 64) {
             w.fetch_or(1 << (prim % 64), std::sync::atomic::Ordering::Relaxed);
         }
+        // The primitive table holds the triangle as the block stores it (spec §8.6).
+        if !seen.table.is_empty() {
+            let c = (prim as u64 / PRIM_CHUNK) as usize;
+            let i = (prim as u64 % PRIM_CHUNK) as usize;
+            let same = seen
+                .table
+                .get(c)
+                .and_then(|chunk| chunk.get(i))
+                .map(|r| r.same_bits(&PrimRecord { v }));
+            // A damaged chunk (empty here) was reported already.
+            if same == Some(false)
+                || (same.is_none() && seen.table.get(c).is_some_and(|ch| !ch.is_empty()))
+            {
+                mismatched += 1;
+                example.get_or_insert(prim);
+            }
+        }
+    }
+    if let Some(prim) = example {
+        d.push(format!(
+            "block {b}: {mismatched} stored triangles differ from the primitive table (primitive {prim}, first)"
+        ));
     }
     if unit.clusters.is_none() && !(view.cluster_nodes.is_empty() && view.groups.is_empty()) {
         d.push(format!(

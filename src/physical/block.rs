@@ -73,6 +73,9 @@ impl BlockReader {
     /// ([`RAW_BLOCK_ALIGN`]) and has `raw_len == stored_len`; a zstd block decodes to at most
     /// [`MAX_ZSTD_RATIO`] times what it stores.
     pub fn check_entry(&self, e: &BlockEntry) -> Result<(), String> {
+        if e.is_free() {
+            return Err("a free entry (spec §8.2): no block is stored there".into());
+        }
         let (start, end) = self.section;
         match e.offset.checked_add(e.stored_len) {
             Some(stop) if e.offset >= start && stop <= end => {}

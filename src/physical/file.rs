@@ -16,7 +16,13 @@ use crate::error::FormatError;
 /// An opened `.oavm` file whose header, section table and level table have been validated.
 pub struct OavmFile<D> {
     data: D,
+    /// The header of the slot read (spec §2.1), copied at open: a later update may overwrite
+    /// the other slot, and two updates later this one, while this reader still reads its
+    /// generation.
     header: Header,
+    /// Which header slot holds `header` (0 or 1), and what the other one held at open.
+    slot: usize,
+    other_slot: SlotState,
     /// Section entries indexed by `SectionKind as usize - 1`.
     sections: [SectionEntry; SectionKind::ALL.len()],
     levels: Vec<LevelEntry>,
@@ -30,12 +36,45 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
             return Err(FormatError::BigEndianHost);
         }
         let bytes = data.as_ref();
-        let header = read_header(bytes)?;
-        let sections = read_section_table(bytes, &header)?;
-        let levels = read_levels(bytes, &header, &sections)?;
+        let read = |slot: usize| -> Result<_, FormatError> {
+            let header = read_header(bytes, slot)?;
+            let sections = read_section_table(bytes, &header, slot)?;
+            let levels = read_levels(bytes, &header, &sections)?;
+            Ok((header, sections, levels))
+        };
+        let first = read(0);
+        let second_at = HEADER_SLOTS[1] as usize;
+        let second_used = bytes
+            .get(second_at..second_at + std::mem::size_of::<Header>())
+            .is_some_and(|b| b.iter().any(|&x| x != 0));
+        let second = second_used.then(|| read(1));
+        // The valid slot of the highest generation (spec §2.1); a file whose slot 0 is broken
+        // and whose slot 1 was never written reports slot 0's defect.
+        let (slot, (header, sections, levels), other_slot) = match (first, second) {
+            (Ok(a), None) => (0, a, SlotState::Unused),
+            (Err(e), None) => return Err(e),
+            (Ok(a), Some(Ok(b))) => {
+                if a.0.generation == b.0.generation {
+                    return Err(header_err(format!(
+                        "both header slots hold generation {}",
+                        a.0.generation
+                    )));
+                }
+                if a.0.generation > b.0.generation {
+                    (0, a, SlotState::Older(b.0.generation))
+                } else {
+                    (1, b, SlotState::Older(a.0.generation))
+                }
+            }
+            (Ok(a), Some(Err(e))) => (0, a, SlotState::Invalid(e.to_string())),
+            (Err(e), Some(Ok(b))) => (1, b, SlotState::Invalid(e.to_string())),
+            (Err(e), Some(Err(_))) => return Err(e),
+        };
         Ok(OavmFile {
             data,
             header,
+            slot,
+            other_slot,
             sections,
             levels,
         })
@@ -43,6 +82,16 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
 
     pub fn header(&self) -> &Header {
         &self.header
+    }
+
+    /// The header slot this generation was read from (spec §2.1).
+    pub fn slot(&self) -> usize {
+        self.slot
+    }
+
+    /// What the other header slot held at open.
+    pub fn other_slot(&self) -> &SlotState {
+        &self.other_slot
     }
 
     pub fn levels(&self) -> &[LevelEntry] {
@@ -95,6 +144,18 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
     }
 }
 
+/// What a header slot other than the one read held at open (spec §2.1).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum SlotState {
+    /// All zero: the file was never updated (slot 1 of a file as packed).
+    Unused,
+    /// A valid header of an older generation.
+    Older(u64),
+    /// Bytes that are not a valid header: an update was interrupted while writing it (the next
+    /// update overwrites it), or damage; the reason is the reader's.
+    Invalid(String),
+}
+
 fn header_err(what: impl Into<String>) -> FormatError {
     FormatError::Header(what.into())
 }
@@ -103,7 +164,10 @@ fn table_err(what: impl Into<String>) -> FormatError {
     FormatError::SectionTable(what.into())
 }
 
-fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
+/// Reads and checks the header in slot `slot` (spec §2, §2.1).
+fn read_header(file: &[u8], slot: usize) -> Result<Header, FormatError> {
+    let at = HEADER_SLOTS[slot] as usize;
+    let bytes = file.get(at..).unwrap_or(&[]);
     let need = std::mem::size_of::<Header>();
     if bytes.len() < need {
         if bytes.len() >= MAGIC.len() && bytes[..MAGIC.len()] != MAGIC {
@@ -141,12 +205,20 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
             header.header_size
         )));
     }
-    if header.file_size != bytes.len() as u64 {
+    if header.generation < FIRST_GENERATION
+        || (header.generation - FIRST_GENERATION) % 2 != slot as u64
+    {
         return Err(header_err(format!(
-            "the header records a file of {} bytes but the file has {} bytes (truncated or \
-             extended)",
+            "generation {} in header slot {slot}: generation g is written to slot (g - 1) mod 2",
+            header.generation
+        )));
+    }
+    if header.file_size > file.len() as u64 {
+        return Err(header_err(format!(
+            "the header records a file of at least {} bytes but the file has {} bytes \
+             (truncated)",
             header.file_size,
-            bytes.len()
+            file.len()
         )));
     }
     if header.flags & !KNOWN_FLAGS != 0 {
@@ -167,10 +239,11 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
             }
         )));
     }
-    if header.section_table_offset != need as u64 {
+    if header.section_table_offset != (at + need) as u64 {
         return Err(header_err(format!(
-            "section table at offset {}, expected {need}",
-            header.section_table_offset
+            "section table at offset {}, expected {}",
+            header.section_table_offset,
+            at + need
         )));
     }
     let table_end = need + section_count * std::mem::size_of::<SectionEntry>();
@@ -243,22 +316,29 @@ fn read_header(bytes: &[u8]) -> Result<Header, FormatError> {
 fn read_section_table(
     bytes: &[u8],
     header: &Header,
+    slot: usize,
 ) -> Result<[SectionEntry; SectionKind::ALL.len()], FormatError> {
     let start = header.section_table_offset as usize;
     let entry = std::mem::size_of::<SectionEntry>();
     let mut sections = [SectionEntry::zeroed(); SectionKind::ALL.len()];
-    // Checked by `read_header`: 7 sections, or 8 with ropes.
-    let count = SectionKind::count_for(header.flags);
-    let table_end = start + count * entry;
-    let mut prev_end = table_end as u64;
-    for (i, kind) in SectionKind::ALL.into_iter().enumerate().take(count) {
+    // `read_header` checked the count against the flags and that the table is in the file.
+    // Sections start in the data region, after both header slots (spec §2.1).
+    let mut prev_end = DATA_START;
+    for (i, kind) in SectionKind::for_flags(header.flags).enumerate() {
         let at = start + i * entry;
         let s: SectionEntry = bytemuck::pod_read_unaligned(&bytes[at..at + entry]);
         let name = kind.name();
         if s.kind != kind as u32 {
             return Err(table_err(format!(
-                "entry {i} has kind {}, expected {} ({name}): sections are stored in a fixed order",
+                "slot {slot}: entry {i} has kind {}, expected {} ({name}): sections are stored \
+                 in a fixed order",
                 s.kind, kind as u32
+            )));
+        }
+        if kind == SectionKind::Blocks && s.offset != DATA_START {
+            return Err(table_err(format!(
+                "{name}: starts at {}, the data region at {DATA_START}",
+                s.offset
             )));
         }
         if s.codec != 0 || s.block_directory != 0 {
@@ -316,8 +396,21 @@ fn read_section_table(
                 )));
             }
         }
+        if kind == SectionKind::Directory && s.offset != prev_end.next_multiple_of(SECTION_ALIGN)
+        {
+            return Err(table_err(format!(
+                "{name}: starts at {}, not where the data region ends ({prev_end})",
+                s.offset
+            )));
+        }
+        if kind == SectionKind::Prims && s.count != header.input_triangles.div_ceil(PRIM_CHUNK) {
+            return Err(table_err(format!(
+                "{name}: {} chunks for {} primitives ({PRIM_CHUNK} a chunk)",
+                s.count, header.input_triangles
+            )));
+        }
         prev_end = end;
-        sections[i] = s;
+        sections[kind as usize - 1] = s;
     }
     if prev_end != header.file_size {
         return Err(table_err(format!(

@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 pub const MAGIC: [u8; 8] = *b"\x89OAVM\r\n\x1a";
 
 /// Spec §12: the format version this code reads and writes.
-pub const VERSION: u32 = 4;
+pub const VERSION: u32 = 5;
 
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
@@ -47,9 +47,22 @@ pub const FLAG_ROPES: u32 = 8;
 /// internal nodes of the blocks, where shadow rays test them before descending (the primitive
 /// index of Liang and Huang's multi-index tree; `oavm-pack --occluders`).
 pub const FLAG_OCCLUDERS: u32 = 16;
+/// Spec §2, `flags` bit 5: the file holds its primitive table (spec §8.6): every input
+/// triangle's corners by primitive id, in chunks, so that an update (`oavm-update`) finds what
+/// changed and where it was (`oavm-pack --updatable`).
+pub const FLAG_PRIMS: u32 = 32;
 /// Every flag this version knows; any other bit set is an error at open.
 pub const KNOWN_FLAGS: u32 =
-    FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS | FLAG_ROPES | FLAG_OCCLUDERS;
+    FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS | FLAG_ROPES | FLAG_OCCLUDERS | FLAG_PRIMS;
+
+/// Spec §2: the offsets of the two header slots. A slot is a header followed by its section
+/// table; a reader takes the valid slot of the highest generation (spec §2.1).
+pub const HEADER_SLOTS: [u64; 2] = [0, 2048];
+/// Spec §2.1: where the data region (the blocks section: blocks and primitive chunks) starts,
+/// after both header slots.
+pub const DATA_START: u64 = 4096;
+/// Spec §2.1: the generation a freshly packed file has (in slot 0; slot 1 is zero).
+pub const FIRST_GENERATION: u64 = 1;
 
 /// Spec §2: the file header, at offset 0 (256 bytes).
 #[repr(C)]
@@ -62,7 +75,7 @@ pub struct Header {
     pub header_size: u32,
     pub section_count: u32,
     pub section_table_offset: u64,
-    /// Exact length of the file in bytes.
+    /// End of this generation's last section: the file is at least this long (spec §2.1).
     pub file_size: u64,
     /// Lowest corner of the root cube, world units.
     pub root_min: [f64; 3],
@@ -91,8 +104,10 @@ pub struct Header {
     pub block_triangles: u64,
     /// Distinct triangles stored (the input minus degenerate ones).
     pub stored_triangles: u64,
+    /// Spec §2.1: 1 for a file as packed; each update writes the next in the other slot.
+    pub generation: u64,
     /// Zero in this version.
-    pub reserved: [u64; 10],
+    pub reserved: [u64; 9],
     /// xxh3-64 of the header's first 248 bytes followed by the whole section table.
     pub checksum: u64,
 }
@@ -117,13 +132,17 @@ pub enum SectionKind {
     /// The top tree's link bounds (spec §8.1), one record per top-tree node.
     LinkBounds = 7,
     /// The top tree's ropes (spec §8.4), one record per top-tree node; only in a file with
-    /// [`FLAG_ROPES`], whose section table then has eight entries.
+    /// [`FLAG_ROPES`].
     Ropes = 8,
+    /// The primitive table's chunk directory (spec §8.6), one [`PrimChunk`] per
+    /// [`PRIM_CHUNK`] primitives; only in a file with [`FLAG_PRIMS`].
+    Prims = 9,
 }
 
 impl SectionKind {
-    /// Every kind, in file order; a file without ropes has the first [`Self::BASE`].
-    pub const ALL: [SectionKind; 8] = [
+    /// Every kind, in file order. A file has the first [`Self::BASE`], then [`Self::Ropes`]
+    /// with [`FLAG_ROPES`] and [`Self::Prims`] with [`FLAG_PRIMS`], in this order.
+    pub const ALL: [SectionKind; 9] = [
         SectionKind::Blocks,
         SectionKind::Directory,
         SectionKind::Levels,
@@ -132,17 +151,28 @@ impl SectionKind {
         SectionKind::Volumes,
         SectionKind::LinkBounds,
         SectionKind::Ropes,
+        SectionKind::Prims,
     ];
-    /// Sections of a file without [`FLAG_ROPES`].
+    /// Sections every file has.
     pub const BASE: usize = 7;
+
+    /// Whether a file with these header flags has this section.
+    pub fn present(self, flags: u32) -> bool {
+        match self {
+            SectionKind::Ropes => flags & FLAG_ROPES != 0,
+            SectionKind::Prims => flags & FLAG_PRIMS != 0,
+            _ => true,
+        }
+    }
+
+    /// The sections a file with these header flags has, in file order.
+    pub fn for_flags(flags: u32) -> impl Iterator<Item = SectionKind> {
+        SectionKind::ALL.into_iter().filter(move |k| k.present(flags))
+    }
 
     /// How many sections a file with these header flags has.
     pub fn count_for(flags: u32) -> usize {
-        if flags & FLAG_ROPES != 0 {
-            Self::ALL.len()
-        } else {
-            Self::BASE
-        }
+        Self::for_flags(flags).count()
     }
 
     pub fn from_u32(v: u32) -> Option<SectionKind> {
@@ -159,6 +189,7 @@ impl SectionKind {
             SectionKind::Volumes => "volumes",
             SectionKind::LinkBounds => "link bounds",
             SectionKind::Ropes => "ropes",
+            SectionKind::Prims => "primitive table",
         }
     }
 
@@ -174,10 +205,61 @@ impl SectionKind {
             SectionKind::Volumes => std::mem::size_of::<VolumeRecord>(),
             SectionKind::LinkBounds => std::mem::size_of::<LinkBounds>(),
             SectionKind::Ropes => std::mem::size_of::<RopeRecord>(),
+            SectionKind::Prims => std::mem::size_of::<PrimChunk>(),
         };
         Some(size as u64)
     }
 }
+
+/// Spec §8.6: primitives per chunk of the primitive table (the last chunk may hold fewer).
+pub const PRIM_CHUNK: u64 = 4096;
+
+/// Spec §8.6: one primitive of the primitive table (36 bytes): its three corners as the input
+/// mesh gave them (degenerate triangles too), or all nine words [`PRIM_ABSENT`] for a primitive
+/// id that holds no triangle (removed by an update).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct PrimRecord {
+    pub v: [[f32; 3]; 3],
+}
+const _: () = assert!(std::mem::size_of::<PrimRecord>() == 36);
+
+/// Spec §8.6: the bits of every word of an absent primitive's record (a NaN, which no input
+/// triangle has: meshes with non-finite corners are refused).
+pub const PRIM_ABSENT: u32 = u32::MAX;
+
+impl PrimRecord {
+    /// The record of an absent primitive.
+    pub const ABSENT: PrimRecord = PrimRecord {
+        v: [[f32::from_bits(PRIM_ABSENT); 3]; 3],
+    };
+
+    /// Whether this record holds no triangle.
+    pub fn is_absent(&self) -> bool {
+        self.v.iter().flatten().all(|c| c.to_bits() == PRIM_ABSENT)
+    }
+
+    /// Whether the two records hold the same bits (corners compared as bits, so that `-0.0`
+    /// and `0.0` differ as the stored triangles do).
+    pub fn same_bits(&self, other: &PrimRecord) -> bool {
+        bytemuck::bytes_of(self) == bytemuck::bytes_of(other)
+    }
+}
+
+/// Spec §8.6: one entry of the primitive table's chunk directory (32 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable, serde::Serialize)]
+pub struct PrimChunk {
+    /// Offset in the file of the chunk's records, a multiple of [`SECTION_ALIGN`] in the data
+    /// region (spec §2.1).
+    pub offset: u64,
+    /// Primitives in the chunk: [`PRIM_CHUNK`], but for the last chunk.
+    pub count: u64,
+    /// xxh3-64 of the chunk's `count * 36` bytes.
+    pub checksum: u64,
+    pub reserved: u64,
+}
+const _: () = assert!(std::mem::size_of::<PrimChunk>() == 32);
 
 /// Spec §3: one entry of the section table (48 bytes).
 #[repr(C)]
@@ -701,6 +783,14 @@ pub struct BlockEntry {
     pub checksum: u64,
 }
 const _: () = assert!(std::mem::size_of::<BlockEntry>() == 48);
+
+impl BlockEntry {
+    /// Spec §8.2: a free entry (all zero) stands where an update removed a block; no link
+    /// refers to it. Only files of generation 2 and later have them.
+    pub fn is_free(&self) -> bool {
+        *self == BlockEntry::zeroed()
+    }
+}
 
 /// Spec §2: the largest `max_block_raw_len` a reader accepts (1 GiB): what one decoded block
 /// may make a reader allocate, whatever the file says. A writer refuses to write a larger block.

@@ -91,15 +91,16 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
         (FLAG_COMPRESSED, "compressed"),
         (FLAG_CLUSTERS, "clusters"),
         (FLAG_ROPES, "ropes"),
+        (FLAG_OCCLUDERS, "occluders"),
+        (FLAG_PRIMS, "prims"),
     ];
     let flags = names
         .iter()
         .filter(|(bit, _)| header.flags & bit != 0)
         .map(|&(_, name)| name)
         .collect();
-    let sections = SectionKind::ALL[..SectionKind::count_for(file.header().flags)]
-        .iter()
-        .map(|&k| Section {
+    let sections = SectionKind::for_flags(file.header().flags)
+        .map(|k| Section {
             name: k.name(),
             entry: *file.section(k),
         })

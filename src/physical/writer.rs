@@ -372,6 +372,8 @@ pub struct FileWriter<S: Sink> {
     bounds_start: Vec<usize>,
     /// Whether the blocks written carry ropes (`None` before the first).
     ropes: Option<bool>,
+    /// The primitive table's chunks written (spec §8.6), if any.
+    prims: Option<Vec<PrimChunk>>,
 }
 
 const ZEROS: [u8; 4096] = [0; 4096];
@@ -391,6 +393,7 @@ impl<S: Sink> FileWriter<S> {
             bounds: Vec::new(),
             bounds_start: Vec::new(),
             ropes: None,
+            prims: None,
         })
     }
 
@@ -446,6 +449,29 @@ impl<S: Sink> FileWriter<S> {
         self.bounds_start.push(self.bounds.len());
         self.bounds.extend_from_slice(&block.root_bounds);
         Ok(self.directory.len() as u32 - 1)
+    }
+
+    /// Writes the primitive table's chunks (spec §8.6) after the blocks: `records` holds one
+    /// record per input triangle, in primitive-id order. Call once, after the last block.
+    pub fn push_prims(&mut self, records: &[PrimRecord]) -> std::io::Result<()> {
+        if self.prims.is_some() {
+            return Err(std::io::Error::other("the primitive table was written twice"));
+        }
+        let mut chunks = Vec::with_capacity(records.len().div_ceil(PRIM_CHUNK as usize));
+        for chunk in records.chunks(PRIM_CHUNK as usize) {
+            self.pad_to(SECTION_ALIGN)?;
+            let bytes: &[u8] = bytemuck::cast_slice(chunk);
+            chunks.push(PrimChunk {
+                offset: self.at,
+                count: chunk.len() as u64,
+                checksum: checksum(bytes),
+                reserved: 0,
+            });
+            self.sink.append(bytes)?;
+            self.at += bytes.len() as u64;
+        }
+        self.prims = Some(chunks);
+        Ok(())
     }
 
     /// The link bounds section (spec §8.1): for each top-tree node, its root's bounds if it is a
@@ -506,7 +532,17 @@ impl<S: Sink> FileWriter<S> {
                 "the top tree and the blocks disagree on whether the file has ropes",
             ));
         }
-        let sections: [(SectionKind, &[u8], u64); 7] = [
+        let prims = self.prims.take();
+        if let Some(p) = &prims
+            && p.len() as u64 != meta.input_triangles.div_ceil(PRIM_CHUNK)
+        {
+            return Err(std::io::Error::other(format!(
+                "{} primitive chunks for {} input triangles",
+                p.len(),
+                meta.input_triangles
+            )));
+        }
+        let sections: [(SectionKind, &[u8], u64); 8] = [
             (
                 SectionKind::Directory,
                 bytemuck::cast_slice(&directory),
@@ -542,15 +578,31 @@ impl<S: Sink> FileWriter<S> {
                 bytemuck::cast_slice(top.ropes),
                 top.ropes.len() as u64,
             ),
+            (
+                SectionKind::Prims,
+                bytemuck::cast_slice(prims.as_deref().unwrap_or(&[])),
+                prims.as_ref().map_or(0, |p| p.len() as u64),
+            ),
         ];
-        let section_count = if ropes {
-            SectionKind::ALL.len()
-        } else {
-            SectionKind::BASE
-        };
-        for (i, (kind, bytes, count)) in sections.into_iter().take(section_count - 1).enumerate() {
+        // The data region (the blocks section) ends where the directory begins (spec §2.1).
+        entries[0].length = self.at.next_multiple_of(SECTION_ALIGN) - self.blocks_start;
+        let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS | FLAG_OCCLUDERS);
+        if self.compressed {
+            flags |= FLAG_COMPRESSED;
+        }
+        if ropes {
+            flags |= FLAG_ROPES;
+        }
+        if prims.is_some() {
+            flags |= FLAG_PRIMS;
+        }
+        let mut section_count = 1;
+        for (kind, bytes, count) in sections {
+            if !kind.present(flags) {
+                continue;
+            }
             self.pad_to(SECTION_ALIGN)?;
-            entries[i + 1] = SectionEntry {
+            entries[section_count] = SectionEntry {
                 kind: kind as u32,
                 codec: 0,
                 offset: self.at,
@@ -559,19 +611,13 @@ impl<S: Sink> FileWriter<S> {
                 block_directory: 0,
                 checksum: checksum(bytes),
             };
+            section_count += 1;
             self.sink.append(bytes)?;
             self.at += bytes.len() as u64;
         }
         let file_size = self.at;
         // Occluders (spec §8.5) may be in some blocks and not others: the pass that adds them
         // says so in `meta`.
-        let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS | FLAG_OCCLUDERS);
-        if self.compressed {
-            flags |= FLAG_COMPRESSED;
-        }
-        if ropes {
-            flags |= FLAG_ROPES;
-        }
         let header_size = std::mem::size_of::<Header>() as u64;
         let mut header = Header {
             magic: MAGIC,
@@ -596,7 +642,8 @@ impl<S: Sink> FileWriter<S> {
             max_block_raw_len: self.max_raw,
             block_triangles: self.block_triangles,
             stored_triangles: meta.stored_triangles,
-            reserved: [0; 10],
+            generation: FIRST_GENERATION,
+            reserved: [0; 9],
             checksum: 0,
         };
         let table: &[u8] = bytemuck::cast_slice(&entries[..section_count]);
