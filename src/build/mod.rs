@@ -26,6 +26,7 @@ pub mod ropes;
 mod spill;
 mod stats;
 mod streaming;
+mod subtree;
 pub(crate) mod subdivide;
 mod write;
 

@@ -78,6 +78,22 @@ impl TreeCounts {
         self.refs += unit.refs.len() as u64;
         self.rank_entries += unit.ranks.len() as u64;
     }
+
+    /// Adds another's counts.
+    pub fn add_counts(&mut self, other: &TreeCounts) {
+        if self.nodes_per_level.len() < other.nodes_per_level.len() {
+            self.nodes_per_level.resize(other.nodes_per_level.len(), 0);
+        }
+        for (a, b) in self.nodes_per_level.iter_mut().zip(&other.nodes_per_level) {
+            *a += b;
+        }
+        self.internal += other.internal;
+        self.empty += other.empty;
+        self.solid += other.solid;
+        self.volumes += other.volumes;
+        self.refs += other.refs;
+        self.rank_entries += other.rank_entries;
+    }
 }
 
 /// Seconds of the build's phases.

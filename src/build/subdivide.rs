@@ -27,6 +27,51 @@ impl LatticeTri {
     }
 }
 
+/// The mapping from world coordinates to the lattice of the root cube (spec §1, §2).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Lattice {
+    pub(crate) root_min: [f64; 3],
+    pub(crate) root_size: f64,
+    /// Lattice cells per world unit.
+    pub(crate) scale: f64,
+}
+
+impl Lattice {
+    /// The lattice of the root cube fitted to the bounds `lo..hi` (spec §2).
+    pub(crate) fn fit(lo: [f32; 3], hi: [f32; 3]) -> Result<Lattice, crate::error::Error> {
+        let (root_min, root_size) = crate::physical::format::root_cube(lo, hi);
+        super::check_scale(root_size)?;
+        Ok(Lattice::of_root(root_min, root_size))
+    }
+
+    /// The lattice of a given root cube (a file's).
+    pub(crate) fn of_root(root_min: [f64; 3], root_size: f64) -> Lattice {
+        Lattice {
+            root_min,
+            root_size,
+            scale: crate::physical::format::LATTICE_SIZE as f64 / root_size,
+        }
+    }
+
+    /// A triangle's corners on the lattice, as the builder maps them.
+    pub(crate) fn map(&self, v: &[[f32; 3]; 3]) -> LatticeTri {
+        LatticeTri::new(std::array::from_fn(|i| {
+            std::array::from_fn(|k| (v[i][k] as f64 - self.root_min[k]) * self.scale)
+        }))
+    }
+}
+
+/// Whether `t` overlaps the cell of `code` at `level`, widened by the cell margin (spec §6).
+pub(crate) fn overlaps_cell(t: &LatticeTri, code: u64, level: u32) -> bool {
+    let s = crate::mapping::morton::cell_size(level) as f64;
+    let o = crate::mapping::morton::cell_origin(code, level);
+    let c: [f64; 3] = std::array::from_fn(|k| o[k] as f64 + s * 0.5);
+    let half = [s * 0.5 + CELL_MARGIN; 3];
+    // A triangle whose box lies inside the widened cell overlaps it.
+    let inside = (0..3).all(|k| t.lo[k] >= c[k] - half[k] && t.hi[k] <= c[k] + half[k]);
+    inside || triangle_overlaps_box(&t.v, c, half)
+}
+
 /// A node of the tree being built.
 pub enum BuildNode {
     Internal,

@@ -307,6 +307,10 @@ pub trait Sink {
     fn append(&mut self, bytes: &[u8]) -> std::io::Result<()>;
     /// Overwrites bytes already appended, at `offset` (the header, written last).
     fn patch(&mut self, offset: u64, bytes: &[u8]) -> std::io::Result<()>;
+    /// Makes everything written so far durable (a file: flushed and `fdatasync`ed).
+    fn sync(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 impl Sink for Vec<u8> {
@@ -353,27 +357,35 @@ impl Sink for FileSink {
         self.out.flush()?;
         self.out.get_ref().write_all_at(bytes, offset)
     }
+
+    fn sync(&mut self) -> std::io::Result<()> {
+        self.out.flush()?;
+        self.out.get_ref().sync_data()
+    }
 }
 
 /// Writes a file in one pass (spec §2): a placeholder header and section table, the blocks as
 /// they come, then the block directory and the top tree, then the real header. Nothing but the
 /// blocks is held, and those only until they are written.
+///
+/// [`FileWriter::resume`] writes the next generation of an existing file instead (spec
+/// §2.1): new blocks and primitive chunks appended after everything the file holds, then the
+/// sections, synced, then the header in the other slot, synced.
 pub struct FileWriter<S: Sink> {
     sink: S,
     at: u64,
     blocks_start: u64,
     directory: Vec<BlockEntry>,
-    max_raw: u64,
-    block_triangles: u64,
-    compressed: bool,
-    /// The roots' bounds of every block written, block after block; `bounds_start[b]` is where
-    /// block `b`'s begin.
-    bounds: Vec<LinkBounds>,
-    bounds_start: Vec<usize>,
+    /// The roots' bounds of every block, by block id (a free entry has none).
+    bounds: Vec<Vec<LinkBounds>>,
     /// Whether the blocks written carry ropes (`None` before the first).
     ropes: Option<bool>,
-    /// The primitive table's chunks written (spec §8.6), if any.
+    /// The primitive table's chunks (spec §8.6), if any.
     prims: Option<Vec<PrimChunk>>,
+    /// The generation written and its header slot (spec §2.1).
+    generation: u64,
+    /// Sync the data before the header and the header after it (a new generation).
+    durable: bool,
 }
 
 const ZEROS: [u8; 4096] = [0; 4096];
@@ -387,13 +399,47 @@ impl<S: Sink> FileWriter<S> {
             at: blocks_start,
             blocks_start,
             directory: Vec::new(),
-            max_raw: 0,
-            block_triangles: 0,
-            compressed: false,
             bounds: Vec::new(),
-            bounds_start: Vec::new(),
             ropes: None,
             prims: None,
+            generation: FIRST_GENERATION,
+            durable: false,
+        })
+    }
+
+    /// Writes generation `generation` of a file whose bytes end at `at` (a multiple of
+    /// [`RAW_BLOCK_ALIGN`]; the sink appends there): `directory` is the previous generation's
+    /// (free entries where blocks were removed, spec §8.2) with `bounds`, each live block's
+    /// roots' link bounds; `prims` its primitive chunks (changed ones are replaced with
+    /// [`Self::replace_prim_chunk`]). Ropes are not carried over (a file that has them is not
+    /// updated).
+    pub fn resume(
+        sink: S,
+        at: u64,
+        generation: u64,
+        directory: Vec<BlockEntry>,
+        bounds: Vec<Vec<LinkBounds>>,
+        prims: Option<Vec<PrimChunk>>,
+    ) -> std::io::Result<FileWriter<S>> {
+        if !at.is_multiple_of(RAW_BLOCK_ALIGN) || at < DATA_START || generation <= FIRST_GENERATION
+        {
+            return Err(std::io::Error::other(format!(
+                "generation {generation} cannot start at offset {at}"
+            )));
+        }
+        if bounds.len() != directory.len() {
+            return Err(std::io::Error::other("one bounds list per directory entry expected"));
+        }
+        Ok(FileWriter {
+            sink,
+            at,
+            blocks_start: DATA_START,
+            directory,
+            bounds,
+            ropes: Some(false),
+            prims,
+            generation,
+            durable: true,
         })
     }
 
@@ -420,6 +466,28 @@ impl<S: Sink> FileWriter<S> {
                 self.block_count()
             )));
         }
+        self.directory.push(BlockEntry::zeroed());
+        self.bounds.push(Vec::new());
+        self.store(block)
+    }
+
+    /// Writes a block into a free entry of the directory (its id, which its header says), or
+    /// as the next one: what an update does with the blocks it makes.
+    pub fn place(&mut self, block: StoredBlock) -> std::io::Result<u32> {
+        let id = block.entry_id as usize;
+        if id == self.directory.len() {
+            return self.push(block);
+        }
+        if self.directory.get(id).is_none_or(|e| !e.is_free()) {
+            return Err(std::io::Error::other(format!(
+                "block {id} written where the directory has no free entry"
+            )));
+        }
+        self.store(block)
+    }
+
+    /// Stores `block` at the end of what is written, into its directory entry.
+    fn store(&mut self, block: StoredBlock) -> std::io::Result<u32> {
         let align = if block.entry.codec == CODEC_RAW {
             RAW_BLOCK_ALIGN
         } else {
@@ -442,13 +510,53 @@ impl<S: Sink> FileWriter<S> {
         entry.offset = self.at;
         self.sink.append(&block.bytes)?;
         self.at += block.bytes.len() as u64;
-        self.max_raw = self.max_raw.max(entry.raw_len);
-        self.block_triangles += entry.triangles as u64;
-        self.compressed |= entry.codec != CODEC_RAW;
-        self.directory.push(entry);
-        self.bounds_start.push(self.bounds.len());
-        self.bounds.extend_from_slice(&block.root_bounds);
-        Ok(self.directory.len() as u32 - 1)
+        let id = block.entry_id as usize;
+        self.directory[id] = entry;
+        self.bounds[id] = block.root_bounds;
+        Ok(block.entry_id)
+    }
+
+    /// Writes chunk `c` of the primitive table again, with `records` (spec §8.6): an update's
+    /// changed primitives.
+    pub fn replace_prim_chunk(&mut self, c: usize, records: &[PrimRecord]) -> std::io::Result<()> {
+        self.pad_to(SECTION_ALIGN)?;
+        let bytes: &[u8] = bytemuck::cast_slice(records);
+        let entry = PrimChunk {
+            offset: self.at,
+            count: records.len() as u64,
+            checksum: checksum(bytes),
+            reserved: 0,
+        };
+        let chunks = self.prims.get_or_insert_with(Vec::new);
+        if c > chunks.len() {
+            return Err(std::io::Error::other(format!(
+                "primitive chunk {c} written after {} chunks",
+                chunks.len()
+            )));
+        }
+        if c == chunks.len() {
+            chunks.push(entry);
+        } else {
+            chunks[c] = entry;
+        }
+        self.sink.append(bytes)?;
+        self.at += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Drops the primitive chunks from `count` on (an update that leaves fewer primitives).
+    pub fn truncate_prim_chunks(&mut self, count: usize) {
+        if let Some(p) = &mut self.prims {
+            p.truncate(count);
+        }
+    }
+
+    /// Drops free entries at the end of the directory.
+    pub fn trim_free(&mut self) {
+        while self.directory.last().is_some_and(|e| e.is_free()) {
+            self.directory.pop();
+            self.bounds.pop();
+        }
     }
 
     /// Writes the primitive table's chunks (spec §8.6) after the blocks: `records` holds one
@@ -481,16 +589,9 @@ impl<S: Sink> FileWriter<S> {
             .iter()
             .map(|rec| match rec.kind() {
                 Some(NodeKind::Link { block, root }) => self
-                    .bounds_start
+                    .bounds
                     .get(block as usize)
-                    .and_then(|&s| {
-                        let end = self
-                            .bounds_start
-                            .get(block as usize + 1)
-                            .copied()
-                            .unwrap_or(self.bounds.len());
-                        self.bounds[s..end].get(root as usize)
-                    })
+                    .and_then(|b| b.get(root as usize))
                     .copied()
                     .ok_or_else(|| {
                         std::io::Error::other(format!(
@@ -587,9 +688,12 @@ impl<S: Sink> FileWriter<S> {
         // The data region (the blocks section) ends where the directory begins (spec §2.1).
         entries[0].length = self.at.next_multiple_of(SECTION_ALIGN) - self.blocks_start;
         let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS | FLAG_OCCLUDERS);
-        if self.compressed {
+        let live = || directory.iter().filter(|e| !e.is_free());
+        if live().any(|e| e.codec != CODEC_RAW) {
             flags |= FLAG_COMPRESSED;
         }
+        let max_raw = live().map(|e| e.raw_len).max().unwrap_or(0);
+        let block_triangles: u64 = live().map(|e| e.triangles as u64).sum();
         if ropes {
             flags |= FLAG_ROPES;
         }
@@ -619,13 +723,15 @@ impl<S: Sink> FileWriter<S> {
         // Occluders (spec §8.5) may be in some blocks and not others: the pass that adds them
         // says so in `meta`.
         let header_size = std::mem::size_of::<Header>() as u64;
+        // Generation g goes to slot (g - 1) mod 2 (spec §2.1).
+        let slot = HEADER_SLOTS[((self.generation - FIRST_GENERATION) % 2) as usize];
         let mut header = Header {
             magic: MAGIC,
             version: VERSION,
             flags,
             header_size: header_size as u32,
             section_count: section_count as u32,
-            section_table_offset: header_size,
+            section_table_offset: slot + header_size,
             file_size,
             root_min: meta.root_min,
             root_size: meta.root_size,
@@ -639,10 +745,10 @@ impl<S: Sink> FileWriter<S> {
             max_depth: meta.max_depth,
             leaf_size: meta.leaf_size,
             block_count: directory.len() as u64,
-            max_block_raw_len: self.max_raw,
-            block_triangles: self.block_triangles,
+            max_block_raw_len: max_raw,
+            block_triangles,
             stored_triangles: meta.stored_triangles,
-            generation: FIRST_GENERATION,
+            generation: self.generation,
             reserved: [0; 9],
             checksum: 0,
         };
@@ -651,8 +757,16 @@ impl<S: Sink> FileWriter<S> {
         hasher.update(&bytemuck::bytes_of(&header)[..HEADER_CHECKED_LEN]);
         hasher.update(table);
         header.checksum = hasher.digest();
-        self.sink.patch(0, bytemuck::bytes_of(&header))?;
-        self.sink.patch(header_size, table)?;
+        // Its sections must be durable before the header that makes them the file's.
+        if self.durable {
+            self.sink.sync()?;
+        }
+        let mut bytes = bytemuck::bytes_of(&header).to_vec();
+        bytes.extend_from_slice(table);
+        self.sink.patch(slot, &bytes)?;
+        if self.durable {
+            self.sink.sync()?;
+        }
         Ok((self.sink, file_size))
     }
 }

@@ -5,17 +5,16 @@
 
 use rayon::prelude::*;
 
-use super::super::blocks::{ClusterGeometry, TopKind, assemble_top, partition};
-use super::super::layout::layout_from;
-use super::super::merge;
+use super::super::blocks::{ClusterGeometry, TopKind, assemble_top};
 use super::super::pack::PackOptions;
 use super::super::spill::SpillBuckets;
 use super::super::stats::TreeCounts;
-use super::super::subdivide::{self, LatticeTri, SubdivideParams};
+use super::super::subdivide::Lattice;
+use super::super::subtree::build_subtree;
 use super::super::write::write_blocks;
 use super::super::{HeaderFields, LeafKind, Progress};
 use super::plan::Plan;
-use super::{Bounds, Lattice, Written};
+use super::{Bounds, Written};
 use crate::error::Error;
 use crate::output::Output;
 use crate::physical::writer::{FileSink, FileWriter};
@@ -33,10 +32,6 @@ pub(super) fn build_and_write(
 ) -> Result<Written, Error> {
     let path = out.path().to_owned();
     let io = |e: std::io::Error| Error::io(&path, e);
-    let params = SubdivideParams {
-        max_depth: opts.build.max_depth,
-        leaf_size: opts.build.leaf_size,
-    };
     let mut w = FileWriter::new(FileSink::new(out.file().try_clone().map_err(io)?)).map_err(io)?;
     let mut top_nodes = plan.top.clone();
     let mut counts = TreeCounts::default();
@@ -49,29 +44,21 @@ pub(super) fn build_and_write(
     for (i, c) in plan.chunks.iter().enumerate() {
         let mut records = spill.read(i as u32)?;
         records.par_sort_unstable_by_key(|r| r.prim);
-        let tris: Vec<LatticeTri> = records.par_iter().map(|r| lattice.map(&r.v)).collect();
-        let levels = subdivide::subdivide_from(&tris, c.level, c.code, params, &|_, _| {});
-        let boxes = merge::merge_volumes_from(&levels, c.level, opts.build.merge);
-        let laid = layout_from(&levels, c.level, &boxes, &records, &tris)?;
-        drop((levels, boxes, tris, records));
-        counts.add(
-            laid.tree.as_ref(),
+        let built = build_subtree(
+            &records,
             c.level,
-            laid.empty_leaves,
-            laid.solid_leaves,
-        );
-        level_count = level_count.max(c.level + laid.tree.levels.len() as u32);
-        let split = partition(
-            laid.tree.as_ref(),
-            c.level,
-            &[c.code],
+            c.code,
+            lattice,
+            &opts.build,
             opts.blocks.block_size,
             w.block_count(),
             clusters.as_ref(),
         )?;
-        drop(laid);
-        write_blocks(&split.blocks, &opts.blocks, &mut w, &io)?;
-        top_nodes.extend(split.top);
+        drop(records);
+        counts.add_counts(&built.counts);
+        level_count = level_count.max(built.level_end);
+        write_blocks(&built.split.blocks, &opts.blocks, &mut w, &io)?;
+        top_nodes.extend(built.split.top);
         progress.at(i as u64 + 1);
     }
     let top = assemble_top(top_nodes)?;

@@ -54,12 +54,11 @@ use std::time::Instant;
 
 use super::pack::{PackOptions, PackReport, StreamingReport};
 use super::stats::{PhaseSeconds, TreeCounts};
-use super::subdivide::LatticeTri;
-use super::{BuildStats, Progress, check_scale, is_degenerate};
+use super::subdivide::Lattice;
+use super::{BuildStats, Progress, is_degenerate};
 use crate::error::Error;
 use crate::mesh::stream::{PlyStream, StreamTriangle};
 use crate::output::Output;
-use crate::physical::format::{LATTICE_SIZE, root_cube};
 
 pub use plan::HISTOGRAM_LEVEL;
 
@@ -78,33 +77,6 @@ fn window(mem_budget: u64) -> usize {
         crate::mesh::stream::MIN_WINDOW,
         crate::mesh::stream::RELEASE_EVERY,
     )
-}
-
-/// The mapping from world coordinates to the lattice of the root cube.
-#[derive(Clone, Copy, Debug)]
-struct Lattice {
-    root_min: [f64; 3],
-    root_size: f64,
-    /// Lattice cells per world unit.
-    scale: f64,
-}
-
-impl Lattice {
-    fn new(lo: [f32; 3], hi: [f32; 3]) -> Result<Lattice, Error> {
-        let (root_min, root_size) = root_cube(lo, hi);
-        check_scale(root_size)?;
-        Ok(Lattice {
-            root_min,
-            root_size,
-            scale: LATTICE_SIZE as f64 / root_size,
-        })
-    }
-
-    fn map(&self, v: &[[f32; 3]; 3]) -> LatticeTri {
-        LatticeTri::new(std::array::from_fn(|i| {
-            std::array::from_fn(|k| (v[i][k] as f64 - self.root_min[k]) * self.scale)
-        }))
-    }
 }
 
 /// What the bounds pass found.
@@ -168,7 +140,7 @@ pub(super) fn pack_streaming(
             mesh_path.display()
         )));
     }
-    let lattice = Lattice::new(b.lo, b.hi)?;
+    let lattice = Lattice::fit(b.lo, b.hi)?;
 
     // 3. Histogram, top of the tree and chunks; 4. distribution into spill buckets.
     let plan = plan::plan(

@@ -10,12 +10,11 @@ use rayon::prelude::*;
 use super::super::blocks::{TopKind, TopNode};
 use super::super::merge::{self, Merged};
 use super::super::spill::SpillBuckets;
-use super::super::subdivide::{BuildLevel, BuildNode, LatticeTri};
+use super::super::subdivide::{BuildLevel, BuildNode, LatticeTri, overlaps_cell};
 use super::super::{BuildOptions, Progress, is_degenerate};
 use super::{BYTES_PER_CHUNK_TRIANGLE, Lattice, pass};
 use crate::error::Error;
-use crate::geom::tribox::triangle_overlaps_box;
-use crate::mapping::morton::{self, MAX_LEVEL, cell_origin, cell_size};
+use crate::mapping::morton::{self, MAX_LEVEL, cell_size};
 use crate::mesh::stream::PlyStream;
 use crate::physical::format::{CELL_MARGIN, TriRecord};
 
@@ -173,17 +172,6 @@ fn for_cells_of_box(t: &LatticeTri, h: u32, mut f: impl FnMut(u64)) {
             }
         }
     }
-}
-
-/// Whether `t` overlaps the cell of `code` at `level`, widened by the cell margin (spec §6).
-fn overlaps_cell(t: &LatticeTri, code: u64, level: u32) -> bool {
-    let s = cell_size(level) as f64;
-    let o = cell_origin(code, level);
-    let c: [f64; 3] = std::array::from_fn(|k| o[k] as f64 + s * 0.5);
-    let half = [s * 0.5 + CELL_MARGIN; 3];
-    // A triangle whose box lies inside the widened cell overlaps it.
-    let inside = (0..3).all(|k| t.lo[k] >= c[k] - half[k] && t.hi[k] <= c[k] + half[k]);
-    inside || triangle_overlaps_box(&t.v, c, half)
 }
 
 /// Calls `f` with the level-`h` code of every cell `t` overlaps (widened by the margin), by the
