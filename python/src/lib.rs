@@ -462,6 +462,7 @@ fn pack_options(
         ropes,
         occluders: false,
         updatable: false,
+        bounds: None,
     };
     opts.validate().map_err(to_py)?;
     Ok(opts)

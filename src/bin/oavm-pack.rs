@@ -77,6 +77,11 @@ struct Args {
     /// geometry in place. Not with --ropes, --occluders or --mem-budget.
     #[arg(long)]
     updatable: bool,
+    /// Fit the root cube to hold the box LO..HI as well as the mesh (X,Y,Z..X,Y,Z, world
+    /// units): room for later updates to move triangles into (oavm-update refuses triangles
+    /// outside the root cube).
+    #[arg(long, value_name = "X,Y,Z..X,Y,Z", value_parser = parse_box, allow_hyphen_values = true)]
+    bounds: Option<([f32; 3], [f32; 3])>,
     /// Print the report as one JSON object.
     #[arg(long)]
     json: bool,
@@ -106,6 +111,7 @@ fn main() -> ExitCode {
             ropes: args.ropes,
             occluders: args.occluders,
             updatable: args.updatable,
+            bounds: args.bounds,
         };
         let progress = cli::Progress::new(std::io::stderr().is_terminal());
         let report = cli::with_threads(args.threads, || {
@@ -118,6 +124,19 @@ fn main() -> ExitCode {
             cli::print_text(&human(&report))
         }
     })
+}
+
+/// Parses `X,Y,Z..X,Y,Z`: a box's lowest and highest corners.
+fn parse_box(s: &str) -> Result<([f32; 3], [f32; 3]), String> {
+    let (a, b) = s
+        .split_once("..")
+        .ok_or_else(|| format!("expected X,Y,Z..X,Y,Z, got {s:?}"))?;
+    let (lo, hi) = (cli::parse_vec3(a)?, cli::parse_vec3(b)?);
+    let f = |v: [f64; 3]| v.map(|c| c as f32);
+    if (0..3).any(|k| lo[k] > hi[k] || !(f(lo)[k].is_finite() && f(hi)[k].is_finite())) {
+        return Err(format!("{s:?}: the first corner must be below the second, per axis"));
+    }
+    Ok((f(lo), f(hi)))
 }
 
 fn human(r: &PackReport) -> String {

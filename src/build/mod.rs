@@ -27,6 +27,7 @@ mod spill;
 mod stats;
 mod streaming;
 mod subtree;
+pub mod update;
 pub(crate) mod subdivide;
 mod write;
 
@@ -190,10 +191,21 @@ pub fn build(
     opts: &BuildOptions,
     progress: &dyn Progress,
 ) -> Result<(TreeParts, BuildStats), Error> {
+    build_within(mesh, opts, None, progress)
+}
+
+/// [`build`] with the root cube fitted to hold `room` too (`lo`, `hi`: where the triangles
+/// may move later, [`PackOptions::bounds`]).
+pub fn build_within(
+    mesh: &Mesh,
+    opts: &BuildOptions,
+    room: Option<([f32; 3], [f32; 3])>,
+    progress: &dyn Progress,
+) -> Result<(TreeParts, BuildStats), Error> {
     opts.validate()?;
     let t0 = Instant::now();
     progress.phase("preparing triangles", None, false);
-    let p = prepare::prepare(mesh)?;
+    let p = prepare::prepare_within(mesh, room)?;
 
     progress.phase("subdividing", None, false);
     let params = SubdivideParams {

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::{BuildOptions, BuildStats, Progress, build, streaming, write};
+use super::{BuildOptions, BuildStats, Progress, streaming, write};
 use crate::error::Error;
 use crate::mesh::Mesh;
 use crate::output::Output;
@@ -33,6 +33,10 @@ pub struct PackOptions {
     /// Store the primitive table (format-spec §8.6: every input triangle's corners by
     /// primitive id, 36 bytes each), which `oavm-update` needs to find what changed.
     pub updatable: bool,
+    /// Fit the root cube to hold this box (`lo`, `hi`, world units) as well as the mesh: room
+    /// for later updates to move triangles into (an update refuses geometry outside the root
+    /// cube). In memory only.
+    pub bounds: Option<([f32; 3], [f32; 3])>,
 }
 
 impl PackOptions {
@@ -48,10 +52,17 @@ impl PackOptions {
                     .into(),
             ));
         }
-        if self.updatable && self.mem_budget.is_some() {
+        if let Some((lo, hi)) = self.bounds
+            && !(0..3).all(|k| lo[k].is_finite() && hi[k].is_finite() && lo[k] <= hi[k])
+        {
+            return Err(Error::Invalid(format!(
+                "--bounds {lo:?}..{hi:?}: corners must be finite, the first below the second"
+            )));
+        }
+        if (self.updatable || self.bounds.is_some()) && self.mem_budget.is_some() {
             return Err(Error::Invalid(
-                "--updatable with --mem-budget: the streaming pack does not write the \
-                 primitive table yet; pack in memory"
+                "--updatable or --bounds with --mem-budget: the streaming pack does not \
+                 write the primitive table or take bounds yet; pack in memory"
                     .into(),
             ));
         }
@@ -184,10 +195,10 @@ fn pack_without_ropes(
         (None, Some(_)) => None,
     };
     if let Some(budget) = budget {
-        if opts.updatable {
+        if opts.updatable || opts.bounds.is_some() {
             return Err(Error::Invalid(format!(
                 "{}: too large to build in memory ({} bytes available), and the streaming \
-                 pack does not write the primitive table --updatable needs yet",
+                 pack does not write the primitive table --updatable needs, nor take --bounds, yet",
                 mesh_path.display(),
                 crate::os::available_memory().unwrap_or(0)
             )));
@@ -279,7 +290,7 @@ fn pack_built(
     progress: &dyn Progress,
     t0: Instant,
 ) -> Result<PackReport, Error> {
-    let (parts, stats) = build(&mesh, &opts.build, progress)?;
+    let (parts, stats) = super::build_within(&mesh, &opts.build, opts.bounds, progress)?;
     let prims = opts.updatable.then(|| super::prims::prim_records(&mesh));
     drop(mesh);
 

@@ -20,6 +20,15 @@ pub(super) struct Prepared {
 /// Validates the mesh, drops degenerate triangles, fits the root cube and maps the triangles
 /// into the lattice.
 pub(super) fn prepare(mesh: &Mesh) -> Result<Prepared, Error> {
+    prepare_within(mesh, None)
+}
+
+/// [`prepare`], with the root cube fitted to the union of the triangles' bounds and `room`
+/// (`lo`, `hi`; room for the triangles to move into later, `oavm-pack --bounds`).
+pub(super) fn prepare_within(
+    mesh: &Mesh,
+    room: Option<([f32; 3], [f32; 3])>,
+) -> Result<Prepared, Error> {
     if mesh.triangles.is_empty() {
         return Err(Error::Invalid("the mesh has no triangles".into()));
     }
@@ -69,7 +78,13 @@ pub(super) fn prepare(mesh: &Mesh) -> Result<Prepared, Error> {
         records.iter().flat_map(|r| r.v.iter()).for_each(&mut grow);
     }
 
-    let (root_min, root_size) = root_cube(lo, hi);
+    let (root_min, root_size) = match room {
+        Some((a, b)) => root_cube(
+            std::array::from_fn(|k| lo[k].min(a[k])),
+            std::array::from_fn(|k| hi[k].max(b[k])),
+        ),
+        None => root_cube(lo, hi),
+    };
     check_scale(root_size)?;
     let scale = LATTICE_SIZE as f64 / root_size;
 

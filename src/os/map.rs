@@ -119,11 +119,19 @@ impl MappedFile {
     /// past the file's end, or its size or change time differs now. One `fstat`; call it after
     /// using the bytes, before trusting what they gave.
     pub fn check_unchanged(&self) -> Result<(), Changed> {
+        self.check_unchanged_unless(|_| false)
+    }
+
+    /// [`Self::check_unchanged`], except that a file that grew (or kept its size) is
+    /// unchanged if `appended(file)` says the change was one that leaves the mapped bytes a
+    /// reader uses as they were (an `.oavm` update, which appends a generation).
+    pub fn check_unchanged_unless(&self, appended: impl Fn(&File) -> bool) -> Result<(), Changed> {
         if self.guard.as_ref().is_some_and(Registration::faulted) {
             return Err(Changed);
         }
         match self.file.metadata() {
             Ok(meta) if Stamp::of(&meta) == self.stamp => Ok(()),
+            Ok(meta) if meta.len() >= self.stamp.len && appended(&self.file) => Ok(()),
             _ => Err(Changed),
         }
     }

@@ -37,7 +37,7 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
         }
         let bytes = data.as_ref();
         let read = |slot: usize| -> Result<_, FormatError> {
-            let header = read_header(bytes, slot)?;
+            let header = read_header(bytes, slot, bytes.len() as u64)?;
             let sections = read_section_table(bytes, &header, slot)?;
             let levels = read_levels(bytes, &header, &sections)?;
             Ok((header, sections, levels))
@@ -164,8 +164,26 @@ fn table_err(what: impl Into<String>) -> FormatError {
     FormatError::SectionTable(what.into())
 }
 
-/// Reads and checks the header in slot `slot` (spec §2, §2.1).
-fn read_header(file: &[u8], slot: usize) -> Result<Header, FormatError> {
+/// Whether an update wrote a generation newer than `generation` to the file `f` (spec §2.1):
+/// one of its header slots holds a valid header of a later generation. What a reader of
+/// `generation` asks when the file's size or change time moved: an update only appends and
+/// writes the other slot, so the bytes it reads are as they were.
+pub fn newer_generation_written(f: &std::fs::File, generation: u64) -> bool {
+    use std::os::unix::fs::FileExt;
+    let Ok(len) = f.metadata().map(|m| m.len()) else {
+        return false;
+    };
+    let mut first = vec![0u8; DATA_START.min(len) as usize];
+    if f.read_exact_at(&mut first, 0).is_err() {
+        return false;
+    }
+    (0..HEADER_SLOTS.len())
+        .any(|slot| read_header(&first, slot, len).is_ok_and(|h| h.generation > generation))
+}
+
+/// Reads and checks the header in slot `slot` (spec §2, §2.1) of a file whose first bytes
+/// are `file` (all of it, or at least its header slots) and whose length is `file_len`.
+fn read_header(file: &[u8], slot: usize, file_len: u64) -> Result<Header, FormatError> {
     let at = HEADER_SLOTS[slot] as usize;
     let bytes = file.get(at..).unwrap_or(&[]);
     let need = std::mem::size_of::<Header>();
@@ -213,12 +231,11 @@ fn read_header(file: &[u8], slot: usize) -> Result<Header, FormatError> {
             header.generation
         )));
     }
-    if header.file_size > file.len() as u64 {
+    if header.file_size > file_len {
         return Err(header_err(format!(
-            "the header records a file of at least {} bytes but the file has {} bytes \
+            "the header records a file of at least {} bytes but the file has {file_len} bytes \
              (truncated)",
             header.file_size,
-            file.len()
         )));
     }
     if header.flags & !KNOWN_FLAGS != 0 {

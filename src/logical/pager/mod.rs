@@ -149,6 +149,12 @@ pub trait BlockSource: Sync {
     fn check_unchanged(&self) -> Result<(), Changed> {
         Ok(())
     }
+    /// [`Self::check_unchanged`] for a reader of `generation` (format-spec §2.1): an update
+    /// that appended a later generation changed none of the bytes it reads.
+    fn check_unchanged_at(&self, generation: u64) -> Result<(), Changed> {
+        let _ = generation;
+        self.check_unchanged()
+    }
 }
 
 /// Bytes held in memory (tests, files built in memory): the hints do nothing.
@@ -173,6 +179,11 @@ impl BlockSource for MappedFile {
     }
     fn check_unchanged(&self) -> Result<(), Changed> {
         MappedFile::check_unchanged(self)
+    }
+    fn check_unchanged_at(&self, generation: u64) -> Result<(), Changed> {
+        self.check_unchanged_unless(|f| {
+            crate::physical::newer_generation_written(f, generation)
+        })
     }
 }
 

@@ -1,0 +1,963 @@
+//! Local updates of a file in place (the OAVM paper's §3, written as a new generation,
+//! format-spec §2.1): triangles inserted, removed or moved, by primitive id, and only the
+//! subtrees they touch rebuilt.
+//!
+//! **What is rebuilt.** A changed triangle is looked up where it was (the primitive table,
+//! spec §8.6, holds its old corners) and where it goes, by a descent of the top tree through
+//! every node whose widened cell it overlaps (the builder's exact test). It meets links (their
+//! blocks are rebuilt) and, where it goes, empty leaves of the top tree (they become subtrees).
+//! Each root of an affected block is built again from the triangles its block stores (minus
+//! the changed ones) that overlap its cell, plus the changed triangles that now do; an empty
+//! top-tree leaf from the changed triangles that reach it. Each such subtree is subdivided,
+//! merged and split into blocks exactly as a pack does ([`super::subtree`]), so inside it the
+//! paper's steps hold as they do in a fresh build: a solid node that turned empty merges with
+//! its empty siblings, and upward through type-1 nodes to the first type-2 node; an empty node
+//! that turned solid leaves its volume, whose siblings' volumes are recomputed. Above the
+//! blocks, the top tree is resident and small: its empty leaves' volumes are merged again as a
+//! whole, which carries the same steps across the top (a block root that turned empty is an
+//! empty leaf of the top tree, merged with its siblings and upward). Every other block is left
+//! where it is, byte for byte.
+//!
+//! **What is written.** A new generation: the new blocks (into the directory entries the
+//! removed blocks freed, or appended to it) and the changed primitive chunks, appended after
+//! everything the file holds; then the directory, the top tree and the primitive chunk
+//! directory; synced; then the header in the other slot; synced ([`FileWriter::resume`]). A
+//! crash before the header is durable leaves the previous generation the file's; nothing the
+//! previous generation refers to is written over, so readers that opened it keep reading it.
+//!
+//! **Where the answers come from.** A ray's answer depends only on the triangles: the tree
+//! only decides which are tested. A fresh pack of the same triangles answers the same, bit for
+//! bit (the tests hold this).
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use bytemuck::Zeroable;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::blocks::{BlockParts, ClusterGeometry, TopKind, TopNode, assemble_top};
+use super::merge::{self, Merged};
+use super::subdivide::{BuildLevel, BuildNode, Lattice, LatticeTri, overlaps_cell};
+use super::subtree::{Subtree, build_subtree};
+use super::{BuildOptions, LeafKind, is_degenerate};
+use crate::error::Error;
+use crate::mapping::{LevelInfos, TreeMap};
+use crate::mesh::Mesh;
+use crate::os::MappedFile;
+use crate::physical::format::*;
+use crate::physical::writer::{
+    BlockOptions, DEFAULT_ZSTD_LEVEL, FileSink, FileWriter, StoredBlock, UnitRef, store_block,
+};
+use crate::physical::{BlockReader, BlockView, OavmFile};
+
+/// How an update stores the blocks it makes.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct UpdateOptions {
+    /// Target raw size of a new block (as `oavm-pack --block-size`).
+    pub block_size: u64,
+    /// zstd level of new blocks; `None`: [`DEFAULT_ZSTD_LEVEL`] if the file has compressed
+    /// blocks, else raw.
+    pub compress: Option<Option<i32>>,
+}
+
+impl UpdateOptions {
+    /// Whether the options are valid (the error says which is not).
+    pub fn validate(&self) -> Result<(), Error> {
+        BlockOptions {
+            block_size: self.block_size,
+            compress: self.compress.flatten(),
+        }
+        .validate()
+    }
+}
+
+impl Default for UpdateOptions {
+    fn default() -> Self {
+        UpdateOptions {
+            block_size: crate::physical::DEFAULT_BLOCK_SIZE,
+            compress: None,
+        }
+    }
+}
+
+/// What an update did.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct UpdateReport {
+    pub file: String,
+    /// The generation written, and the one before it.
+    pub generation: u64,
+    pub previous_generation: u64,
+    /// Primitives inserted, removed and moved (a primitive that stays degenerate is not
+    /// counted).
+    pub inserted: u64,
+    pub removed: u64,
+    pub moved: u64,
+    /// Blocks the changes reached (rebuilt and freed), of the blocks the file had.
+    pub blocks_rebuilt: u64,
+    pub blocks_before: u64,
+    /// Blocks written, and the file's blocks after.
+    pub blocks_written: u64,
+    pub blocks_after: u64,
+    /// Subtrees rebuilt: roots of the rebuilt blocks, and empty top-tree leaves that became
+    /// solid.
+    pub subtrees_rebuilt: u64,
+    pub empty_leaves_filled: u64,
+    /// Leaves and volumes of the rebuilt subtrees, before and after.
+    pub leaves_before: u64,
+    pub leaves_after: u64,
+    pub volumes_after: u64,
+    /// Top-tree empty leaves, before and after (their volumes are all merged again).
+    pub top_empty_before: u64,
+    pub top_empty_after: u64,
+    /// Primitive chunks written again.
+    pub prim_chunks_written: u64,
+    /// Bytes appended to the file (blocks, primitive chunks, the new directory and top tree)
+    /// and the header slot; the file's length after.
+    pub bytes_written: u64,
+    pub file_bytes: u64,
+    /// Seconds: finding the changes, rebuilding, writing (syncs included), in all.
+    pub diff_seconds: f64,
+    pub build_seconds: f64,
+    pub write_seconds: f64,
+    pub total_seconds: f64,
+}
+
+/// An update of one file: open it, say what changes (by primitive id, or a whole new mesh),
+/// then [`Updater::commit`]. The file is locked against other updaters from open to commit;
+/// readers are not locked out (they read the generation they opened).
+pub struct Updater {
+    path: PathBuf,
+    /// The file, open for writing and locked.
+    handle: std::fs::File,
+    file: OavmFile<MappedFile>,
+    /// Changed primitives: their new records ([`PrimRecord::ABSENT`]: removed).
+    edits: BTreeMap<u32, PrimRecord>,
+    /// Primitives after the update (`input_triangles`).
+    count: u64,
+    diff_seconds: f64,
+}
+
+fn invalid(path: &Path, what: impl std::fmt::Display) -> Error {
+    Error::Invalid(format!("{}: {what}", path.display()))
+}
+
+impl Updater {
+    /// Opens the file at `path` for an update: it must hold the primitive table (packed with
+    /// `--updatable`) and no ropes or occluders.
+    pub fn open(path: &Path) -> Result<Updater, Error> {
+        let handle = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(path)
+            .map_err(|e| Error::io(path, e))?;
+        handle.try_lock().map_err(|e| match e {
+            std::fs::TryLockError::WouldBlock => {
+                invalid(path, "another update holds the file (it is locked)")
+            }
+            std::fs::TryLockError::Error(e) => Error::io(path, e),
+        })?;
+        let map = MappedFile::open(path).map_err(|e| Error::io(path, e))?;
+        let file = OavmFile::open(map).map_err(|e| Error::format(path, e))?;
+        let h = file.header();
+        if h.flags & FLAG_PRIMS == 0 {
+            return Err(invalid(
+                path,
+                "the file has no primitive table (format-spec §8.6), which an update needs to \
+                 find what changed: pack it with `oavm-pack --updatable`",
+            ));
+        }
+        if h.flags & (FLAG_ROPES | FLAG_OCCLUDERS) != 0 {
+            return Err(invalid(
+                path,
+                "the file has ropes or occluders, which an update does not rebuild: pack it \
+                 without them",
+            ));
+        }
+        let count = h.input_triangles;
+        Ok(Updater {
+            path: path.to_owned(),
+            handle,
+            file,
+            edits: BTreeMap::new(),
+            count,
+            diff_seconds: 0.0,
+        })
+    }
+
+    /// The generation open.
+    pub fn generation(&self) -> u64 {
+        self.file.header().generation
+    }
+
+    /// Primitives the file will have (`input_triangles` after the update).
+    pub fn primitive_count(&self) -> u64 {
+        self.count
+    }
+
+    /// The stored record of primitive `prim` in the open generation (`None` past the table,
+    /// or where its chunk is damaged).
+    fn stored(&self, prim: u64) -> Option<PrimRecord> {
+        if prim >= self.file.header().input_triangles {
+            return None;
+        }
+        let chunks: &[PrimChunk] = self.file.records(SectionKind::Prims);
+        let ch = chunks.get((prim / PRIM_CHUNK) as usize)?;
+        let at = ch.offset as usize + (prim % PRIM_CHUNK) as usize * std::mem::size_of::<PrimRecord>();
+        let bytes = self
+            .file
+            .bytes()
+            .get(at..at + std::mem::size_of::<PrimRecord>())?;
+        Some(bytemuck::pod_read_unaligned(bytes))
+    }
+
+    /// Primitive `prim`'s corners as they will be (the edits over the open generation); `None`
+    /// where it holds no triangle.
+    pub fn triangle(&self, prim: u32) -> Option<[[f32; 3]; 3]> {
+        if prim as u64 >= self.count {
+            return None;
+        }
+        let r = match self.edits.get(&prim) {
+            Some(r) => *r,
+            None => self.stored(prim as u64)?,
+        };
+        (!r.is_absent()).then_some(r.v)
+    }
+
+    fn check_prim(&self, prim: u32) -> Result<(), Error> {
+        if prim as u64 >= self.count {
+            return Err(invalid(
+                &self.path,
+                format!("primitive {prim} is past the {} primitives", self.count),
+            ));
+        }
+        Ok(())
+    }
+
+    fn check_corners(&self, prim: u32, v: &[[f32; 3]; 3]) -> Result<(), Error> {
+        if v.iter().flatten().any(|c| !c.is_finite()) {
+            return Err(invalid(
+                &self.path,
+                format!("primitive {prim}: a corner is not finite"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Sets primitive `prim` to the triangle `v` (moved, or inserted where it held none).
+    pub fn set(&mut self, prim: u32, v: [[f32; 3]; 3]) -> Result<(), Error> {
+        self.check_prim(prim)?;
+        self.check_corners(prim, &v)?;
+        self.edits.insert(prim, PrimRecord { v });
+        Ok(())
+    }
+
+    /// Removes primitive `prim`'s triangle (its id stays, holding none).
+    pub fn remove(&mut self, prim: u32) -> Result<(), Error> {
+        self.check_prim(prim)?;
+        self.edits.insert(prim, PrimRecord::ABSENT);
+        Ok(())
+    }
+
+    /// Appends a triangle with the next primitive id, which it returns.
+    pub fn insert(&mut self, v: [[f32; 3]; 3]) -> Result<u32, Error> {
+        let prim = u32::try_from(self.count)
+            .map_err(|_| invalid(&self.path, "primitive ids are 32-bit"))?;
+        self.count += 1;
+        self.set(prim, v)?;
+        Ok(prim)
+    }
+
+    /// Applies `m` to the corners of every triangle of `prims` (an object that moved).
+    pub fn transform(
+        &mut self,
+        prims: std::ops::Range<u32>,
+        m: &glam::DAffine3,
+    ) -> Result<(), Error> {
+        for prim in prims {
+            if let Some(v) = self.triangle(prim) {
+                let t = v.map(|p| {
+                    let q = m.transform_point3(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+                    [q.x as f32, q.y as f32, q.z as f32]
+                });
+                self.set(prim, t)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Makes the file's triangles those of `mesh` (same primitive-id space: triangle `i` of the
+    /// mesh is primitive `i`; primitives past its end are removed, new ones inserted). Returns
+    /// how many primitives differ from the open generation.
+    pub fn set_mesh(&mut self, mesh: &Mesh) -> Result<u64, Error> {
+        let t0 = Instant::now();
+        let n = mesh.triangles.len() as u64;
+        if n > u32::MAX as u64 {
+            return Err(invalid(&self.path, "primitive ids are 32-bit"));
+        }
+        self.edits.clear();
+        let old = self.file.header().input_triangles;
+        self.count = n;
+        let changed: Vec<(u32, PrimRecord)> = (0..n.max(old))
+            .into_par_iter()
+            .filter_map(|p| {
+                let new = if p < n {
+                    PrimRecord {
+                        v: mesh.triangle(p as usize),
+                    }
+                } else {
+                    PrimRecord::ABSENT
+                };
+                let same = self.stored(p).is_some_and(|s| s.same_bits(&new));
+                (!same && p < n).then_some((p as u32, new))
+            })
+            .collect();
+        self.edits.extend(changed);
+        self.diff_seconds += t0.elapsed().as_secs_f64();
+        Ok(self.edits.len() as u64 + old.saturating_sub(n))
+    }
+
+    /// Writes the new generation (see the module's documentation).
+    pub fn commit(self, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
+        commit(self, opts)
+    }
+}
+
+/// A changed primitive: before and after ([`PrimRecord::ABSENT`]: none).
+#[derive(Clone, Copy)]
+struct Change {
+    prim: u32,
+    old: PrimRecord,
+    new: PrimRecord,
+}
+
+fn holds_triangle(r: &PrimRecord) -> bool {
+    !r.is_absent() && !is_degenerate(&r.v)
+}
+
+/// The top tree of the open generation, as nodes at their places.
+struct Top {
+    nodes: Vec<TopNode>,
+    /// (level, code) -> index in `nodes`.
+    at: HashMap<(u32, u64), usize>,
+    /// Each link's (level, code), by (block, root).
+    roots: HashMap<(u32, u32), (u32, u64)>,
+    /// Each link's bounds, by (block, root).
+    bounds: HashMap<(u32, u32), LinkBounds>,
+}
+
+fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
+    let levels = file.levels();
+    let infos = LevelInfos::new(levels, 0);
+    let records: &[NodeRecord] = file.records(SectionKind::Nodes);
+    let map = TreeMap::new(&infos, levels, records, file.records(SectionKind::Ranks));
+    let volumes: &[VolumeRecord] = file.records(SectionKind::Volumes);
+    let link_bounds: &[LinkBounds] = file.records(SectionKind::LinkBounds);
+    let mut top = Top {
+        nodes: Vec::new(),
+        at: HashMap::new(),
+        roots: HashMap::new(),
+        bounds: HashMap::new(),
+    };
+    let mut codes = vec![0u64];
+    for (l, e) in levels.iter().enumerate() {
+        let mut next = Vec::with_capacity(e.internal_count as usize * 8);
+        for (i, &code) in codes.iter().enumerate() {
+            let rec = map
+                .node(l as u32, i as u64)
+                .map_err(|e| invalid(path, format!("top tree: {e}")))?;
+            let kind = match rec.kind() {
+                Some(NodeKind::Internal) => {
+                    next.extend((0..8).map(|o| code << 3 | o));
+                    TopKind::Internal
+                }
+                Some(NodeKind::Empty { volume, shape }) => TopKind::Empty {
+                    volume: *volumes.get(volume as usize).ok_or_else(|| {
+                        invalid(path, format!("top tree: volume {volume} is out of range"))
+                    })?,
+                    shape,
+                },
+                Some(NodeKind::Link { block, root }) => {
+                    top.roots.insert((block, root), (l as u32, code));
+                    let index = e.node_start as usize + i;
+                    top.bounds.insert(
+                        (block, root),
+                        link_bounds.get(index).copied().unwrap_or_default(),
+                    );
+                    TopKind::Link { block, root }
+                }
+                _ => return Err(invalid(path, format!("top tree: bad node at level {l}"))),
+            };
+            top.at.insert((l as u32, code), top.nodes.len());
+            top.nodes.push(TopNode {
+                level: l as u32,
+                code,
+                kind,
+            });
+        }
+        codes = next;
+    }
+    Ok(top)
+}
+
+/// Where a triangle reaches the top tree: the blocks it overlaps, and the links and empty
+/// leaves (by node index) it overlaps.
+fn descend(top: &Top, t: &LatticeTri, out: &mut Vec<usize>) {
+    let mut stack = vec![(0u32, 0u64)];
+    while let Some((level, code)) = stack.pop() {
+        let Some(&i) = top.at.get(&(level, code)) else {
+            continue;
+        };
+        if level > 0 && !overlaps_cell(t, code, level) {
+            continue;
+        }
+        match top.nodes[i].kind {
+            TopKind::Internal => stack.extend((0..8).map(|o| (level + 1, code << 3 | o))),
+            _ => out.push(i),
+        }
+    }
+}
+
+/// A subtree to build: its root, and its triangles.
+struct Job {
+    level: u32,
+    code: u64,
+    records: Vec<TriRecord>,
+}
+
+/// What the blocks an update removes held.
+#[derive(Default)]
+struct Removed {
+    empty: u64,
+    solid: u64,
+    /// The triangles of each block, by block.
+    triangles: HashMap<u32, Vec<TriRecord>>,
+}
+
+/// The distinct triangles a decoded block stores, and its leaf counts.
+fn block_triangles(view: &BlockView<'_>) -> (Vec<TriRecord>, u64, u64) {
+    let mut seen = HashSet::new();
+    let mut out = Vec::new();
+    for t in view.triangles {
+        if seen.insert(t.prim) {
+            out.push(*t);
+        }
+    }
+    for g in view.groups {
+        for l in 0..(g.count as usize).min(GROUP_LANES) {
+            if seen.insert(g.prim[l]) {
+                out.push(TriRecord {
+                    v: g.triangle(l),
+                    prim: g.prim[l],
+                });
+            }
+        }
+    }
+    let (mut empty, mut solid) = (0, 0);
+    for n in view.nodes {
+        match n.kind_bits() {
+            KIND_EMPTY => empty += 1,
+            KIND_SOLID => solid += 1,
+            _ => {}
+        }
+    }
+    (out, empty, solid)
+}
+
+fn leaf_counts(unit: UnitRef<'_>) -> (u64, u64) {
+    let (mut empty, mut solid) = (0, 0);
+    for n in unit.nodes {
+        match n.kind_bits() {
+            KIND_EMPTY => empty += 1,
+            KIND_SOLID => solid += 1,
+            _ => {}
+        }
+    }
+    (empty, solid)
+}
+
+fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
+    let t0 = Instant::now();
+    let path = u.path.clone();
+    let file = &u.file;
+    let header = *file.header();
+    let mut report = UpdateReport {
+        file: path.display().to_string(),
+        previous_generation: header.generation,
+        generation: header.generation + 1,
+        blocks_before: header.block_count,
+        diff_seconds: u.diff_seconds,
+        ..UpdateReport::default()
+    };
+
+    // 1. The changes, old and new, and where they may be.
+    let old_count = header.input_triangles;
+    let mut changes: Vec<Change> = u
+        .edits
+        .iter()
+        .map(|(&prim, &new)| Change {
+            prim,
+            old: u.stored(prim as u64).unwrap_or(PrimRecord::ABSENT),
+            new,
+        })
+        .filter(|c| !c.old.same_bits(&c.new))
+        .collect();
+    for prim in u.count..old_count {
+        changes.push(Change {
+            prim: prim as u32,
+            old: u.stored(prim).unwrap_or(PrimRecord::ABSENT),
+            new: PrimRecord::ABSENT,
+        });
+    }
+    let lattice = Lattice::of_root(header.root_min, header.root_size);
+    let top_size = LATTICE_SIZE as f64;
+    for c in &changes {
+        if holds_triangle(&c.new) {
+            let t = lattice.map(&c.new.v);
+            if (0..3).any(|k| t.lo[k] <= 0.0 || t.hi[k] >= top_size) {
+                return Err(invalid(
+                    &path,
+                    format!(
+                        "primitive {} moves to {:?}, outside the file's root cube (min {:?}, \
+                         edge {}): pack the scene again over bounds that hold all its frames",
+                        c.prim, c.new.v, header.root_min, header.root_size
+                    ),
+                ));
+            }
+        }
+        match (holds_triangle(&c.old), holds_triangle(&c.new)) {
+            (false, true) => report.inserted += 1,
+            (true, false) => report.removed += 1,
+            (true, true) => report.moved += 1,
+            (false, false) => {}
+        }
+    }
+    let top = read_top(file, &path)?;
+    let changed: HashSet<u32> = changes.iter().map(|c| c.prim).collect();
+
+    // 2. Where the changes reach: blocks to rebuild (old or new triangle overlaps a root), and
+    // the new triangles by link or empty leaf.
+    let reached: Vec<(Vec<usize>, Vec<(usize, TriRecord)>)> = changes
+        .par_chunks(1024)
+        .map(|cs| {
+            let mut nodes = Vec::new();
+            let mut news = Vec::new();
+            let mut buf = Vec::new();
+            for c in cs {
+                if holds_triangle(&c.old) {
+                    buf.clear();
+                    descend(&top, &lattice.map(&c.old.v), &mut buf);
+                    nodes.extend(
+                        buf.iter()
+                            .filter(|&&i| matches!(top.nodes[i].kind, TopKind::Link { .. })),
+                    );
+                }
+                if holds_triangle(&c.new) {
+                    buf.clear();
+                    descend(&top, &lattice.map(&c.new.v), &mut buf);
+                    let rec = TriRecord {
+                        v: c.new.v,
+                        prim: c.prim,
+                    };
+                    news.extend(buf.iter().map(|&i| (i, rec)));
+                }
+            }
+            (nodes, news)
+        })
+        .collect();
+    let mut blocks: HashSet<u32> = HashSet::new();
+    let mut filled: HashSet<usize> = HashSet::new();
+    let mut new_at: HashMap<usize, Vec<TriRecord>> = HashMap::new();
+    for (nodes, news) in reached {
+        for i in nodes {
+            if let TopKind::Link { block, .. } = top.nodes[i].kind {
+                blocks.insert(block);
+            }
+        }
+        for (i, rec) in news {
+            match top.nodes[i].kind {
+                TopKind::Link { block, .. } => {
+                    blocks.insert(block);
+                }
+                _ => {
+                    filled.insert(i);
+                }
+            }
+            new_at.entry(i).or_default().push(rec);
+        }
+    }
+    let mut blocks: Vec<u32> = blocks.into_iter().collect();
+    blocks.sort_unstable();
+    report.diff_seconds += t0.elapsed().as_secs_f64();
+
+    // 3. The subtrees to build: every root of every reached block, every empty leaf reached.
+    let t1 = Instant::now();
+    let directory = file.directory();
+    let reader = BlockReader::new(file);
+    let decoded: Vec<(u32, Vec<TriRecord>, u64, u64)> = blocks
+        .par_iter()
+        .map(|&b| {
+            let e = directory
+                .get(b as usize)
+                .ok_or_else(|| invalid(&path, format!("a link to block {b}, past the directory")))?;
+            let raw = reader
+                .read(file.bytes(), b, e)
+                .map_err(|err| invalid(&path, err))?;
+            let view =
+                BlockView::parse(&raw, b, e).map_err(|w| invalid(&path, format!("block {b}: {w}")))?;
+            let (tris, empty, solid) = block_triangles(&view);
+            Ok((b, tris, empty, solid))
+        })
+        .collect::<Result<_, Error>>()?;
+    let mut removed = Removed::default();
+    for (b, tris, empty, solid) in decoded {
+        removed.empty += empty;
+        removed.solid += solid;
+        removed.triangles.insert(b, tris);
+    }
+    report.leaves_before = removed.empty + removed.solid;
+    let mut jobs: Vec<Job> = Vec::new();
+    let mut replaced: HashSet<usize> = HashSet::new();
+    for &b in &blocks {
+        let count = directory[b as usize].root_count;
+        let old = &removed.triangles[&b];
+        for root in 0..count {
+            let &(level, code) = top
+                .roots
+                .get(&(b, root))
+                .ok_or_else(|| invalid(&path, format!("root {root} of block {b} is not linked")))?;
+            let i = top.at[&(level, code)];
+            replaced.insert(i);
+            let mut records: Vec<TriRecord> = old
+                .par_iter()
+                .filter(|t| !changed.contains(&t.prim))
+                .filter(|t| overlaps_cell(&lattice.map(&t.v), code, level))
+                .copied()
+                .collect();
+            records.extend(new_at.get(&i).into_iter().flatten());
+            jobs.push(Job {
+                level,
+                code,
+                records,
+            });
+        }
+    }
+    report.subtrees_rebuilt = jobs.len() as u64;
+    for &i in &filled {
+        replaced.insert(i);
+        let n = top.nodes[i];
+        jobs.push(Job {
+            level: n.level,
+            code: n.code,
+            records: new_at.remove(&i).unwrap_or_default(),
+        });
+    }
+    report.empty_leaves_filled = filled.len() as u64;
+    report.subtrees_rebuilt += filled.len() as u64;
+    for j in &mut jobs {
+        j.records.sort_unstable_by_key(|r| r.prim);
+        j.records.dedup_by_key(|r| r.prim);
+    }
+    let build = BuildOptions {
+        max_depth: header.max_depth,
+        leaf_size: header.leaf_size,
+        merge: header.flags & FLAG_MERGED != 0,
+        leaf: if header.flags & FLAG_CLUSTERS != 0 {
+            LeafKind::Cluster
+        } else {
+            LeafKind::List
+        },
+    };
+    let clusters = (build.leaf == LeafKind::Cluster).then_some(ClusterGeometry {
+        root_min: header.root_min,
+        root_size: header.root_size,
+    });
+    let built: Vec<Subtree> = jobs
+        .par_iter()
+        .map(|j| {
+            build_subtree(
+                &j.records,
+                j.level,
+                j.code,
+                &lattice,
+                &build,
+                opts.block_size,
+                0,
+                clusters.as_ref(),
+            )
+        })
+        .collect::<Result<_, Error>>()?;
+    drop(jobs);
+
+    // 4. Block ids: the freed entries first (lowest first), then new ones.
+    let mut free: Vec<u32> = blocks.clone();
+    free.extend(
+        directory
+            .iter()
+            .enumerate()
+            .filter(|(_, e)| e.is_free())
+            .map(|(b, _)| b as u32),
+    );
+    free.sort_unstable();
+    free.dedup();
+    let mut free = free.into_iter();
+    let mut next_id = directory.len() as u32;
+    let mut new_blocks: Vec<BlockParts> = Vec::new();
+    let mut top_nodes: Vec<TopNode> = top
+        .nodes
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !replaced.contains(i))
+        .map(|(_, n)| *n)
+        .collect();
+    let mut level_end = header.level_count;
+    for s in built {
+        let ids: Vec<u32> = s
+            .split
+            .blocks
+            .iter()
+            .map(|_| {
+                free.next().unwrap_or_else(|| {
+                    next_id += 1;
+                    next_id - 1
+                })
+            })
+            .collect();
+        for mut n in s.split.top {
+            if let TopKind::Link { block, root } = n.kind {
+                n.kind = TopKind::Link {
+                    block: ids[block as usize],
+                    root,
+                };
+            }
+            top_nodes.push(n);
+        }
+        for (mut b, id) in s.split.blocks.into_iter().zip(ids) {
+            b.id = id;
+            new_blocks.push(b);
+        }
+        level_end = level_end.max(s.level_end);
+    }
+    let (mut added_empty, mut added_solid) = (0u64, 0u64);
+    for b in &new_blocks {
+        let (empty, solid) = leaf_counts(b.unit.as_ref());
+        added_empty += empty;
+        added_solid += solid;
+        report.volumes_after += b.unit.volumes.len() as u64;
+    }
+    report.leaves_after = added_empty + added_solid;
+
+    // 5. The top tree's empty leaves merged again, as a whole.
+    let top_empty_before = top
+        .nodes
+        .iter()
+        .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
+        .count() as u64;
+    remerge_top(&mut top_nodes, build.merge);
+    let top_empty_after = top_nodes
+        .iter()
+        .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
+        .count() as u64;
+    report.top_empty_before = top_empty_before;
+    report.top_empty_after = top_empty_after;
+    let top_unit = assemble_top(top_nodes)?;
+    report.build_seconds = t1.elapsed().as_secs_f64();
+
+    // 6. The new generation.
+    let t2 = Instant::now();
+    let compress = match opts.compress {
+        Some(c) => c,
+        None => (header.flags & FLAG_COMPRESSED != 0).then_some(DEFAULT_ZSTD_LEVEL),
+    };
+    let block_opts = BlockOptions {
+        block_size: opts.block_size,
+        compress,
+    };
+    let mut dir: Vec<BlockEntry> = directory.to_vec();
+    let mut bounds: Vec<Vec<LinkBounds>> = dir
+        .iter()
+        .enumerate()
+        .map(|(b, e)| {
+            (0..if e.is_free() { 0 } else { e.root_count })
+                .map(|r| top.bounds.get(&(b as u32, r)).copied().unwrap_or_default())
+                .collect()
+        })
+        .collect();
+    for &b in &blocks {
+        dir[b as usize] = BlockEntry::zeroed();
+        bounds[b as usize].clear();
+    }
+    let start = std::fs::metadata(&path)
+        .map_err(|e| Error::io(&path, e))?
+        .len()
+        .next_multiple_of(RAW_BLOCK_ALIGN);
+    let io = |e: std::io::Error| Error::io(&path, e);
+    let mut handle = u.handle.try_clone().map_err(io)?;
+    {
+        use std::io::Seek;
+        handle.seek(std::io::SeekFrom::Start(start)).map_err(io)?;
+    }
+    let chunks: Vec<PrimChunk> = file.records::<PrimChunk>(SectionKind::Prims).to_vec();
+    let mut w = FileWriter::resume(
+        FileSink::new(handle),
+        start,
+        report.generation,
+        dir,
+        bounds,
+        Some(chunks),
+    )
+    .map_err(io)?;
+    // Blocks in id order past the directory's end (a writer fills the directory in order).
+    new_blocks.sort_unstable_by_key(|b| b.id);
+    for batch in new_blocks.chunks(64) {
+        let stored: Vec<StoredBlock> = batch
+            .par_iter()
+            .map(|b| store_block(b.unit.as_ref(), b.root_level, b.id, &block_opts))
+            .collect::<Result<_, _>>()?;
+        for s in stored {
+            w.place(s).map_err(io)?;
+        }
+    }
+    report.blocks_written = new_blocks.len() as u64;
+    drop(new_blocks);
+
+    // The primitive chunks that changed, and the header's triangle counts and mesh bounds.
+    let new_count = u.count;
+    let mut touched: Vec<u64> = changes
+        .iter()
+        .filter(|c| (c.prim as u64) < new_count)
+        .map(|c| c.prim as u64 / PRIM_CHUNK)
+        .collect();
+    if new_count < old_count && !new_count.is_multiple_of(PRIM_CHUNK) {
+        touched.push(new_count / PRIM_CHUNK);
+    }
+    touched.sort_unstable();
+    touched.dedup();
+    for &c in &touched {
+        let lo = c * PRIM_CHUNK;
+        let hi = (lo + PRIM_CHUNK).min(new_count);
+        let records: Vec<PrimRecord> = (lo..hi)
+            .map(|p| match u.edits.get(&(p as u32)) {
+                Some(r) => *r,
+                None => u.stored(p).unwrap_or(PrimRecord::ABSENT),
+            })
+            .collect();
+        w.replace_prim_chunk(c as usize, &records).map_err(io)?;
+    }
+    w.truncate_prim_chunks(new_count.div_ceil(PRIM_CHUNK) as usize);
+    report.prim_chunks_written = touched.len() as u64;
+    w.trim_free();
+    report.blocks_after = w.block_count() as u64;
+
+    let mut stored_triangles = header.stored_triangles;
+    for c in &changes {
+        stored_triangles -= u64::from(holds_triangle(&c.old));
+        stored_triangles += u64::from(holds_triangle(&c.new));
+    }
+    let (mesh_min, mesh_max) = mesh_bounds(&u, &header, &changes);
+    // Leaves: the previous counts, less the removed blocks' and the top tree's empty leaves
+    // before, plus the new blocks' and the top tree's after.
+    let meta = Header {
+        input_triangles: new_count,
+        stored_triangles,
+        mesh_min,
+        mesh_max,
+        empty_leaves: header.empty_leaves - removed.empty - top_empty_before
+            + added_empty
+            + top_empty_after,
+        solid_leaves: header.solid_leaves - removed.solid + added_solid,
+        level_count: level_end.min(MAX_LEVEL + 1),
+        ..header
+    };
+    let (_, end) = w.finish(&meta, top_unit.as_ref()).map_err(io)?;
+    report.write_seconds = t2.elapsed().as_secs_f64();
+    report.file_bytes = std::fs::metadata(&path).map_err(io)?.len();
+    report.bytes_written = end - start + (std::mem::size_of::<Header>() as u64);
+    report.blocks_rebuilt = blocks.len() as u64;
+    report.total_seconds = report.diff_seconds + t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// The bounds of every stored triangle after the update: the previous bounds widened by the
+/// new triangles when no triangle that left touched them, else a pass over the whole table.
+fn mesh_bounds(u: &Updater, header: &Header, changes: &[Change]) -> ([f32; 3], [f32; 3]) {
+    let inside = |v: &[[f32; 3]; 3]| {
+        v.iter()
+            .all(|p| (0..3).all(|k| p[k] > header.mesh_min[k] && p[k] < header.mesh_max[k]))
+    };
+    let grow = |(mut lo, mut hi): ([f32; 3], [f32; 3]), v: &[[f32; 3]; 3]| {
+        for p in v {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        (lo, hi)
+    };
+    let empty = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    let local = header.stored_triangles > 0
+        && changes
+            .iter()
+            .all(|c| !holds_triangle(&c.old) || inside(&c.old.v));
+    let (lo, hi) = if local {
+        changes
+            .iter()
+            .filter(|c| holds_triangle(&c.new))
+            .fold((header.mesh_min, header.mesh_max), |b, c| grow(b, &c.new.v))
+    } else {
+        (0..u.count)
+            .into_par_iter()
+            .filter_map(|p| {
+                let r = match u.edits.get(&(p as u32)) {
+                    Some(r) => *r,
+                    None => u.stored(p)?,
+                };
+                holds_triangle(&r).then_some(r)
+            })
+            .fold(|| empty, |b, r| grow(b, &r.v))
+            .reduce(
+                || empty,
+                |a, b| {
+                    (
+                        std::array::from_fn(|k| a.0[k].min(b.0[k])),
+                        std::array::from_fn(|k| a.1[k].max(b.1[k])),
+                    )
+                },
+            )
+    };
+    if lo[0] > hi[0] {
+        // No triangle left: the bounds of nothing, as a pack of degenerate triangles has.
+        return (header.root_min.map(|c| c as f32), header.root_min.map(|c| c as f32));
+    }
+    (lo, hi)
+}
+
+/// Merges the top tree's empty leaves again (spec §5): links count as solid.
+fn remerge_top(nodes: &mut [TopNode], merge_on: bool) {
+    nodes.sort_unstable_by_key(|n| (n.level, n.code));
+    let mut levels: Vec<BuildLevel> = Vec::new();
+    let mut index: Vec<(usize, usize)> = Vec::with_capacity(nodes.len());
+    for n in nodes.iter() {
+        let l = n.level as usize;
+        while levels.len() <= l {
+            levels.push(BuildLevel {
+                codes: Vec::new(),
+                nodes: Vec::new(),
+            });
+        }
+        index.push((l, levels[l].nodes.len()));
+        levels[l].codes.push(n.code);
+        levels[l].nodes.push(match n.kind {
+            TopKind::Internal => BuildNode::Internal,
+            TopKind::Empty { .. } => BuildNode::Leaf(Vec::new()),
+            TopKind::Link { .. } => BuildNode::Leaf(vec![0]),
+        });
+    }
+    let boxes = merge::merge_volumes(&levels, merge_on);
+    for (n, &(l, i)) in nodes.iter_mut().zip(&index) {
+        if let (TopKind::Empty { .. }, Some(Merged { volume, shape })) = (n.kind, boxes[l][i]) {
+            n.kind = TopKind::Empty { volume, shape };
+        }
+    }
+}
