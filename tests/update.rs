@@ -322,3 +322,73 @@ fn refused_updates_leave_the_file_as_it_was() {
     assert!(std::fs::read(&file).unwrap() == bytes);
     assert!(Updater::open(&file).is_ok());
 }
+
+/// An update only appends and writes the other header slot (format-spec §2.1): every byte of
+/// the previous generation is as it was. A crash can leave any prefix of the appended bytes,
+/// or a torn header slot: each such file opens as the previous generation (or, once the slot is
+/// whole, the new one), verifies, and answers as it; a later update works on it.
+#[test]
+fn interrupted_updates_leave_a_readable_generation() {
+    let mesh = common::load_shared("bunny/bun_zipper.ply");
+    let bounds = common::bounds(&mesh);
+    let dir = TempDir::new().unwrap();
+    let file = dir.path().join("bunny.oavm");
+    pack_mesh(&mesh, &file, true);
+    let old = std::fs::read(&file).unwrap();
+    let rays = ray_sets(&Scene::open(&file).unwrap(), &bounds);
+    let before = answers(&Scene::open(&file).unwrap(), &rays);
+    let mut moved = mesh.clone();
+    for p in moved.positions.iter_mut().filter(|p| p[1] > 0.1) {
+        p[0] += 0.003;
+    }
+    let mut u = Updater::open(&file).unwrap();
+    u.set_mesh(&moved).unwrap();
+    commit(u);
+    let new = std::fs::read(&file).unwrap();
+    let after = answers(&Scene::open(&file).unwrap(), &rays);
+    assert!(after != before);
+    let (slot, data) = (2048..4096, 4096..old.len());
+    assert!(old[slot.clone()].iter().all(|&b| b == 0));
+    assert!(new[..2048] == old[..2048], "slot 0 was written");
+    assert!(new[data.clone()] == old[data.clone()], "the previous generation's bytes changed");
+    assert!(new.len() > old.len());
+
+    let check = |bytes: &[u8], generation: u64, want: &(Vec<(u32, u32)>, Vec<u8>), what: &str| {
+        let p = dir.path().join("crashed.oavm");
+        std::fs::write(&p, bytes).unwrap();
+        let s = Scene::open(&p).unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert_eq!(s.file().header().generation, generation, "{what}");
+        let r = s.verify().unwrap();
+        assert!(r.is_ok(), "{what}: {:?}", r.defects);
+        assert!(answers(&s, &rays) == *want, "{what}: answers");
+        p
+    };
+    // Any prefix of the appended bytes, the slot not yet written.
+    let appended = old.len()..new.len();
+    for i in 0..12 {
+        let cut = appended.start + (appended.len() * i) / 11;
+        let mut b = new[..cut].to_vec();
+        b[slot.clone()].fill(0);
+        check(&b, 1, &before, &format!("appended bytes cut at {cut}"));
+    }
+    // All appended, the new slot torn after n bytes (the rest as it was: zero), or garbage.
+    for n in [1, 8, 100, 255, 256, 300, 600] {
+        let mut b = new.clone();
+        b[2048 + n..4096].fill(0);
+        check(&b, 1, &before, &format!("slot torn after {n} bytes"));
+    }
+    let mut b = new.clone();
+    b[2048 + 40] ^= 0x10;
+    check(&b, 1, &before, "slot with a flipped bit");
+    let p = check(&new, 2, &after, "the whole update");
+    // An update on a crashed file (appended bytes cut half way) works, after them.
+    let mut b = new[..appended.start + appended.len() / 2].to_vec();
+    b[slot].fill(0);
+    let p2 = check(&b, 1, &before, "half appended");
+    let mut u = Updater::open(&p2).unwrap();
+    u.set_mesh(&moved).unwrap();
+    let r = commit(u);
+    assert_eq!(r.generation, 2);
+    check(&std::fs::read(&p2).unwrap(), 2, &after, "updated after a crash");
+    let _ = p;
+}

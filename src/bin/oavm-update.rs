@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use oavm::build::update::{UpdateOptions, UpdateReport, Updater};
+use oavm::build::update::{CompactReport, UpdateOptions, UpdateReport, Updater, compact};
 
 /// Updates an .oavm file packed with `oavm-pack --updatable` to the triangles of MESH (the same
 /// primitive-id space: triangle i of the mesh is primitive i; a BART scene posed at --time),
@@ -19,8 +19,13 @@ use oavm::build::update::{UpdateOptions, UpdateReport, Updater};
 struct Args {
     /// The .oavm file to update (packed with --updatable).
     file: PathBuf,
-    /// The new geometry: .ply, .obj, or .aff (posed at --time).
-    mesh: PathBuf,
+    /// The new geometry: .ply, .obj, or .aff (posed at --time). Optional with --compact.
+    #[arg(required_unless_present = "compact")]
+    mesh: Option<PathBuf>,
+    /// Rewrite the file without what older generations left (after the update, if MESH is
+    /// given): a file of generation 1 replaces it atomically; readers of the old one keep it.
+    #[arg(long)]
+    compact: bool,
     /// Pose an animated .aff scene at this time.
     #[arg(long)]
     time: Option<f64>,
@@ -55,18 +60,48 @@ fn main() -> ExitCode {
         };
         opts.validate()?;
         let report = cli::with_threads(args.threads, || {
-            let mut u = Updater::open(&args.file)?;
-            let mesh = oavm::mesh::load_at(&args.mesh, args.time)?;
-            u.set_mesh(&mesh)?;
-            drop(mesh);
-            u.commit(&opts)
+            let update = match &args.mesh {
+                Some(mesh_path) => {
+                    let mut u = Updater::open(&args.file)?;
+                    let mesh = oavm::mesh::load_at(mesh_path, args.time)?;
+                    u.set_mesh(&mesh)?;
+                    drop(mesh);
+                    Some(u.commit(&opts)?)
+                }
+                None => None,
+            };
+            let compacted = match args.compact {
+                true => Some(compact(&args.file, &args.file)?),
+                false => None,
+            };
+            Ok(Report { update, compacted })
         })?;
         if args.json {
             cli::print_json(&report)
         } else {
-            cli::print_text(&human(&report))
+            let mut t = report.update.as_ref().map(human).unwrap_or_default();
+            if let Some(c) = &report.compacted {
+                t += &human_compact(c);
+            }
+            cli::print_text(&t)
         }
     })
+}
+
+/// What `oavm-update` did.
+#[derive(serde::Serialize)]
+struct Report {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    update: Option<UpdateReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    compacted: Option<CompactReport>,
+}
+
+fn human_compact(c: &CompactReport) -> String {
+    format!(
+        "{:<22} {} (generation {} -> 1): {} -> {} bytes, {} blocks, {} free entries dropped, {:.3} s\n",
+        "compacted", c.file, c.generation, c.bytes_before, c.bytes_after, c.blocks, c.free_entries, c.seconds
+    )
 }
 
 fn human(r: &UpdateReport) -> String {

@@ -19,6 +19,7 @@ pub(super) struct Prepared {
 
 /// Validates the mesh, drops degenerate triangles, fits the root cube and maps the triangles
 /// into the lattice.
+#[cfg(test)]
 pub(super) fn prepare(mesh: &Mesh) -> Result<Prepared, Error> {
     prepare_within(mesh, None)
 }

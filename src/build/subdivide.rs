@@ -14,6 +14,7 @@ use crate::mapping::morton::{MAX_LEVEL, cell_size};
 use crate::physical::format::CELL_MARGIN;
 
 /// A triangle in lattice coordinates, with its bounding box.
+#[derive(Clone, Copy, Debug)]
 pub struct LatticeTri {
     pub v: [[f64; 3]; 3],
     pub lo: [f64; 3],

@@ -10,7 +10,9 @@ use super::blocks::{ClusterGeometry, Split, partition};
 use super::layout::layout_from;
 use super::merge;
 use super::stats::TreeCounts;
-use super::subdivide::{self, Lattice, LatticeTri, SubdivideParams};
+use super::subdivide::{
+    self, BuildLevel, BuildNode, Lattice, LatticeTri, SubdivideParams, overlaps_cell,
+};
 use crate::error::Error;
 use crate::physical::format::TriRecord;
 
@@ -40,12 +42,69 @@ pub(crate) fn build_subtree(
     first_block: u32,
     clusters: Option<&ClusterGeometry>,
 ) -> Result<Subtree, Error> {
+    build_subtrees(
+        records,
+        level,
+        &[code],
+        lattice,
+        opts,
+        block_size,
+        first_block,
+        clusters,
+    )
+}
+
+/// [`build_subtree`] for several nodes of one level (`codes`, in Morton order) built together
+/// over the union of their triangles (`records`, sorted by primitive id; each root takes those
+/// that overlap its widened cell), so that consecutive roots are grouped into blocks as a pack
+/// groups them: what an update does with the roots of a block it rebuilds.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn build_subtrees(
+    records: &[TriRecord],
+    level: u32,
+    codes: &[u64],
+    lattice: &Lattice,
+    opts: &BuildOptions,
+    block_size: u64,
+    first_block: u32,
+    clusters: Option<&ClusterGeometry>,
+) -> Result<Subtree, Error> {
     let params = SubdivideParams {
         max_depth: opts.max_depth,
         leaf_size: opts.leaf_size,
     };
     let tris: Vec<LatticeTri> = records.par_iter().map(|r| lattice.map(&r.v)).collect();
-    let levels = subdivide::subdivide_from(&tris, level, code, params, &|_, _| {});
+    let levels = if let [code] = codes {
+        subdivide::subdivide_from(&tris, level, *code, params, &|_, _| {})
+    } else {
+        // Each root over its own triangles, its leaves' indices mapped back into `tris`, the
+        // roots' levels laid side by side (the mapping rule holds across them: a level's
+        // internal nodes, root after root, have their children in the same order below).
+        let mut levels: Vec<BuildLevel> = Vec::new();
+        for &code in codes {
+            let mine: Vec<u32> = (0..tris.len() as u32)
+                .filter(|&i| overlaps_cell(&tris[i as usize], code, level))
+                .collect();
+            let sub: Vec<LatticeTri> = mine.iter().map(|&i| tris[i as usize]).collect();
+            let built = subdivide::subdivide_from(&sub, level, code, params, &|_, _| {});
+            for (l, lv) in built.into_iter().enumerate() {
+                if levels.len() <= l {
+                    levels.push(BuildLevel {
+                        codes: Vec::new(),
+                        nodes: Vec::new(),
+                    });
+                }
+                levels[l].codes.extend(lv.codes);
+                levels[l].nodes.extend(lv.nodes.into_iter().map(|n| match n {
+                    BuildNode::Leaf(ids) => {
+                        BuildNode::Leaf(ids.into_iter().map(|i| mine[i as usize]).collect())
+                    }
+                    other => other,
+                }));
+            }
+        }
+        levels
+    };
     let boxes = merge::merge_volumes_from(&levels, level, opts.merge);
     let laid = layout_from(&levels, level, &boxes, records, &tris)?;
     drop((levels, boxes, tris));
@@ -55,7 +114,7 @@ pub(crate) fn build_subtree(
     let split = partition(
         laid.tree.as_ref(),
         level,
-        &[code],
+        codes,
         block_size,
         first_block,
         clusters,

@@ -40,7 +40,7 @@ use serde::Serialize;
 use super::blocks::{BlockParts, ClusterGeometry, TopKind, TopNode, assemble_top};
 use super::merge::{self, Merged};
 use super::subdivide::{BuildLevel, BuildNode, Lattice, LatticeTri, overlaps_cell};
-use super::subtree::{Subtree, build_subtree};
+use super::subtree::{Subtree, build_subtrees};
 use super::{BuildOptions, LeafKind, is_degenerate};
 use crate::error::Error;
 use crate::mapping::{LevelInfos, TreeMap};
@@ -147,17 +147,7 @@ impl Updater {
     /// Opens the file at `path` for an update: it must hold the primitive table (packed with
     /// `--updatable`) and no ropes or occluders.
     pub fn open(path: &Path) -> Result<Updater, Error> {
-        let handle = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .open(path)
-            .map_err(|e| Error::io(path, e))?;
-        handle.try_lock().map_err(|e| match e {
-            std::fs::TryLockError::WouldBlock => {
-                invalid(path, "another update holds the file (it is locked)")
-            }
-            std::fs::TryLockError::Error(e) => Error::io(path, e),
-        })?;
+        let handle = lock(path)?;
         let map = MappedFile::open(path).map_err(|e| Error::io(path, e))?;
         let file = OavmFile::open(map).map_err(|e| Error::format(path, e))?;
         let h = file.header();
@@ -419,10 +409,11 @@ fn descend(top: &Top, t: &LatticeTri, out: &mut Vec<usize>) {
     }
 }
 
-/// A subtree to build: its root, and its triangles.
+/// Subtrees to build together: their roots (one level, Morton order), and the triangles over
+/// them all.
 struct Job {
     level: u32,
-    code: u64,
+    codes: Vec<u64>,
     records: Vec<TriRecord>,
 }
 
@@ -621,35 +612,46 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     let mut replaced: HashSet<usize> = HashSet::new();
     for &b in &blocks {
         let count = directory[b as usize].root_count;
-        let old = &removed.triangles[&b];
+        let mut roots = Vec::with_capacity(count as usize);
         for root in 0..count {
             let &(level, code) = top
                 .roots
                 .get(&(b, root))
                 .ok_or_else(|| invalid(&path, format!("root {root} of block {b} is not linked")))?;
+            roots.push((level, code));
+        }
+        roots.sort_unstable_by_key(|r| r.1);
+        let Some(&(level, _)) = roots.first() else {
+            continue;
+        };
+        if roots.iter().any(|r| r.0 != level) {
+            return Err(invalid(&path, format!("block {b}: roots at different levels")));
+        }
+        // The block's triangles but the changed ones, and the changed ones that now reach one
+        // of its roots; each root takes those that overlap its cell.
+        let mut records: Vec<TriRecord> = removed.triangles[&b]
+            .iter()
+            .filter(|t| !changed.contains(&t.prim))
+            .copied()
+            .collect();
+        for &(level, code) in &roots {
             let i = top.at[&(level, code)];
             replaced.insert(i);
-            let mut records: Vec<TriRecord> = old
-                .par_iter()
-                .filter(|t| !changed.contains(&t.prim))
-                .filter(|t| overlaps_cell(&lattice.map(&t.v), code, level))
-                .copied()
-                .collect();
             records.extend(new_at.get(&i).into_iter().flatten());
-            jobs.push(Job {
-                level,
-                code,
-                records,
-            });
         }
+        report.subtrees_rebuilt += roots.len() as u64;
+        jobs.push(Job {
+            level,
+            codes: roots.iter().map(|r| r.1).collect(),
+            records,
+        });
     }
-    report.subtrees_rebuilt = jobs.len() as u64;
     for &i in &filled {
         replaced.insert(i);
         let n = top.nodes[i];
         jobs.push(Job {
             level: n.level,
-            code: n.code,
+            codes: vec![n.code],
             records: new_at.remove(&i).unwrap_or_default(),
         });
     }
@@ -676,10 +678,10 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     let built: Vec<Subtree> = jobs
         .par_iter()
         .map(|j| {
-            build_subtree(
+            build_subtrees(
                 &j.records,
                 j.level,
-                j.code,
+                &j.codes,
                 &lattice,
                 &build,
                 opts.block_size,
@@ -960,4 +962,118 @@ fn remerge_top(nodes: &mut [TopNode], merge_on: bool) {
             n.kind = TopKind::Empty { volume, shape };
         }
     }
+}
+
+/// What [`compact`] did.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct CompactReport {
+    pub file: String,
+    /// The generation compacted (the file written is generation 1).
+    pub generation: u64,
+    pub bytes_before: u64,
+    pub bytes_after: u64,
+    pub blocks: u64,
+    /// Free directory entries dropped.
+    pub free_entries: u64,
+    pub seconds: f64,
+}
+
+/// Writes the current generation of the file at `src` as a file of generation 1 at `dst`
+/// (atomically; `dst` may be `src`, replaced when complete): its live blocks one after another
+/// with new ids, the top tree linking to them, the primitive table in order; nothing of older
+/// generations. Readers of the old file keep its inode.
+pub fn compact(src: &Path, dst: &Path) -> Result<CompactReport, Error> {
+    let t0 = Instant::now();
+    // No update may run meanwhile: it would be lost when the compacted file replaces this one.
+    let held = lock(src)?;
+    let done = super::ropes::rewrite_file(src, dst, |file, sink| {
+        let h = *file.header();
+        let mut report = CompactReport {
+            file: dst.display().to_string(),
+            generation: h.generation,
+            bytes_before: file.bytes().len() as u64,
+            ..CompactReport::default()
+        };
+        let io = |e: std::io::Error| Error::io(dst, e);
+        let top = read_top(file, src)?;
+        let directory = file.directory();
+        let reader = BlockReader::new(file);
+        let mut ids: HashMap<u32, u32> = HashMap::new();
+        let mut w = FileWriter::new(sink).map_err(io)?;
+        for (b, e) in directory.iter().enumerate() {
+            if e.is_free() {
+                report.free_entries += 1;
+                continue;
+            }
+            let raw = reader
+                .read(file.bytes(), b as u32, e)
+                .map_err(|err| invalid(src, err))?;
+            let view = BlockView::parse(&raw, b as u32, e)
+                .map_err(|what| invalid(src, format!("block {b}: {what}")))?;
+            let id = w.block_count();
+            let opts = BlockOptions {
+                block_size: crate::physical::DEFAULT_BLOCK_SIZE,
+                compress: (e.codec != CODEC_RAW).then_some(DEFAULT_ZSTD_LEVEL),
+            };
+            let stored = store_block(UnitRef::from(&view), e.root_level, id, &opts)?;
+            w.push(stored).map_err(io)?;
+            ids.insert(b as u32, id);
+        }
+        report.blocks = ids.len() as u64;
+        let nodes: Vec<TopNode> = top
+            .nodes
+            .iter()
+            .map(|n| match n.kind {
+                TopKind::Link { block, root } => ids
+                    .get(&block)
+                    .map(|&block| TopNode {
+                        kind: TopKind::Link { block, root },
+                        ..*n
+                    })
+                    .ok_or_else(|| invalid(src, format!("a link to block {block}, which is free"))),
+                _ => Ok(*n),
+            })
+            .collect::<Result<_, Error>>()?;
+        let top_unit = assemble_top(nodes)?;
+        if h.flags & FLAG_PRIMS != 0 {
+            let mut records = Vec::with_capacity(h.input_triangles as usize);
+            let chunks: &[PrimChunk] = file.records(SectionKind::Prims);
+            for (c, ch) in chunks.iter().enumerate() {
+                let len = ch.count as usize * std::mem::size_of::<PrimRecord>();
+                let bytes = file
+                    .bytes()
+                    .get(ch.offset as usize..(ch.offset as usize).saturating_add(len))
+                    .filter(|b| checksum(b) == ch.checksum)
+                    .ok_or_else(|| invalid(src, format!("primitive chunk {c} is damaged")))?;
+                records.extend(
+                    bytes
+                        .chunks_exact(std::mem::size_of::<PrimRecord>())
+                        .map(bytemuck::pod_read_unaligned::<PrimRecord>),
+                );
+            }
+            w.push_prims(&records).map_err(io)?;
+        }
+        let (sink, size) = w.finish(&h, top_unit.as_ref()).map_err(io)?;
+        report.bytes_after = size;
+        report.seconds = t0.elapsed().as_secs_f64();
+        Ok((sink, size, report))
+    });
+    drop(held);
+    done
+}
+
+/// The file at `path`, open for writing and locked against other updaters (`flock`).
+fn lock(path: &Path) -> Result<std::fs::File, Error> {
+    let handle = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(path)
+        .map_err(|e| Error::io(path, e))?;
+    handle.try_lock().map_err(|e| match e {
+        std::fs::TryLockError::WouldBlock => {
+            invalid(path, "another update holds the file (it is locked)")
+        }
+        std::fs::TryLockError::Error(e) => Error::io(path, e),
+    })?;
+    Ok(handle)
 }
