@@ -345,7 +345,10 @@ fn extract(
         for (j, &i) in idx.iter().enumerate() {
             let rec = nodes[i as usize];
             if rec.kind() != Some(NodeKind::Internal) {
-                let shift = 3 * (MAX_LEVEL as usize - l);
+                // Codes are absolute: the leaf's lowest corner on the full lattice (shifting by
+                // the local level would drop the roots' own bits, which order a block of roots
+                // below the whole tree's root).
+                let shift = 3 * (MAX_LEVEL as usize - base_level as usize - l);
                 let code = codes[l][i as usize];
                 leaves.push((code << shift, d as u32, j as u32, code));
             }

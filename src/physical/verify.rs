@@ -45,7 +45,7 @@ impl Defects {
     }
 }
 
-/// Checks the header slots' zero bytes (spec §2.1), every section's checksum (but the blocks',
+/// Checks the zero bytes after the slot's section table (spec §2.1), every section's checksum (but the blocks',
 /// which carry their own), the zero padding between sections, and the buffer's alignment.
 /// Returns the sections checked.
 pub fn check_sections<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects) -> u32 {
@@ -54,23 +54,14 @@ pub fn check_sections<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects) -> u3
     let slot = file.slot();
     let table_end = header.section_table_offset
         + (SectionKind::count_for(header.flags) * std::mem::size_of::<SectionEntry>()) as u64;
-    // A file as packed has slot 1 all zero; an updated one holds the other generation's
-    // header there (or what an interrupted update left), which this generation does not read.
-    let slot_end = if header.generation == FIRST_GENERATION {
-        DATA_START
-    } else {
-        HEADER_SLOTS.get(slot + 1).copied().unwrap_or(DATA_START)
-    };
+    // The other slot is not this generation's: the previous generation's header, or what an
+    // interrupted update left there (in a file as packed, zero, or a torn first update).
+    let slot_end = HEADER_SLOTS.get(slot + 1).copied().unwrap_or(DATA_START);
     if let Some(pad) = bytes.get(table_end as usize..slot_end as usize)
         && pad.iter().any(|&b| b != 0)
     {
         d.push(format!(
-            "header slot {slot}: bytes {table_end}..{slot_end} after the section table are not zero{}",
-            if header.generation == FIRST_GENERATION && slot_end > HEADER_SLOTS[1] {
-                " (a generation-1 file has no second header)"
-            } else {
-                ""
-            }
+            "header slot {slot}: bytes {table_end}..{slot_end} after the section table are not zero"
         ));
     }
     let mut covered = None::<u64>;
