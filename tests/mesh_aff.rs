@@ -8,6 +8,7 @@ use std::collections::HashMap;
 use std::io;
 use std::path::{Path, PathBuf};
 
+use oavm::mesh::aff::AffMaterial;
 use oavm::mesh::{
     AffScene, LoadLimits, Mesh, MeshError, Place, load, load_aff, load_at, load_with, parse_aff,
     parse_aff_with,
@@ -75,6 +76,57 @@ fn kitchen_has_the_papers_counts_and_its_viewpoint() {
     // The file's start time is the default.
     let at0 = scene("kitchen/kitchen.aff", Some(0.0));
     assert_eq!(at0.mesh, s.mesh);
+}
+
+/// The kitchen's shading statements: its 27 distinct `fm` materials (after the default), the
+/// material of every triangle, the six coloured lights, the background and the ambient light.
+#[test]
+fn kitchen_keeps_its_materials_lights_and_background() {
+    let s = scene("kitchen/kitchen.aff", None);
+    assert_eq!(s.materials.len(), 28);
+    assert_eq!(s.materials[0], AffMaterial::DEFAULT);
+    assert_eq!(s.material_of.len(), s.mesh.triangles.len());
+    assert!(
+        s.material_of
+            .iter()
+            .all(|&m| (m as usize) < s.materials.len())
+    );
+    // Every triangle follows some `fm` (the scene sets one before its first primitive), and
+    // every material read is used but one: kitchen.aff's own `fm 0.6 0.4 0.2 ...`, which the
+    // car's include replaces before any primitive.
+    let mut used = vec![0usize; s.materials.len()];
+    for &m in &s.material_of {
+        used[m as usize] += 1;
+    }
+    let unused: Vec<usize> = (0..used.len()).filter(|&i| used[i] == 0).collect();
+    assert_eq!(unused, [0, 20], "{used:?}");
+    assert_eq!(s.materials[20].ambient, [0.6, 0.4, 0.2]);
+    // The glass (param_glass.aff: `fm 0.065 ... 20 0.85 1.55`) is transmissive and used.
+    let glass = s
+        .materials
+        .iter()
+        .position(|m| m.transmittance == 0.85 && m.ior == 1.55 && m.ambient == [0.065; 3])
+        .expect("the kitchen's glass");
+    assert!(used[glass] > 0);
+    assert_eq!(s.materials[glass].specular, [0.05; 3]);
+    assert_eq!(s.materials[glass].shine, 20.0);
+    // A mirror-like metal: `fm 0.05 0.05 0.05 0.0 0.0 0.0 0.90 0.90 0.90 97.4304 0.0 0.0`.
+    assert!(s.materials.iter().any(|m| m.specular == [0.9; 3]
+        && m.diffuse == [0.0; 3]
+        && m.shine == 97.4304
+        && m.transmittance == 0.0));
+    assert_eq!(s.light_colours.len(), s.lights.len());
+    assert_eq!(
+        s.light_colours,
+        vec![[0.3; 3], [0.3; 3], [0.3; 3], [0.3; 3], [0.4; 3], [0.4; 3]]
+    );
+    assert_eq!(s.lights[4], [4.35, 1.40, 1.00]);
+    assert_eq!(s.background, [0.5, 0.5, 1.0]);
+    assert_eq!(s.ambient, [2.5; 3]);
+    // Posed later, the same triangles keep the same materials.
+    let later = scene("kitchen/kitchen.aff", Some(10.0));
+    assert_eq!(later.material_of, s.material_of);
+    assert_eq!(later.materials, s.materials);
 }
 
 #[test]
@@ -457,6 +509,117 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+/// `fm` as the twelve numbers of a material, for comparisons.
+fn fm(m: &AffMaterial) -> Vec<f32> {
+    let mut v = [m.ambient, m.diffuse, m.specular].concat();
+    v.extend([m.shine, m.transmittance, m.ior]);
+    v
+}
+
+/// Each triangle takes the material current when its statement is read, in reading order
+/// across transforms and includes; equal materials share an entry; invisible triangles leave
+/// with their materials.
+#[test]
+fn materials_follow_the_triangles_in_reading_order() {
+    let files = [
+        (
+            "top.aff",
+            "p 3 0 0 0 1 0 0 0 1 0
+             f 1 0.5 0 0.5 0.25 10 0 1
+             p 4 0 0 1 1 0 1 1 1 1 0 1 1
+             xs 1 1 1 0 0 1 0 0 0 0 {
+               fm 0.1 0.2 0.3  0.4 0.5 0.6  0.7 0.8 0.9  20 0.5 1.5
+               x blink { p 3 0 0 2 1 0 2 0 1 2 }
+             }
+             p 3 0 0 3 1 0 3 0 1 3
+             i 0 sub.aff
+             m vertices 3 0 0 5 1 0 5 0 1 5 triangles 2 0 1 2 2 1 0
+             f 1 0.5 0 0.5 0.25 10 0 1
+             tpa 1 0  0 0 6 0 0 1  1 0 6 0 0 1  0 1 6 0 0 1
+             k blink { visibility 2  1 0  2 1 }
+",
+        ),
+        (
+            "sub.aff",
+            "tt t.ppm 0 0 4 0 0 1 0 4 1 0 0 1 4 0 1
+fm 0 0 0 1 1 1 0 0 0 0 0 0
+",
+        ),
+    ];
+    let s = parse_files(&files, None).unwrap();
+    // Triangles: p (1), p quad (2), blink (1), p (1), tt (1), m (2), tpa (1).
+    assert_eq!(s.mesh.triangles.len(), 9);
+    assert_eq!(s.material_of, vec![0, 1, 1, 2, 2, 2, 3, 3, 1]);
+    assert_eq!(s.materials.len(), 4);
+    assert_eq!(s.materials[0], AffMaterial::DEFAULT);
+    assert_eq!(
+        fm(&s.materials[1]),
+        [
+            0.5, 0.25, 0.0, 0.5, 0.25, 0.0, 0.25, 0.25, 0.25, 10.0, 0.0, 1.0
+        ]
+    );
+    assert_eq!(
+        fm(&s.materials[2]),
+        [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 20.0, 0.5, 1.5]
+    );
+    assert_eq!(
+        fm(&s.materials[3]),
+        [0., 0., 0., 1., 1., 1., 0., 0., 0., 0., 0., 0.]
+    );
+    // At t = 1.5 the blinking triangle (the fourth) is hidden, with its material.
+    let hidden = parse_files(&files, Some(1.5)).unwrap();
+    assert_eq!(hidden.mesh.triangles.len(), 8);
+    assert_eq!(hidden.material_of, vec![0, 1, 1, 2, 2, 3, 3, 1]);
+    assert_eq!(hidden.mesh.triangles[3], s.mesh.triangles[4]);
+    // Cones and spheres take the current material for all their triangles.
+    let s = parse(
+        "c 0 0 0 1 0 1 0 1
+f 0 1 0 1 0 0 0 1
+s 0 0 0 1
+",
+    )
+    .unwrap();
+    let cone = 2 * oavm::mesh::aff::CONE_SEGMENTS as usize;
+    assert_eq!(s.material_of.len(), cone + 960);
+    assert!(s.material_of[..cone].iter().all(|&m| m == 0));
+    assert!(s.material_of[cone..].iter().all(|&m| m == 1));
+    // No material at all: one default entry.
+    let s = parse(
+        "p 3 0 0 0 1 0 0 0 1 0
+",
+    )
+    .unwrap();
+    assert_eq!((s.materials.len(), s.material_of.clone()), (1, vec![0]));
+    // BART's defaults: a black background, a white ambient light.
+    assert_eq!((s.background, s.ambient), ([0.0; 3], [1.0; 3]));
+}
+
+#[test]
+fn lights_keep_their_colours_and_the_last_background_and_ambient_count() {
+    let s = parse(
+        "b 0.1 0.2 0.3
+am 0.5 0.5 0.5
+         l 1 2 3
+         xs 1 1 1 0 0 1 0 10 0 0 { l 0 0 0  0.25 0.5 0.75 }
+         l 4 5 6 1 1 0
+         b 0 0 1
+am 2 2 2
+         p 3 0 0 0 1 0 0 0 1 0
+",
+    )
+    .unwrap();
+    assert_eq!(
+        s.lights,
+        vec![[1.0, 2.0, 3.0], [10.0, 0.0, 0.0], [4.0, 5.0, 6.0]]
+    );
+    assert_eq!(
+        s.light_colours,
+        vec![[1.0; 3], [0.25, 0.5, 0.75], [1.0, 1.0, 0.0]]
+    );
+    assert_eq!(s.background, [0.0, 0.0, 1.0]);
+    assert_eq!(s.ambient, [2.0; 3]);
+}
+
 #[test]
 fn includes_are_relative_and_honour_the_detail_level() {
     let s = parse_files(
@@ -557,6 +720,22 @@ fn bad_numbers_and_non_finite_values_are_rejected() {
         "non-negative integer",
     );
     fails("a 0 1 -5\np 3 0 0 0 1 0 0 0 1 0", 1, "non-negative integer");
+    // Materials, backgrounds and light colours: numbers finite as f32.
+    fails(
+        "f 1 1 1 1 0 0\n0 nan 1\np 3 0 0 0 1 0 0 0 1 0",
+        2,
+        "not a finite number",
+    );
+    fails(
+        "fm 1 1 1 1 1 1\n1 1 1 1e39 0 0",
+        2,
+        "range of a 32-bit float",
+    );
+    fails("fm 1 1 1 1 1 1 1 1 1 1 0", 1, "ends where");
+    fails("b 0 0 x", 1, "found `x`");
+    fails("am 0 0 1e300", 1, "range of a 32-bit float");
+    fails("l 0 0 0 1 1 inf", 1, "not a finite number");
+    fails("l 0 0 0 1 1", 1, "ends where");
     // A transform that overflows f32.
     let e = parse("xs 1e300 1 1 0 0 1 0 0 0 0 { p 3 1 0 0 0 1 0 0 0 1 }").unwrap_err();
     assert!(matches!(e, MeshError::NonFinite { .. }), "{e}");

@@ -14,16 +14,20 @@ use oavm::logical::{
     Answered, FrameOptions, IO_THREADS_PER_CORE, Order, SceneInfo, SceneOptions, SetReport,
     VerifyReport,
 };
+use oavm::mesh::AffScene;
 use oavm::output::Output;
 use oavm::rays::{self, Bounds, Camera};
-use oavm::render::{self, RenderOptions, RenderStats};
+use oavm::render::{
+    self, Look, PointLight, RenderOptions, RenderStats, ShadedOptions, ShadedStats,
+};
 use oavm::{Error, Hit, Scene};
 use serde::Serialize;
 
 /// Traces rays through an .oavm file made by oavm-pack.
 ///
 /// With no mode option, renders the model from a camera that frames it (or from the viewpoint of
-/// a BART scene, --view), shaded by a point light with shadows, and writes a PNG. With --rays and
+/// a BART scene, --view), shaded by a point light with shadows, and writes a PNG (with --shade,
+/// ray traced with the scene's materials and lights, reflections and refractions). With --rays and
 /// --hits (closest hit) or --occluded (any hit), traces a ray file in the formats of RAYS.md.
 /// With --random N or --primary WxH (and --shadow), traces rays it makes and reports the figures
 /// only. With --verify, checks every byte of the file. Outputs are written atomically, through
@@ -80,6 +84,20 @@ struct Args {
     /// Render mode: image height (default 768, or the --view scene's resolution).
     #[arg(long, conflicts_with_all = ["rays", "random", "primary", "verify"])]
     height: Option<u32>,
+    /// Render mode: ray trace in Whitted's way with the materials and lights of the --view
+    /// scene (a white diffuse material and one light for another mesh): shadows from every
+    /// light, Phong highlights, reflection and refraction (see `oavm::render::render_shaded`).
+    /// --light replaces the scene's lights by one white light.
+    #[arg(long, conflicts_with_all = ["rays", "random", "primary", "verify"])]
+    shade: bool,
+    /// Render mode with --shade: the most bounces of reflection and refraction (default 5, at
+    /// most 16; 0: none).
+    #[arg(long, value_name = "N", requires = "shade")]
+    depth: Option<u32>,
+    /// With --view: pose the scene at this time (default: its animation start, as oavm-pack
+    /// does) for its camera, lights and materials. Give the time the file was packed at.
+    #[arg(long, value_name = "T", requires = "view")]
+    time: Option<f64>,
     #[command(flatten)]
     camera: cli::CameraArgs,
     #[command(flatten)]
@@ -152,6 +170,14 @@ impl Args {
                 (self.shadow || self.wave.is_some()) && !bench,
                 "--shadow/--wave",
                 "--random N or --primary WxH",
+            )
+        })
+        .or_else(|| given(self.depth.is_some() && !self.shade, "--depth", "--shade"))
+        .or_else(|| {
+            given(
+                self.time.is_some() && self.camera.view.is_none(),
+                "--time",
+                "--view SCENE.aff",
             )
         })
     }
@@ -400,6 +426,9 @@ impl Run<'_> {
 
     /// Render mode: the image, written only once every pixel is traced.
     fn render(&mut self, image: &Path) -> Result<(), Error> {
+        if self.args.shade {
+            return self.render_shaded(image);
+        }
         let out = Output::create(image, &[&self.args.file])?;
         let (camera, light, (width, height)) = self.shot()?;
         let opts = RenderOptions {
@@ -443,6 +472,106 @@ impl Run<'_> {
             stats.hits,
             stats.shadow.rays,
             stats.shadowed,
+            stats.seconds,
+            total.mrays_per_s,
+            self.threads,
+            self.open_ms,
+            self.paging_text(&total),
+        ))
+    }
+
+    /// Render mode with --shade: the scene's materials and lights (the --view scene's, posed
+    /// at --time, which must be the scene the file was packed from), Whitted-style.
+    fn render_shaded(&mut self, image: &Path) -> Result<(), Error> {
+        let out = Output::create(image, &[&self.args.file])?;
+        let aff = self.view_scene()?;
+        let (camera, light, (width, height)) = self.shot_of(aff.as_ref())?;
+        let mut look = match &aff {
+            Some(aff) => {
+                let packed = self.scene.file().header().input_triangles;
+                if aff.mesh.triangles.len() as u64 != packed {
+                    return Err(Error::Invalid(format!(
+                        "{}: posed at time {}, the scene has {} triangles, but {} was packed \
+                         from {packed}: its materials cannot be matched to the file's triangles \
+                         (give --time the time given to oavm-pack, or pack this scene)",
+                        self.args
+                            .camera
+                            .view
+                            .as_deref()
+                            .unwrap_or(Path::new(""))
+                            .display(),
+                        aff.time,
+                        aff.mesh.triangles.len(),
+                        self.args.file.display(),
+                    )));
+                }
+                Look::from_aff(aff)
+            }
+            None => Look::plain(&self.bounds()),
+        };
+        if aff.is_none() || self.args.camera.light.is_some() {
+            look.lights = vec![PointLight {
+                position: light.map(f64::from),
+                colour: [1.0; 3],
+            }];
+        }
+        let mut opts = ShadedOptions::new(
+            self.args.width.unwrap_or(width),
+            self.args.height.unwrap_or(height),
+            camera,
+        );
+        opts.order = self.order;
+        if let Some(depth) = self.args.depth {
+            opts.max_depth = depth;
+        }
+        self.first_ray();
+        let (img, stats) = render::render_shaded(self.scene, &opts, &look)?;
+        render::write_png(out, &img)?;
+        let all = stats.primary + stats.shadow + stats.reflection + stats.refraction;
+        let total = SetReport::new(&all, stats.seconds, Answered::Mixed);
+        if self.args.json {
+            #[derive(Serialize)]
+            struct Shaded<'a> {
+                image: &'a Path,
+                shading: &'static str,
+                max_depth: u32,
+                lights: usize,
+                materials: usize,
+                rays: u64,
+                seconds: f64,
+                mrays_per_s: f64,
+                page: oavm::logical::PageReport,
+                render: ShadedStats,
+            }
+            return cli::print_json(&self.report(Shaded {
+                image,
+                shading: "whitted",
+                max_depth: opts.max_depth,
+                lights: look.lights.len(),
+                materials: look.materials.len(),
+                rays: total.rays,
+                seconds: total.seconds,
+                mrays_per_s: total.mrays_per_s,
+                page: total.page,
+                render: stats,
+            }));
+        }
+        cli::print_text(&format!(
+            "wrote {} ({}x{}, Whitted, depth {}, {} lights, {} materials): {} primary rays ({} \
+             hit), {} shadow rays ({} shadowed), {} reflection rays, {} refraction rays, {:.3} s, \
+             {:.2} Mrays/s on {} threads (open {:.3} ms){}\n",
+            image.display(),
+            stats.width,
+            stats.height,
+            opts.max_depth,
+            look.lights.len(),
+            look.materials.len(),
+            stats.primary.rays,
+            stats.hits,
+            stats.shadow.rays,
+            stats.shadowed,
+            stats.reflection.rays,
+            stats.refraction.rays,
             stats.seconds,
             total.mrays_per_s,
             self.threads,
@@ -620,10 +749,23 @@ impl Run<'_> {
     /// framing the model and adjusted by --eye, --target, --up, --fov; the light from --light,
     /// else the scene's, else the default.
     fn shot(&self) -> Result<Shot, Error> {
+        self.shot_of(self.view_scene()?.as_ref())
+    }
+
+    /// The --view scene posed at --time, if there is one.
+    fn view_scene(&self) -> Result<Option<AffScene>, Error> {
+        match &self.args.camera.view {
+            Some(path) => Ok(Some(oavm::mesh::load_aff(path, self.args.time)?)),
+            None => Ok(None),
+        }
+    }
+
+    /// [`Self::shot`] with the --view scene `aff` already read.
+    fn shot_of(&self, aff: Option<&AffScene>) -> Result<Shot, Error> {
         let c = &self.args.camera;
         let bounds = self.bounds();
-        let (camera, scene_light, size) = if let Some(view_path) = &c.view {
-            let aff = oavm::mesh::load_aff(view_path, None)?;
+        let view = c.view.as_ref().zip(aff);
+        let (camera, scene_light, size) = if let Some((view_path, aff)) = view {
             let v = if c.camera_path {
                 aff.camera_path.ok_or_else(|| {
                     Error::Invalid(format!(

@@ -52,12 +52,29 @@
 //! `hither d`, `resolution w h`, all six required, in any order) gives [`AffView`]; `a start end
 //! frames` gives the animation range (the default time is `start`, or 0 without `a`); `i level
 //! file` includes `file` (relative to the including file's directory) when `level` is at most the
-//! detail level (0, or as set by `d level`). Read and skipped, with their operands checked as
-//! numbers: `b r g b`, `am r g b`, `l x y z [r g b]` (only the position is kept, in
-//! [`AffScene::lights`]), `f r g b Kd Ks shine T ior` (8 numbers),
-//! `fm` (12 numbers: ambient, diffuse, specular colours, shine, transmittance, index of
-//! refraction). A `k camera` block (BART's camera path) is read like any other and not used: the
-//! camera is the `v` block.
+//! detail level (0, or as set by `d level`). A `k camera` block (BART's camera path) is read like
+//! any other and not used: the camera is the `v` block.
+//!
+//! Shading statements, kept for a renderer (every operand a number finite as an `f32`):
+//!
+//! - `f r g b Kd Ks shine T ior` (NFF): the fill material, as [`AffMaterial`] holds it:
+//!   ambient and diffuse colour `Kd × (r, g, b)`, specular `Ks` in every channel, the Phong
+//!   exponent `shine`, transmittance `T`, index of refraction `ior`;
+//! - `fm ar ag ab  dr dg db  sr sg sb  shine T ior` (BART's extension of NFF): the ambient,
+//!   diffuse and specular colours given apart, then the same three numbers. BART's scenes
+//!   write `ior` 0 for opaque materials; the numbers are kept as written;
+//! - as in NFF and BART's reference parser, a material is the current one for every primitive
+//!   after it in reading order, until the next `f` or `fm`, whatever transforms or includes lie
+//!   between (an include's material stays current after it). Primitives before any material
+//!   take [`AffMaterial::DEFAULT`]. [`AffScene::materials`] lists the default first, then each
+//!   distinct material in the order first read (materials equal in all twelve numbers share an
+//!   entry); [`AffScene::material_of`] gives each triangle's entry, triangle by triangle as the
+//!   mesh holds them (so by primitive id), invisible subtrees left out with their triangles;
+//! - `l x y z [r g b]`: a point light, its position placed by the transforms around it
+//!   ([`AffScene::lights`]), its colour white when none is given ([`AffScene::light_colours`]);
+//! - `b r g b`: the background colour ([`AffScene::background`]; black without one);
+//!   `am r g b`: the global ambient light ([`AffScene::ambient`]; white, `am 1 1 1`, without
+//!   one). Both as BART's reference parser documents them; the last one read counts.
 //!
 //! An unknown keyword is an error, as in BART's reference parser (which stops on an unknown
 //! code): the scenes use no other keyword, and skipping would misread the operands that follow.
@@ -88,6 +105,7 @@
 mod geometry;
 mod kb;
 mod keyframes;
+mod material;
 mod parser;
 mod pose;
 mod tessellate;
@@ -147,6 +165,38 @@ pub struct AffCounts {
     pub spheres: u64,
 }
 
+/// A surface material, from `f` or `fm` (see the [module documentation](self) for how each
+/// fills it). The numbers are as written (finite); a renderer decides what to do with odd
+/// ones (negative colours, `ior` 0).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AffMaterial {
+    /// Reflectance of the ambient light ([`AffScene::ambient`]).
+    pub ambient: [f32; 3],
+    /// Lambertian reflectance of the lights.
+    pub diffuse: [f32; 3],
+    /// Phong highlight and mirror reflectance.
+    pub specular: [f32; 3],
+    /// Phong exponent.
+    pub shine: f32,
+    /// Transmittance `T`: the fraction of light passed through.
+    pub transmittance: f32,
+    /// Index of refraction.
+    pub ior: f32,
+}
+
+impl AffMaterial {
+    /// The material of primitives before any `f` or `fm`: white, diffuse, as `f 1 1 1 0.8 0
+    /// 0 0 1` would give.
+    pub const DEFAULT: AffMaterial = AffMaterial {
+        ambient: [0.8; 3],
+        diffuse: [0.8; 3],
+        specular: [0.0; 3],
+        shine: 0.0,
+        transmittance: 0.0,
+        ior: 1.0,
+    };
+}
+
 /// A scene posed at [`time`](AffScene::time).
 #[derive(Clone, Debug)]
 pub struct AffScene {
@@ -164,6 +214,17 @@ pub struct AffScene {
     pub time: f64,
     /// The point lights (`l`), placed by the transforms around them.
     pub lights: Vec<[f64; 3]>,
+    /// The colour of each light of [`lights`](AffScene::lights) (white when `l` gives none).
+    pub light_colours: Vec<[f32; 3]>,
+    /// The default material, then every distinct material of `f` and `fm`.
+    pub materials: Vec<AffMaterial>,
+    /// The index in [`materials`](AffScene::materials) of each triangle of `mesh`, in the order
+    /// of `mesh.triangles` (by primitive id).
+    pub material_of: Vec<u32>,
+    /// The background colour (`b`; black without one).
+    pub background: [f32; 3],
+    /// The global ambient light (`am`; white without one).
+    pub ambient: [f32; 3],
     pub counts: AffCounts,
 }
 
@@ -263,6 +324,7 @@ fn parse_within(
     p.parsed = bytes.len() as u64;
     check_budget(p.parsed, budget, &name)?;
     p.parse_file(bytes, &name, path)?;
+    p.sync_materials();
     let time = time.unwrap_or(p.animation.map_or(0.0, |a| a.0));
     let pose = p.pose(time)?;
     super::check_sizes(&pose.mesh, &name)?;
@@ -287,6 +349,11 @@ fn parse_within(
         animation: p.animation,
         time,
         lights: pose.lights,
+        light_colours: p.lights.iter().map(|l| l.2).collect(),
+        material_of: pose.material_of,
+        materials: p.materials.list,
+        background: p.background,
+        ambient: p.ambient,
         counts: p.counts,
     })
 }

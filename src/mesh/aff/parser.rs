@@ -1,6 +1,7 @@
 //! The parser: the scene under construction ([`Parser`]), one file's statements dispatched to
 //! their handlers (the geometry in [`super::geometry`] and [`super::tessellate`], keyframes in
-//! [`super::keyframes`], the view in [`super::view`]), transforms and includes.
+//! [`super::keyframes`], the view in [`super::view`], materials and lights in
+//! [`super::material`]), transforms and includes.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -10,7 +11,8 @@ use glam::DVec3;
 
 use super::kb::{Quat, Reach};
 use super::keyframes::Animation;
-use super::tokens::{Src, Tokens, looks_like_number, show};
+use super::material::Materials;
+use super::tokens::{Src, Tokens, show};
 use super::transform::{Affine, trs};
 use super::view::parse_view;
 use super::{
@@ -66,8 +68,14 @@ pub(super) struct Parser<'r> {
     pub(super) triangles: Vec<[u32; 3]>,
     pub(super) runs: Vec<Run>,
     pub(super) anim_tris: Vec<AnimTri>,
-    /// Point lights: node and local position.
-    pub(super) lights: Vec<(usize, DVec3)>,
+    /// Point lights: node, local position and colour.
+    pub(super) lights: Vec<(usize, DVec3, [f32; 3])>,
+    /// The materials and the material of each triangle of `triangles`.
+    pub(super) materials: Materials,
+    /// `b r g b`, the last one read (black without one).
+    pub(super) background: [f32; 3],
+    /// `am r g b`, the last one read (white without one, as BART's parser says).
+    pub(super) ambient: [f32; 3],
     /// The id of each name an `x` or a `k` gave, in the order first seen.
     pub(super) animation_ids: HashMap<Vec<u8>, usize>,
     /// By id: the last `k` block of that name, if any.
@@ -98,6 +106,9 @@ impl<'r> Parser<'r> {
             runs: Vec::new(),
             anim_tris: Vec::new(),
             lights: Vec::new(),
+            materials: Materials::new(),
+            background: [0.0; 3],
+            ambient: [1.0; 3],
             animation_ids: HashMap::new(),
             animations: Vec::new(),
             view: None,
@@ -155,11 +166,11 @@ impl<'r> Parser<'r> {
         while let Some((kw, line)) = src.tok.next() {
             match kw {
                 b"v" => self.view = Some(parse_view(&mut src, line)?),
-                b"b" => src.skip_numbers(3, "the background colour `b`")?,
-                b"am" => src.skip_numbers(3, "the ambient light `am`")?,
+                b"b" => self.background = src.colour(&|| "the background colour `b`".into())?,
+                b"am" => self.ambient = src.colour(&|| "the ambient light `am`".into())?,
                 b"l" => self.light(&mut src)?,
-                b"f" => src.skip_numbers(8, "the material `f`")?,
-                b"fm" => src.skip_numbers(12, "the material `fm`")?,
+                b"f" => self.nff_material(&mut src, line)?,
+                b"fm" => self.bart_material(&mut src, line)?,
                 b"p" | b"pp" => self.polygon(&mut src, fid, line, kw == b"pp")?,
                 b"tt" | b"ttp" => self.textured_triangle(&mut src, fid, line, kw == b"ttp")?,
                 b"tpa" => self.animated_triangle(&mut src, fid, line)?,
@@ -208,16 +219,6 @@ impl<'r> Parser<'r> {
                 ),
             ));
         }
-        Ok(())
-    }
-
-    /// `l x y z [r g b]`: a point light under the current transform.
-    fn light(&mut self, src: &mut Src) -> Result<(), MeshError> {
-        let p = src.vec3(&|| "the position of the light `l`".into())?;
-        if src.tok.peek().is_some_and(looks_like_number) {
-            src.skip_numbers(3, "the light colour `l`")?;
-        }
-        self.lights.push((self.current, p));
         Ok(())
     }
 

@@ -42,6 +42,8 @@ impl Animation {
 /// The scene at one time.
 pub(super) struct Pose {
     pub(super) mesh: Mesh,
+    /// The material of each triangle of `mesh`.
+    pub(super) material_of: Vec<u32>,
     /// The point lights, placed.
     pub(super) lights: Vec<[f64; 3]>,
     /// The transform of the animation named `camera`, when there is one.
@@ -74,23 +76,27 @@ impl Parser<'_> {
             visible.push(pvis && vis);
         }
         let positions = self.positions_at(time, &world)?;
-        let triangles = if self.runs.iter().all(|r| visible[r.node]) {
-            self.triangles.clone()
+        // Each triangle's material travels with it (the parser synced them to the triangles).
+        let of_triangle = &self.materials.of_triangle;
+        debug_assert_eq!(of_triangle.len(), self.triangles.len());
+        let (triangles, material_of) = if self.runs.iter().all(|r| visible[r.node]) {
+            (self.triangles.clone(), of_triangle.clone())
         } else {
             let firsts: Vec<u32> = self.runs.iter().map(|r| r.first).collect();
             self.triangles
                 .iter()
-                .filter(|t| {
+                .zip(of_triangle)
+                .filter(|(t, _)| {
                     let r = firsts.partition_point(|&f| f <= t[0]).saturating_sub(1);
                     visible[self.runs[r].node]
                 })
-                .copied()
-                .collect()
+                .map(|(t, &m)| (*t, m))
+                .unzip()
         };
         let lights = self
             .lights
             .iter()
-            .map(|&(node, p)| apply(&world[node], p).to_array())
+            .map(|&(node, p, _)| apply(&world[node], p).to_array())
             .collect();
         let camera = self
             .animation_ids
@@ -102,6 +108,7 @@ impl Parser<'_> {
                 positions,
                 triangles,
             },
+            material_of,
             lights,
             camera,
         })

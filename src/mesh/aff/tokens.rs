@@ -135,13 +135,6 @@ impl<'a> Src<'a> {
         ))
     }
 
-    pub(super) fn skip_numbers(&mut self, n: usize, what: &str) -> Result<(), MeshError> {
-        for i in 0..n {
-            self.number(&|| format!("value {} of {what}", i + 1))?;
-        }
-        Ok(())
-    }
-
     /// A non-negative integer (counts, detail levels are read with [`Self::integer`]).
     pub(super) fn count(&mut self, what: &dyn Fn() -> String) -> Result<u64, MeshError> {
         let (tok, line) = self.token(what)?;

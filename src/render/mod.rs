@@ -1,6 +1,23 @@
-//! A small renderer over the tracer: primary rays (closest hit) shaded by a point light, with
-//! shadows (any hit), written as PNG. It is `oavm-trace`'s default job and a visual check that
-//! a file is right.
+//! Renderers over the tracer, written as PNG:
+//!
+//! - [`render`], the simple one: primary rays (closest hit) shaded by a point light, with
+//!   shadows (any hit). It is `oavm-trace`'s default job and a visual check that a file is
+//!   right;
+//! - [`render_shaded`], a Whitted-style ray tracer: a scene's materials and lights
+//!   ([`Look`], from a BART scene's statements or a default for a plain mesh), shadow rays to
+//!   every light, Phong highlights, reflection and refraction rays, recursively.
+//!
+//! Both trace tile by tile ([`TILE`]) on at most [`Scene::threads`] threads, and both give the
+//! same image, byte for byte, whatever the number of threads and the order of the tiles.
+
+mod look;
+mod whitted;
+
+pub use look::{Look, PLAIN_AMBIENT, PLAIN_BACKGROUND, PointLight};
+pub use whitted::{
+    DEFAULT_MAX_DEPTH, DEFAULT_MIN_WEIGHT, MAX_DEPTH_LIMIT, OFFSET, ShadedOptions, ShadedStats,
+    render_shaded,
+};
 
 use std::time::Instant;
 
@@ -59,12 +76,7 @@ pub fn render<D: AsRef<[u8]> + BlockSource>(
     scene: &Scene<D>,
     opts: &RenderOptions,
 ) -> Result<(Image, RenderStats), Error> {
-    if opts.width == 0 || opts.height == 0 || opts.width > 16384 || opts.height > 16384 {
-        return Err(Error::Invalid(format!(
-            "image size {}x{} must be between 1x1 and 16384x16384",
-            opts.width, opts.height
-        )));
-    }
+    check_size(opts.width, opts.height)?;
     if opts.order == Order::Stream
         && let Some((rgb, stats)) = render_streamed(scene, opts)?
     {
@@ -79,13 +91,7 @@ pub fn render<D: AsRef<[u8]> + BlockSource>(
     }
     let start = Instant::now();
     let tree = scene.tree();
-    let (tw, th) = (opts.width.div_ceil(TILE), opts.height.div_ceil(TILE));
-    let mut tiles: Vec<(u64, u32, u32)> = (0..th)
-        .flat_map(|ty| (0..tw).map(move |tx| (morton::encode([tx, ty, 0]), tx, ty)))
-        .collect();
-    if opts.order != Order::None {
-        tiles.sort_unstable();
-    }
+    let tiles = tiles(opts.width, opts.height, opts.order);
     let pixels = opts.camera.pixels(opts.width, opts.height);
     // Each tile's pixels, row by row, then copied into the image.
     let mut done: Vec<Vec<u8>> = vec![Vec::new(); tiles.len()];
@@ -106,22 +112,8 @@ pub fn render<D: AsRef<[u8]> + BlockSource>(
     });
     let stats: RenderStats = traced.map_err(|e: TraceError| scene.corrupt(e))?;
     scene.check_unchanged()?;
-    let width = opts.width as usize;
-    let mut rgb = vec![0u8; width * opts.height as usize * 3];
-    for (&(_, tx, ty), px) in tiles.iter().zip(&done) {
-        let (x0, y0) = ((tx * TILE) as usize, (ty * TILE) as usize);
-        let w = ((tx * TILE + TILE).min(opts.width) as usize - x0) * 3;
-        for (dy, src) in px.chunks_exact(w).enumerate() {
-            let at = ((y0 + dy) * width + x0) * 3;
-            rgb[at..at + w].copy_from_slice(src);
-        }
-    }
     Ok((
-        Image {
-            width: opts.width,
-            height: opts.height,
-            rgb,
-        },
+        assemble(&tiles, &done, opts.width, opts.height),
         RenderStats {
             width: opts.width,
             height: opts.height,
@@ -129,6 +121,44 @@ pub fn render<D: AsRef<[u8]> + BlockSource>(
             ..stats
         },
     ))
+}
+
+/// Checks an image size: 1x1 to 16384x16384.
+fn check_size(width: u32, height: u32) -> Result<(), Error> {
+    if width == 0 || height == 0 || width > 16384 || height > 16384 {
+        return Err(Error::Invalid(format!(
+            "image size {width}x{height} must be between 1x1 and 16384x16384"
+        )));
+    }
+    Ok(())
+}
+
+/// The tiles of a `width` x `height` image, `(Morton code, tile x, tile y)`, row by row
+/// ([`Order::None`]) or in Morton order (any other order).
+fn tiles(width: u32, height: u32, order: Order) -> Vec<(u64, u32, u32)> {
+    let (tw, th) = (width.div_ceil(TILE), height.div_ceil(TILE));
+    let mut tiles: Vec<(u64, u32, u32)> = (0..th)
+        .flat_map(|ty| (0..tw).map(move |tx| (morton::encode([tx, ty, 0]), tx, ty)))
+        .collect();
+    if order != Order::None {
+        tiles.sort_unstable();
+    }
+    tiles
+}
+
+/// The image from each tile's RGB8 pixels (`done`, row by row, in the order of `tiles`).
+fn assemble(tiles: &[(u64, u32, u32)], done: &[Vec<u8>], width: u32, height: u32) -> Image {
+    let w_px = width as usize;
+    let mut rgb = vec![0u8; w_px * height as usize * 3];
+    for (&(_, tx, ty), px) in tiles.iter().zip(done) {
+        let (x0, y0) = ((tx * TILE) as usize, (ty * TILE) as usize);
+        let w = ((tx * TILE + TILE).min(width) as usize - x0) * 3;
+        for (dy, src) in px.chunks_exact(w).enumerate() {
+            let at = ((y0 + dy) * w_px + x0) * 3;
+            rgb[at..at + w].copy_from_slice(src);
+        }
+    }
+    Image { width, height, rgb }
 }
 
 impl std::ops::Add for RenderStats {
