@@ -1,15 +1,25 @@
-//! Corrupted `.oavm` files, version 4 (format-spec.md §11; hostile input): truncated,
+//! Corrupted `.oavm` files, version 5 (format-spec.md §11; hostile input): truncated,
 //! extended, wrong magic or version (version 1 files included), a bit flipped anywhere, regions
 //! rewritten with their checksums recomputed (inside compressed blocks too: decoded, changed,
-//! recompressed), damaged block directory entries, links and frames, files held in misaligned
-//! buffers, and damaged files traced under a memory budget of a few blocks.
+//! recompressed), damaged block directory entries, links and frames, primitive tables (§8.6)
+//! and generations (§2.1), files held in misaligned buffers, and damaged files traced under a
+//! memory budget of a few blocks.
 //!
 //! What must hold, for every corruption tried:
 //!
-//! - a damaged file (truncated, extended, bit flipped) fails at open, or `verify` reports a
-//!   defect that names the damaged place; a damaged block (its bytes are checksummed in the
-//!   directory) is also refused by the pager when a walk needs it: tracing fails with an error
-//!   naming the block, never a wrong answer;
+//! - a damaged file (truncated, bit flipped) fails at open, or `verify` reports a defect that
+//!   names the damaged place; a damaged block (its bytes are checksummed in the directory) is
+//!   also refused by the pager when a walk needs it: tracing fails with an error naming the
+//!   block, never a wrong answer;
+//! - where the format deliberately covers no byte (§2.1), the damage changes nothing: the
+//!   header slot that is not the generation's (all zero in a file as packed, an older header in
+//!   an updated file), bytes past `file_size` (an extended file, what an interrupted update
+//!   left) and, in a generation after the first, the bytes of the data region it no longer
+//!   refers to. The file opens as the same generation, verifies clean and answers every ray bit
+//!   for bit as before. And damage to the newest header slot makes the file open as the
+//!   previous generation, which answers as that generation did (the format's rule: a reader
+//!   takes the valid slot of the highest generation, so a torn or damaged header is an
+//!   interrupted update);
 //! - whatever the bytes, and whether or not the file was verified, opening, verifying and tracing
 //!   (closest hit and any hit) return an answer or an error: never a panic, never an endless walk
 //!   (spec §10, §11 "Trace"). A rewritten file (checksums recomputed, so that only the structure
@@ -21,18 +31,22 @@
 //!
 //! The files are built in memory from the dragon's smallest decimation: with the default build
 //! options (solid leaves are clusters, §7.1–§7.2: wide BVHs over triangle groups), with the
-//! default options of leaf lists (`--leaf list`, §6–§7: format 3's leaves, in a version-4
-//! file), and from its first triangles with leaf size 4 (a deep tree, of small clusters), each
-//! split into small blocks (so that a small mesh makes many) and written both raw and
-//! zstd-compressed; and the default file (raw) and the file of lists (zstd) again, with ropes
-//! (§8.4: an eighth section and a ninth part in every block, added by `add_ropes` as
-//! `oavm-pack --ropes` adds them), traced by the walk that follows them (`Walk::Ropes`; the
-//! other files by the default walk); and the deep file, raw and zstd, with occluders (§8.5: a
-//! tenth and an eleventh part in the blocks that hold some, added by `add_occluders` with the
-//! default parameters as `oavm-pack --occluders` adds them), traced by the default top-down
-//! walk, whose any-hit queries test them. The byte layout used to corrupt them, to recompute
-//! checksums and to re-lay a file out after a compressed block changed size, as a tool that
-//! rewrites a file would, is taken from format-spec.md §2–§8, not from the code;
+//! default options of leaf lists (`--leaf list`, §6–§7: format 3's leaves), and from its first
+//! triangles with leaf size 4 (a deep tree, of small clusters), each split into small blocks
+//! (so that a small mesh makes many) and written both raw and zstd-compressed; and the default
+//! file (raw) and the file of lists (zstd) again, with ropes (§8.4: an eighth section and a
+//! ninth part in every block, added by `add_ropes` as `oavm-pack --ropes` adds them), traced by
+//! the walk that follows them (`Walk::Ropes`; the other files by the default walk); and the deep
+//! file, raw and zstd, with occluders (§8.5: a tenth and an eleventh part in the blocks that
+//! hold some, added by `add_occluders` with the default parameters as `oavm-pack --occluders`
+//! adds them), traced by the default top-down walk, whose any-hit queries test them. Two more
+//! are written to disk: the default file packed `--updatable` (`pack_mesh`, §8.6: a primitive
+//! table, its chunks after the blocks and its chunk directory a last section), and that file
+//! updated in place (`Updater`: a block's primitives removed, some moved, some inserted), a
+//! file of generation 2 in slot 1 whose data region holds the first generation's bytes too.
+//! The byte layout used to corrupt them, to recompute checksums and to re-lay a file out after
+//! a compressed block changed size, as a tool that rewrites a file would, is taken from
+//! format-spec.md §2–§8 (`tests/common/layout.rs`), not from the code;
 //! [`layout_matches_the_spec`] checks that the two agree.
 //!
 //! The mutation runs print what they found (`--nocapture`). A corruption that aborts the process
@@ -68,34 +82,18 @@ use xxhash_rust::xxh3::xxh3_64;
 // ---------------------------------------------------------------------------------------------
 use common::layout::*;
 
-// Ropes (§8.4) and occluders (§8.5) changed the layout: the items below are format-spec.md's,
-// as of occluders (a 104-byte block header, eleven block parts), and shadow `common::layout`'s
-// older ones of the same name (that file is shared with the fuzz targets). `SECTION_COUNT` and
-// `TABLE_END` there are a file's without ropes; with flag `ROPES` the table has an eighth entry
-// ([`section_count`], [`table_end`]). Occluders add no section.
+// The layout is `common::layout`'s (format-spec.md, version 5, shared with the fuzz targets);
+// the items below are what only these tests need.
 
-/// §2: flag bit 3, `ROPES`: an eighth section and a ninth part in every block (§8.4).
-const FLAG_ROPES: u32 = 8;
-/// §3: the section table of a file with ropes: eight 48-byte entries, the eighth the ropes.
+/// §3: the section table of a file with ropes (and no primitive table): eight entries, the
+/// eighth the ropes.
 const SECTION_COUNT_ROPES: usize = 8;
-const TABLE_END_ROPES: usize = HEADER_LEN + SECTION_COUNT_ROPES * ENTRY_LEN;
-/// §3: the ropes' position in the section table (kind 8).
+/// §3: the ropes' position in the section table of a file with ropes (kind 8).
 const ROPES: usize = 7;
-/// §2: flag bit 4, `OCCLUDERS`: blocks may hold occluders (§8.5), a tenth and an eleventh part.
-const FLAG_OCCLUDERS: u32 = 16;
-/// §8.3: a block's header is 104 bytes: after `block_id`, `rope_count` at 80, then
-/// `occluder_node_count` at 88 and `occluder_count` at 96 (bytes 80..104 were padding before
-/// ropes and occluders; the level table still starts at 128, the next multiple of 64).
-const BLOCK_HEADER_LEN: usize = 104;
-const BH_ROPE_COUNT: usize = 80;
-const BH_OCCLUDER_NODE_COUNT: usize = 88;
-const BH_OCCLUDER_COUNT: usize = 96;
-/// §8.3: a block's parts, the level table first, the ropes ninth, the occluder nodes and the
-/// occluders tenth and eleventh.
-const BLOCK_PART_COUNT: usize = 11;
-/// §8.3: the parts from this one on (ropes, occluder nodes, occluders), added to the format
-/// later, take no place when empty; the first eight have their place all the same.
-const FIRST_LATE_PART: usize = 8;
+/// Indices into [`SECTIONS`] (the sections after the blocks, by kind: `kind - 2`) of the ropes
+/// and of the primitive table's chunk directory.
+const SECTION_ROPES: usize = KIND_ROPES as usize - 2;
+const SECTION_PRIMS: usize = KIND_PRIMS as usize - 2;
 /// §8.5: an occluder node entry (`OccluderNode`: `node`, `first`) and an occluder (a
 /// `TriRecord`, §7: three corners and the primitive id).
 const OCCLUDER_NODE_LEN: usize = 8;
@@ -105,17 +103,41 @@ const ROPE_LEN: usize = 24;
 const ROPE_EXIT: u32 = 0xffff_ffff;
 const ROPE_TOP: u32 = 0x8000_0000;
 
-/// §2–§3: how many sections the file `b` has, from its header's flags (7, or 8 with `ROPES`).
-fn section_count(b: &[u8]) -> usize {
-    match b.len() >= FLAGS_AT + 4 && read_u32(b, FLAGS_AT) & FLAG_ROPES != 0 {
-        true => SECTION_COUNT_ROPES,
-        false => SECTION_COUNT,
+/// §2.1: the generation in the header slot at `slot`, if the slot holds a header (its magic).
+fn slot_generation(b: &[u8], slot: usize) -> Option<u64> {
+    (b.len() >= slot + HEADER_LEN && b[slot..slot + 8] == MAGIC[..])
+        .then(|| read_u64(b, slot + GENERATION_AT))
+}
+
+/// §2.1: the offset of the header slot a reader takes in the file `b` (the one of the highest
+/// generation), judged by the magic and the generation field alone: right for an intact file,
+/// and for the changes these tests make (which pass the slot themselves where it matters).
+fn slot_of(b: &[u8]) -> usize {
+    match (slot_generation(b, 0), slot_generation(b, HEADER_SLOTS[1])) {
+        (Some(g0), Some(g1)) if g1 > g0 => HEADER_SLOTS[1],
+        (None, Some(_)) => HEADER_SLOTS[1],
+        _ => 0,
     }
+}
+
+/// §2: the flags of the header in the slot at `slot` (0 past the end of `b`).
+fn flags_at(b: &[u8], slot: usize) -> u32 {
+    match b.len() >= slot + FLAGS_AT + 4 {
+        true => read_u32(b, slot + FLAGS_AT),
+        false => 0,
+    }
+}
+
+/// §2–§3: how many sections the file `b` has, from the flags of its slot's header (7, plus 1
+/// with `ROPES`, plus 1 with `PRIMS`).
+fn section_count(b: &[u8]) -> usize {
+    section_kinds(flags_at(b, slot_of(b))).len()
 }
 
 /// §2–§3: where the section table of the file `b` ends (the header checksum covers it).
 fn table_end(b: &[u8]) -> usize {
-    HEADER_LEN + section_count(b) * ENTRY_LEN
+    let slot = slot_of(b);
+    table_range(slot, flags_at(b, slot)).end
 }
 
 /// Fields of a record: (offset in the record, name).
@@ -178,10 +200,21 @@ const DIR_FIELDS: Fields = &[
     (DIR_CHECKSUM, "checksum"),
 ];
 
-/// §3, §8.2, §4–§5, §8.1, §8.4: the sections after the blocks, in file order, with their record
-/// sizes and fields (the top tree's are named as the code names them: "levels section" and so
-/// on). The last, the ropes, only in a file with flag `ROPES`.
-const SECTIONS: [(&str, usize, Fields); SECTION_COUNT_ROPES - 1] = [
+/// §8.6: an entry of the primitive table's chunk directory.
+const PRIM_CHUNK_FIELDS: Fields = &[
+    (PC_OFFSET, "offset"),
+    (PC_COUNT, "count"),
+    (PC_CHECKSUM, "checksum"),
+    (PC_RESERVED, "reserved"),
+];
+/// §8.6: a primitive's record in a chunk: its three corners.
+const PRIM_RECORD_FIELDS: Fields = &[(0, "v[0]"), (12, "v[1]"), (24, "v[2]")];
+
+/// §3, §8.2, §4–§5, §8.1, §8.4, §8.6: the sections after the blocks, by kind (index `kind -
+/// 2`), with their record sizes and fields (named as the code names them: "levels section"
+/// and so on). The ropes only in a file with flag `ROPES`, the primitive table's chunk
+/// directory only in one with `PRIMS`.
+const SECTIONS: [(&str, usize, Fields); 8] = [
     ("block directory", DIR_LEN, DIR_FIELDS),
     ("levels", 32, LEVEL_FIELDS),
     ("nodes", 8, NODE_FIELDS),
@@ -189,6 +222,7 @@ const SECTIONS: [(&str, usize, Fields); SECTION_COUNT_ROPES - 1] = [
     ("volumes", 24, VOLUME_FIELDS),
     ("link bounds", 8, LINK_BOUNDS_FIELDS),
     ("ropes", ROPE_LEN, ROPE_FIELDS),
+    ("primitive table", PRIM_CHUNK_LEN, PRIM_CHUNK_FIELDS),
 ];
 
 /// §8.3: the parts of a block after its header, in order, with their record sizes and fields.
@@ -261,8 +295,9 @@ const HEADER_FIELDS: Fields = &[
     (144, "max_block_raw_len"),
     (152, "block_triangles"),
     (160, "stored_triangles"),
-    (168, "reserved"),
-    (248, "checksum"),
+    (GENERATION_AT, "generation"),
+    (RESERVED_AT, "reserved"),
+    (HEADER_CHECKSUM, "checksum"),
 ];
 
 /// §3: the fields of a section table entry.
@@ -292,13 +327,26 @@ fn write_u32(b: &mut [u8], at: usize, v: u32) {
     b[at..at + 4].copy_from_slice(&v.to_le_bytes());
 }
 
-/// §3: the offset and length of section `i` (in table order), as the table says.
+/// §3: the offset and length of the section at position `i` of the table of the file `b`
+/// (the table of its slot, [`slot_of`]).
 fn section(b: &[u8], i: usize) -> (usize, usize) {
-    let e = HEADER_LEN + i * ENTRY_LEN;
+    section_in(b, slot_of(b), i)
+}
+
+/// §3: the same, in the table of the header slot at `slot`.
+fn section_in(b: &[u8], slot: usize, i: usize) -> (usize, usize) {
+    let e = slot + HEADER_LEN + i * ENTRY_LEN;
     (
         read_u64(b, e + ENTRY_OFFSET) as usize,
         read_u64(b, e + ENTRY_LENGTH) as usize,
     )
+}
+
+/// §3: the offset and length of the section of `kind` of the file `b`, if its flags give it
+/// one (ropes with `ROPES`, the primitive table with `PRIMS`).
+fn section_of(b: &[u8], kind: u32) -> Option<(usize, usize)> {
+    let slot = slot_of(b);
+    section_position(flags_at(b, slot), kind).map(|i| section_in(b, slot, i))
 }
 
 /// §8.2: a directory entry, read from the file.
@@ -310,6 +358,8 @@ struct Entry {
     codec: u32,
     root_level: u32,
     root_count: u32,
+    /// All 48 bytes zero: a free entry (§8.2; generations after the first only).
+    free: bool,
 }
 
 impl Entry {
@@ -330,6 +380,7 @@ fn directory(b: &[u8]) -> Vec<Entry> {
                 codec: read_u32(b, e + DIR_CODEC),
                 root_level: read_u32(b, e + DIR_ROOT_LEVEL),
                 root_count: read_u32(b, e + DIR_ROOT_COUNT),
+                free: b[e..e + DIR_LEN].iter().all(|&x| x == 0),
             }
         })
         .collect()
@@ -338,6 +389,42 @@ fn directory(b: &[u8]) -> Vec<Entry> {
 /// Where directory entry `i` starts in the file.
 fn dir_entry_at(b: &[u8], i: usize) -> usize {
     section(b, DIRECTORY).0 + i * DIR_LEN
+}
+
+/// §8.6: a primitive chunk, as the chunk directory gives it.
+#[derive(Clone, Copy, Debug)]
+struct Chunk {
+    offset: usize,
+    count: usize,
+}
+
+impl Chunk {
+    /// Where its records are.
+    fn records(&self) -> Range<usize> {
+        self.offset..self.offset + self.count * PRIM_RECORD_LEN
+    }
+}
+
+/// §8.6: the primitive chunks of the file `b` (none without flag `PRIMS`).
+fn prim_chunks(b: &[u8]) -> Vec<Chunk> {
+    let Some((offset, length)) = section_of(b, KIND_PRIMS) else {
+        return Vec::new();
+    };
+    (0..length / PRIM_CHUNK_LEN)
+        .map(|c| {
+            let e = offset + c * PRIM_CHUNK_LEN;
+            Chunk {
+                offset: read_u64(b, e + PC_OFFSET) as usize,
+                count: read_u64(b, e + PC_COUNT) as usize,
+            }
+        })
+        .collect()
+}
+
+/// Where primitive `prim`'s record (§8.6: 36 bytes, its three corners) is in the file `b`.
+fn prim_record_at(b: &[u8], prim: usize) -> usize {
+    let chunk = prim_chunks(b)[prim / PRIMS_PER_CHUNK];
+    chunk.offset + (prim % PRIMS_PER_CHUNK) * PRIM_RECORD_LEN
 }
 
 /// §8.3: the byte ranges of a decoded block's eleven parts, from its header's counts:
@@ -395,57 +482,93 @@ fn block_triangles(raw: &[u8]) -> Vec<[u8; TRI_LEN]> {
 }
 
 /// Recomputes the header checksum (§2: xxh3-64 of header bytes 0..248, then the section table:
-/// 336 bytes, or 384 with ropes, as the header's flags say).
+/// 336 bytes, 48 more with ropes, 48 more with the primitive table, as the header's flags say)
+/// of the slot a reader takes ([`slot_of`]).
 fn fix_header_checksum(b: &mut [u8]) {
-    let table_end = table_end(b);
-    if b.len() < table_end {
+    fix_header_checksum_at(b, slot_of(b));
+}
+
+/// The same in the header slot at `slot`.
+fn fix_header_checksum_at(b: &mut [u8], slot: usize) {
+    let table = table_range(slot, flags_at(b, slot));
+    if b.len() < table.end {
         return;
     }
-    let mut covered = b[..HEADER_CHECKSUM].to_vec();
-    covered.extend_from_slice(&b[HEADER_LEN..table_end]);
-    write_u64(b, HEADER_CHECKSUM, xxh3_64(&covered));
+    let mut covered = b[slot..slot + HEADER_CHECKSUM].to_vec();
+    covered.extend_from_slice(&b[table]);
+    write_u64(b, slot + HEADER_CHECKSUM, xxh3_64(&covered));
 }
 
 /// Recomputes every checksum as a tool that rewrites a file would, so that afterwards only the
 /// checks on the contents can tell the file was changed: each block's in its directory entry
-/// (§8.2: xxh3-64 of its stored bytes), each section's but the blocks' (§3), then the header's.
-/// Ranges that are not inside the file are left as they are (open or the pager rejects them).
+/// (§8.2: xxh3-64 of its stored bytes), each primitive chunk's in the chunk directory (§8.6),
+/// each section's but the blocks' (§3), then the header's; those of the generation a reader
+/// takes ([`slot_of`]). Ranges that are not inside the file are left as they are (open or the
+/// pager rejects them).
 fn fix_checksums(b: &mut [u8]) {
-    if b.len() < table_end(b) {
+    fix_checksums_at(b, slot_of(b));
+}
+
+/// The same for the generation in the header slot at `slot`.
+fn fix_checksums_at(b: &mut [u8], slot: usize) {
+    let flags = flags_at(b, slot);
+    if b.len() < table_range(slot, flags).end {
         return;
     }
-    let (dir, dir_len) = section(b, DIRECTORY);
+    let inside = |offset: u64, len: u64, size: usize| {
+        offset
+            .checked_add(len)
+            .filter(|&end| end <= size as u64)
+            .map(|end| offset as usize..end as usize)
+    };
+    let (dir, dir_len) = section_in(b, slot, DIRECTORY);
     if dir.checked_add(dir_len).is_some_and(|end| end <= b.len()) {
         for i in 0..dir_len / DIR_LEN {
             let e = dir + i * DIR_LEN;
             let (offset, len) = (read_u64(b, e + DIR_OFFSET), read_u64(b, e + DIR_STORED_LEN));
-            if let Some(end) = offset.checked_add(len).filter(|&end| end <= b.len() as u64) {
-                let sum = xxh3_64(&b[offset as usize..end as usize]);
+            if b[e..e + DIR_LEN].iter().all(|&x| x == 0) {
+                continue; // a free entry (§8.2) has no checksum
+            }
+            if let Some(r) = inside(offset, len, b.len()) {
+                let sum = xxh3_64(&b[r]);
                 write_u64(b, e + DIR_CHECKSUM, sum);
             }
         }
     }
-    for i in DIRECTORY..section_count(b) {
-        let e = HEADER_LEN + i * ENTRY_LEN;
-        let (offset, length) = (read_u64(b, e + ENTRY_OFFSET), read_u64(b, e + ENTRY_LENGTH));
-        let Some(end) = offset
-            .checked_add(length)
-            .filter(|&end| end <= b.len() as u64)
-        else {
-            continue;
-        };
-        let sum = xxh3_64(&b[offset as usize..end as usize]);
-        write_u64(b, e + ENTRY_CHECKSUM, sum);
+    if let Some(i) = section_position(flags, KIND_PRIMS) {
+        let (at, len) = section_in(b, slot, i);
+        if at.checked_add(len).is_some_and(|end| end <= b.len()) {
+            for c in 0..len / PRIM_CHUNK_LEN {
+                let e = at + c * PRIM_CHUNK_LEN;
+                let (offset, count) = (read_u64(b, e + PC_OFFSET), read_u64(b, e + PC_COUNT));
+                let len = count.checked_mul(PRIM_RECORD_LEN as u64);
+                if let Some(r) = len.and_then(|len| inside(offset, len, b.len())) {
+                    let sum = xxh3_64(&b[r]);
+                    write_u64(b, e + PC_CHECKSUM, sum);
+                }
+            }
+        }
     }
-    fix_header_checksum(b);
+    for i in DIRECTORY..section_kinds(flags).len() {
+        let e = slot + HEADER_LEN + i * ENTRY_LEN;
+        let (offset, length) = (read_u64(b, e + ENTRY_OFFSET), read_u64(b, e + ENTRY_LENGTH));
+        if let Some(r) = inside(offset, length, b.len()) {
+            let sum = xxh3_64(&b[r]);
+            write_u64(b, e + ENTRY_CHECKSUM, sum);
+        }
+    }
+    fix_header_checksum_at(b, slot);
 }
 
-/// The file `b` with block `block`'s stored bytes replaced by `stored` (and its `raw_len` by
-/// `raw_len`), laid out again as §2 and §8 say: blocks from offset 4096 in directory order (raw
-/// ones at multiples of 4096, compressed ones at multiples of 64), then the directory and the
-/// top tree's sections, each at the next multiple of 64; offsets, lengths, the file size and
-/// every checksum rewritten. `b` must be a sound file.
+/// The file `b` (a file as packed: generation 1, in slot 0) with block `block`'s stored bytes
+/// replaced by `stored` (and its `raw_len` by `raw_len`), laid out again as §2, §3, §8.2 and
+/// §8.6 say: blocks from offset 4096 in directory order (raw ones at multiples of 4096,
+/// compressed ones at multiples of 64), then the primitive chunks in order at multiples of 64;
+/// the data region ending at the next multiple of 64, where the directory starts, then the top
+/// tree's sections and the others, each at the next multiple of 64; offsets, lengths, the file
+/// size and every checksum rewritten. `b` must be a sound file.
 fn relayout(b: &[u8], block: usize, stored: &[u8], raw_len: usize) -> Vec<u8> {
+    assert_eq!(slot_of(b), 0, "relayout lays out a file as packed (generation 1)");
     let dir = directory(b);
     let mut out = b[..BLOCKS_START].to_vec();
     let mut dir_bytes = {
@@ -471,28 +594,40 @@ fn relayout(b: &[u8], block: usize, stored: &[u8], raw_len: usize) -> Vec<u8> {
         }
         out.extend_from_slice(bytes);
     }
-    let (table_end, sections) = (table_end(b), section_count(b));
-    let mut table = b[HEADER_LEN..table_end].to_vec();
+    let mut prims_bytes = section_of(b, KIND_PRIMS)
+        .map(|(o, l)| b[o..o + l].to_vec())
+        .unwrap_or_default();
+    for (c, chunk) in prim_chunks(b).iter().enumerate() {
+        out.resize(out.len().next_multiple_of(ALIGN), 0);
+        write_u64(&mut prims_bytes, c * PRIM_CHUNK_LEN + PC_OFFSET, out.len() as u64);
+        out.extend_from_slice(&b[chunk.records()]);
+    }
+    out.resize(out.len().next_multiple_of(ALIGN), 0);
+    let kinds = section_kinds(flags_at(b, 0));
+    let table = table_range(0, flags_at(b, 0));
+    let mut t = b[table.clone()].to_vec();
     write_u64(
-        &mut table,
+        &mut t,
         BLOCKS * ENTRY_LEN + ENTRY_LENGTH,
         (out.len() - BLOCKS_START) as u64,
     );
-    for i in DIRECTORY..sections {
+    for (i, &kind) in kinds.iter().enumerate().skip(DIRECTORY) {
         out.resize(out.len().next_multiple_of(ALIGN), 0);
-        let bytes = if i == DIRECTORY {
-            dir_bytes.clone()
-        } else {
-            let (o, l) = section(b, i);
-            b[o..o + l].to_vec()
+        let bytes = match kind {
+            _ if i == DIRECTORY => dir_bytes.clone(),
+            KIND_PRIMS => prims_bytes.clone(),
+            _ => {
+                let (o, l) = section(b, i);
+                b[o..o + l].to_vec()
+            }
         };
-        write_u64(&mut table, i * ENTRY_LEN + ENTRY_OFFSET, out.len() as u64);
+        write_u64(&mut t, i * ENTRY_LEN + ENTRY_OFFSET, out.len() as u64);
         out.extend_from_slice(&bytes);
     }
-    out[HEADER_LEN..table_end].copy_from_slice(&table);
+    out[table].copy_from_slice(&t);
     let len = out.len() as u64;
     write_u64(&mut out, FILE_SIZE_AT, len);
-    fix_checksums(&mut out);
+    fix_checksums_at(&mut out, 0);
     out
 }
 
@@ -516,20 +651,35 @@ struct Region {
     kind: RegionKind,
     space: Space,
     range: Range<usize>,
+    /// What verify reports about a byte of a region of zero padding: the region's own words
+    /// (its name is not what the defect says).
+    defect: Option<String>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum RegionKind {
+    /// The header and the section table of the slot of the file's generation (§2, §2.1).
     Header,
     Table,
+    /// The zero bytes after that section table, to the slot's end (§2.1).
+    SlotPadding,
+    /// The other header slot (§2.1): not this generation's, not checked (all zero in a file as
+    /// packed; the previous generation's header in an updated file).
+    OtherSlot,
     /// Zero padding before a section (§1).
     Padding,
     /// Index into [`SECTIONS`].
     Section(usize),
     /// The stored bytes of block `b`, whole (a zstd frame, or a raw block not cut into parts).
     Stored(usize),
-    /// The zero padding before block `b` (§8.2).
-    BlockGap(usize),
+    /// Zero padding in the data region of a file as packed (§2, §8.2): before a block or a
+    /// primitive chunk, or after the last of them to the directory.
+    Gap,
+    /// Bytes of the data region that a generation after the first does not refer to (§2.1:
+    /// older generations' blocks, chunks and sections, not checked).
+    Dead,
+    /// The records of primitive chunk `c` (§8.6).
+    Chunk(usize),
     /// Block `b`'s header (§8.3).
     BlockHeader(usize),
     /// Block `b`'s part (index into [`BLOCK_PARTS`]).
@@ -545,10 +695,14 @@ impl Region {
             RegionKind::Header => (HEADER_LEN, HEADER_FIELDS),
             RegionKind::Table => (ENTRY_LEN, ENTRY_FIELDS),
             RegionKind::Padding
-            | RegionKind::BlockGap(_)
+            | RegionKind::SlotPadding
+            | RegionKind::OtherSlot
+            | RegionKind::Gap
+            | RegionKind::Dead
             | RegionKind::BlockPadding(_)
             | RegionKind::Stored(_) => (1, &[(0, "byte")]),
             RegionKind::Section(i) => (SECTIONS[i].1, SECTIONS[i].2),
+            RegionKind::Chunk(_) => (PRIM_RECORD_LEN, PRIM_RECORD_FIELDS),
             RegionKind::BlockHeader(_) => (BLOCK_HEADER_LEN, BLOCK_HEADER_FIELDS),
             RegionKind::BlockPart(_, i) => (BLOCK_PARTS[i].1, BLOCK_PARTS[i].2),
         }
@@ -568,8 +722,19 @@ impl Region {
     fn is_padding(&self) -> bool {
         matches!(
             self.kind,
-            RegionKind::Padding | RegionKind::BlockGap(_) | RegionKind::BlockPadding(_)
+            RegionKind::Padding
+                | RegionKind::SlotPadding
+                | RegionKind::OtherSlot
+                | RegionKind::Gap
+                | RegionKind::Dead
+                | RegionKind::BlockPadding(_)
         )
+    }
+
+    /// Whether the generation the file holds does not cover the region (§2.1): its bytes may
+    /// be anything, and a reader of the generation neither reads nor checks them.
+    fn not_covered(&self) -> bool {
+        matches!(self.kind, RegionKind::OtherSlot | RegionKind::Dead)
     }
 
     /// The field that byte `at` (in the region's space) belongs to.
@@ -739,27 +904,84 @@ struct Fixture {
     ropes: bool,
     /// The header's `OCCLUDERS` flag (§2, §8.5): blocks may hold occluders.
     occluders: bool,
+    /// The header's `PRIMS` flag (§2, §8.6): the file holds its primitive table.
+    prims: bool,
+    /// The generation the file holds (§2.1) and the offset of its header slot.
+    generation: u64,
+    slot: usize,
     /// How the file is traced: [`Walk::Ropes`] for a file with ropes, else [`Walk::Auto`].
     walk: Walk,
     dir: Vec<Entry>,
-    /// Each block's decoded bytes.
+    /// Each block's decoded bytes (none for a free entry).
     decoded: Vec<Vec<u8>>,
     links: Vec<Link>,
     /// The blocks whose parts are regions of their own: the first, the largest and the last,
-    /// and the one holding the most occluders.
+    /// the one holding the most occluders, and those the caller asks for.
     detailed: Vec<usize>,
     /// The block holding the most occluders (§8.5), if any does.
     occluder_block: Option<usize>,
     /// The block with the largest `raw_len`.
     largest: usize,
+    /// The primitive chunks (§8.6) of the generation.
+    chunks: Vec<Chunk>,
     regions: Vec<Region>,
     rays: Vec<Ray>,
     hits: Vec<Hit>,
     occluded: Vec<u8>,
+    /// In a generation after the first, the previous generation's answers to the same rays:
+    /// what the file answers when its newest header slot is damaged (§2.1).
+    previous: Option<Answers>,
     /// The header's `max_block_raw_len`.
     max_raw: u64,
     /// What one of the largest blocks takes when held, in whole pages: budgets count these.
     held: u64,
+}
+
+/// A generation's answers to a fixture's rays.
+struct Answers {
+    generation: u64,
+    hits: Vec<Hit>,
+    occluded: Vec<u8>,
+}
+
+/// What a fixture's file must be, beyond what it holds.
+struct Expect {
+    leaf: LeafKind,
+    compressed: bool,
+    ropes: bool,
+    occluders: bool,
+    prims: bool,
+    generation: u64,
+    /// The file before occluders were added, whose answers the file must give (§8.5), and
+    /// what `add_occluders` reported.
+    without_occluders: Option<Vec<u8>>,
+    occluder_report: Option<oavm::build::occluders::OccluderReport>,
+    /// The file as its previous generation was (a generation after the first).
+    previous: Option<Vec<u8>>,
+    /// Blocks to detail besides the first, the largest and the last.
+    detail: Vec<usize>,
+    /// Primitives an update removed: their records are absent (§8.6); every other record is
+    /// the mesh's triangle.
+    removed: Vec<u32>,
+}
+
+impl Expect {
+    /// A file as packed (generation 1) with leaves of `leaf`, raw, and nothing optional.
+    fn new(leaf: LeafKind) -> Expect {
+        Expect {
+            leaf,
+            compressed: false,
+            ropes: false,
+            occluders: false,
+            prims: false,
+            generation: 1,
+            without_occluders: None,
+            occluder_report: None,
+            previous: None,
+            detail: Vec::new(),
+            removed: Vec::new(),
+        }
+    }
 }
 
 impl Fixture {
@@ -819,49 +1041,107 @@ impl Fixture {
             );
             bytes = roped;
         }
+        let expect = Expect {
+            leaf: opts.leaf,
+            compressed: blocks.compress.is_some(),
+            ropes,
+            occluders,
+            without_occluders,
+            occluder_report,
+            ..Expect::new(opts.leaf)
+        };
+        Fixture::examine(name, mesh, bytes, expect)
+    }
+
+    /// The fixture of the file `bytes`, whose triangles are `mesh`'s: checked against `expect`
+    /// and against the spec's layout, its blocks decoded, its regions found, its answers to a
+    /// set of rays taken.
+    fn examine(name: &str, mesh: &Mesh, bytes: Vec<u8>, expect: Expect) -> Fixture {
+        let Expect {
+            ropes, occluders, ..
+        } = expect;
         let walk = if ropes { Walk::Ropes } else { Walk::Auto };
         let scene = open_walking(&bytes, walk).expect("the intact file opens");
         let report = scene.verify().expect("verify");
         assert!(report.is_ok(), "{name}: intact file: {:?}", report.defects);
+        // §2.1: the generation, in the slot `(g - 1) mod 2`, which is the slot a reader takes.
+        let slot = slot_of(&bytes);
+        let generation = read_u64(&bytes, slot + GENERATION_AT);
+        assert_eq!(generation, expect.generation, "{name}: the generation");
         assert_eq!(
-            read_u32(&bytes, FLAGS_AT) & FLAG_ROPES != 0,
-            ropes,
-            "{name}: the ROPES flag"
+            slot,
+            HEADER_SLOTS[((generation - 1) % 2) as usize],
+            "{name}: generation {generation}'s slot"
         );
         assert_eq!(
-            read_u32(&bytes, FLAGS_AT) & FLAG_OCCLUDERS != 0,
+            scene.file().header().generation,
+            generation,
+            "{name}: the generation read"
+        );
+        // A file as packed leaves slot 1 all zero (§2.1); an updated one holds the previous
+        // generation in the other slot.
+        let other = HEADER_SLOTS[1] - slot;
+        match generation {
+            1 => assert!(
+                bytes[other..other + SLOT_LEN].iter().all(|&x| x == 0),
+                "{name}: slot 1 of a file as packed"
+            ),
+            g => assert_eq!(
+                slot_generation(&bytes, other),
+                Some(g - 1),
+                "{name}: the other slot"
+            ),
+        }
+        let flags = flags_at(&bytes, slot);
+        assert_eq!(flags & FLAG_ROPES != 0, ropes, "{name}: the ROPES flag");
+        assert_eq!(
+            flags & FLAG_OCCLUDERS != 0,
             occluders,
             "{name}: the OCCLUDERS flag"
         );
+        let prims = flags & FLAG_PRIMS != 0;
+        assert_eq!(prims, expect.prims, "{name}: the PRIMS flag");
         assert_eq!(
-            read_u32(&bytes, 20) as usize,
+            read_u32(&bytes, slot + SECTION_COUNT_AT) as usize,
             section_count(&bytes),
             "{name}: section_count (§2)"
         );
+        // The generation ends the file: no bytes past its `file_size` in these fixtures.
+        assert_eq!(
+            read_u64(&bytes, slot + FILE_SIZE_AT),
+            bytes.len() as u64,
+            "{name}: file_size"
+        );
         let dir = directory(&bytes);
-        assert!(dir.len() >= 8, "{name}: {} blocks, want many", dir.len());
+        let live: Vec<usize> = (0..dir.len()).filter(|&b| !dir[b].free).collect();
+        assert!(live.len() >= 8, "{name}: {} blocks, want many", live.len());
+        if generation == 1 {
+            assert_eq!(live.len(), dir.len(), "{name}: a free entry as packed (§8.2)");
+        }
         let decoded: Vec<Vec<u8>> = dir
             .iter()
-            .map(|e| match e.codec {
-                CODEC_RAW => bytes[e.stored()].to_vec(),
+            .map(|e| match (e.free, e.codec) {
+                (true, _) => Vec::new(),
+                (false, CODEC_RAW) => bytes[e.stored()].to_vec(),
                 _ => zstd::bulk::decompress(&bytes[e.stored()], e.raw_len).expect("decode"),
             })
             .collect();
-        if blocks.compress.is_some() {
+        if expect.compressed {
             assert!(
-                dir.iter().all(|e| e.codec == CODEC_ZSTD),
+                live.iter().all(|&b| dir[b].codec == CODEC_ZSTD),
                 "{name}: every block compressed"
             );
         }
-        let clusters = read_u32(&bytes, FLAGS_AT) & FLAG_CLUSTERS != 0;
+        let clusters = flags & FLAG_CLUSTERS != 0;
         assert_eq!(
             clusters,
-            opts.leaf == LeafKind::Cluster,
+            expect.leaf == LeafKind::Cluster,
             "{name}: the CLUSTERS flag"
         );
         // §8.3: a block of a file of clusters has cluster nodes and groups and no references
         // or triangle records; a block of a file of lists the other way round.
-        for (b, raw) in decoded.iter().enumerate() {
+        for &b in &live {
+            let raw = &decoded[b];
             let parts = block_parts(raw);
             let (has, lacks) = match clusters {
                 true => (
@@ -906,17 +1186,67 @@ impl Fixture {
                 }
             }
         }
+        // §8.6: one chunk per 4096 primitives, the last one shorter, each record the
+        // primitive's corners as the mesh gives them; every triangle a block stores is its
+        // primitive's record, bit for bit.
+        let chunks = prim_chunks(&bytes);
+        if prims {
+            let n = mesh.triangles.len();
+            assert_eq!(
+                read_u64(&bytes, slot + INPUT_TRIANGLES_AT) as usize,
+                n,
+                "{name}: input_triangles"
+            );
+            assert_eq!(chunks.len(), n.div_ceil(PRIMS_PER_CHUNK), "{name}: chunks");
+            for (c, ch) in chunks.iter().enumerate() {
+                assert_eq!(
+                    ch.count,
+                    (n - c * PRIMS_PER_CHUNK).min(PRIMS_PER_CHUNK),
+                    "{name}: chunk {c}"
+                );
+            }
+            let record = |p: usize| {
+                let at = prim_record_at(&bytes, p);
+                bytes[at..at + PRIM_RECORD_LEN].to_vec()
+            };
+            for (p, t) in mesh.triangles.iter().enumerate() {
+                let want: Vec<u8> = t
+                    .iter()
+                    .flat_map(|&v| mesh.positions[v as usize])
+                    .flat_map(f32::to_le_bytes)
+                    .collect();
+                let absent = record(p).chunks(4).all(|w| w == PRIM_ABSENT.to_le_bytes());
+                match expect.removed.binary_search(&(p as u32)).is_ok() {
+                    true => assert!(absent, "{name}: removed primitive {p}'s record"),
+                    false => assert!(record(p) == want, "{name}: primitive {p}'s record"),
+                }
+            }
+            for &b in &live {
+                for t in block_triangles(&decoded[b]) {
+                    let prim = read_u32(&t, 36) as usize;
+                    assert!(
+                        record(prim) == t[..36],
+                        "{name}: block {b} stores primitive {prim} other than its record"
+                    );
+                }
+            }
+        } else {
+            assert!(chunks.is_empty(), "{name}: chunks without the flag");
+        }
         let occluder_counts: Vec<(usize, usize)> = decoded
             .iter()
-            .map(|raw| {
-                let parts = block_parts(raw);
-                (
-                    parts[PART_OCCLUDER_NODES].len() / OCCLUDER_NODE_LEN,
-                    parts[PART_OCCLUDERS].len() / TRI_LEN,
-                )
+            .map(|raw| match raw.is_empty() {
+                true => (0, 0),
+                false => {
+                    let parts = block_parts(raw);
+                    (
+                        parts[PART_OCCLUDER_NODES].len() / OCCLUDER_NODE_LEN,
+                        parts[PART_OCCLUDERS].len() / TRI_LEN,
+                    )
+                }
             })
             .collect();
-        if let Some(report) = occluder_report {
+        if let Some(report) = &expect.occluder_report {
             // The blocks hold what add_occluders reports: some blocks hold occluders.
             let entries: usize = occluder_counts.iter().map(|c| c.0).sum();
             let occ: usize = occluder_counts.iter().map(|c| c.1).sum();
@@ -933,16 +1263,18 @@ impl Fixture {
             );
         }
         let links = top_links(&bytes);
-        let largest = (0..dir.len())
-            .max_by_key(|&b| dir[b].raw_len)
+        let largest = *live
+            .iter()
+            .max_by_key(|&&b| dir[b].raw_len)
             .expect("blocks");
-        let mut detailed = vec![0, largest, dir.len() - 1];
+        let mut detailed = vec![live[0], largest, live[live.len() - 1]];
         // With occluders, also the block holding the most (§8.5), so that its two occluder
         // parts are regions.
         let occluder_block = (0..dir.len())
             .filter(|&b| occluder_counts[b].1 > 0)
             .max_by_key(|&b| (occluder_counts[b].1, occluder_counts[b].0));
         detailed.extend(occluder_block);
+        detailed.extend(expect.detail.iter().filter(|&&b| !dir[b].free));
         detailed.sort_unstable();
         detailed.dedup();
 
@@ -952,7 +1284,7 @@ impl Fixture {
         // One ray from inside the link bounds of each block's first root: its walk needs that
         // block first, so a block the pager refuses fails the batch.
         let mut rng = SplitMix64::new(0xb10c);
-        for b in 0..dir.len() {
+        for &b in &live {
             let link = links
                 .iter()
                 .find(|l| l.block == b as u32 && l.root == 0)
@@ -963,6 +1295,13 @@ impl Fixture {
                 0.0,
                 f32::INFINITY,
             ));
+        }
+        // No link to a free entry (§8.2).
+        for (b, e) in dir.iter().enumerate() {
+            assert!(
+                !e.free || links.iter().all(|l| l.block != b as u32),
+                "{name}: a link to free entry {b}"
+            );
         }
         // With occluders, one ray through each occluder of the block holding the most, from
         // just before its centroid: its any-hit walk enters the nodes around it, so that the
@@ -983,7 +1322,8 @@ impl Fixture {
         scene.intersect_batch(&rays, &mut hits).expect("trace");
         let mut occluded = vec![0u8; rays.len()];
         let counters = scene.occluded_batch(&rays, &mut occluded).expect("trace");
-        if let Some(plain) = &without_occluders {
+        let same = |a: &Hit, b: &Hit| a.t.to_bits() == b.t.to_bits() && a.prim == b.prim;
+        if let Some(plain) = &expect.without_occluders {
             // Occluders change no answer (§8.5): the file before them gives the same, bit for
             // bit; and the walk of a file of clusters tests them, so that damaged occluders are
             // traced as well as verified.
@@ -992,7 +1332,6 @@ impl Fixture {
             plain.intersect_batch(&rays, &mut h).expect("trace");
             let mut o = vec![0u8; rays.len()];
             plain.occluded_batch(&rays, &mut o).expect("trace");
-            let same = |a: &Hit, b: &Hit| a.t.to_bits() == b.t.to_bits() && a.prim == b.prim;
             let differ = (0..rays.len()).find(|&i| !same(&h[i], &hits[i]) || o[i] != occluded[i]);
             assert!(
                 differ.is_none(),
@@ -1024,7 +1363,6 @@ impl Fixture {
             neighbours.intersect_batch(&rays, &mut h).expect("trace");
             let mut o = vec![0u8; rays.len()];
             neighbours.occluded_batch(&rays, &mut o).expect("trace");
-            let same = |a: &Hit, b: &Hit| a.t.to_bits() == b.t.to_bits() && a.prim == b.prim;
             let differ = (0..rays.len()).find(|&i| !same(&h[i], &hits[i]) || o[i] != occluded[i]);
             assert!(
                 differ.is_none(),
@@ -1037,6 +1375,26 @@ impl Fixture {
             "{name}: the rays should both hit and miss ({n_hit} of {} hit)",
             rays.len()
         );
+        // The previous generation's answers, from the file as it was before the update: the
+        // answers a reader of it kept getting, and those of this file if its newest header
+        // slot is damaged (§2.1). The update changed some.
+        let previous = expect.previous.as_ref().map(|before| {
+            let old = open_walking(before, walk).expect("the previous generation opens");
+            let mut h = vec![Hit::MISS; rays.len()];
+            old.intersect_batch(&rays, &mut h).expect("trace");
+            let mut o = vec![0u8; rays.len()];
+            old.occluded_batch(&rays, &mut o).expect("trace");
+            let changed = (0..rays.len())
+                .filter(|&i| !same(&h[i], &hits[i]) || o[i] != occluded[i])
+                .count();
+            assert!(changed > 0, "{name}: the update changed no answer");
+            eprintln!("{name}: the update changed the answers to {changed} of {} rays", rays.len());
+            Answers {
+                generation: old.file().header().generation,
+                hits: h,
+                occluded: o,
+            }
+        });
         let max_raw = scene.file().header().max_block_raw_len;
         let held = scene.held_block_bytes();
         let mut fix = Fixture {
@@ -1051,6 +1409,9 @@ impl Fixture {
             clusters,
             ropes,
             occluders,
+            prims,
+            generation,
+            slot,
             walk,
             dir,
             decoded,
@@ -1058,10 +1419,12 @@ impl Fixture {
             detailed,
             occluder_block,
             largest,
+            chunks,
             regions: Vec::new(),
             rays,
             hits,
             occluded,
+            previous,
             max_raw,
             held,
         };
@@ -1069,10 +1432,13 @@ impl Fixture {
         fix
     }
 
-    /// The header, the section table, the padding before the blocks; for each detailed block the
-    /// padding before it, its stored bytes if compressed, and its header, parts and the padding
-    /// between them; the stored bytes of 8 other blocks; then the directory and the top tree's
-    /// sections, each with the padding before it (§2, §8).
+    /// The generation's header slot: the header, the section table, the zero bytes after it;
+    /// the other header slot, whole. The data region: for each detailed block the padding (a
+    /// file as packed) or the bytes no longer referred to (a later generation) before it, its
+    /// stored bytes if compressed, and its header, parts and the padding between them; the
+    /// stored bytes of 8 other blocks; every primitive chunk and what lies before it; what lies
+    /// after the last block or chunk. Then the directory and the other sections, each with the
+    /// padding before it (§2, §2.1, §3, §8).
     fn make_regions(&self) -> Vec<Region> {
         let b = &self.bytes;
         let file = |name: String, kind, range| Region {
@@ -1080,42 +1446,110 @@ impl Fixture {
             kind,
             space: Space::File,
             range,
+            defect: None,
         };
+        let slot = self.slot;
+        let table = table_range(slot, flags_at(b, slot));
+        let slot_index = slot / SLOT_LEN;
+        let other = HEADER_SLOTS[1] - slot;
         let mut out = vec![
-            file("header".into(), RegionKind::Header, 0..HEADER_LEN),
+            file("header".into(), RegionKind::Header, slot..slot + HEADER_LEN),
+            file("section table".into(), RegionKind::Table, table.clone()),
+            Region {
+                defect: Some(format!(
+                    "header slot {slot_index}: bytes {}..{} after the section table are not zero",
+                    table.end,
+                    slot + SLOT_LEN
+                )),
+                ..file(
+                    format!("header slot {slot_index} after the section table"),
+                    RegionKind::SlotPadding,
+                    table.end..slot + SLOT_LEN,
+                )
+            },
             file(
-                "section table".into(),
-                RegionKind::Table,
-                HEADER_LEN..table_end(b),
-            ),
-            file(
-                "padding before the blocks section".into(),
-                RegionKind::Padding,
-                table_end(b)..BLOCKS_START,
+                format!("header slot {} (not this generation's)", other / SLOT_LEN),
+                RegionKind::OtherSlot,
+                other..other + SLOT_LEN,
             ),
         ];
-        let n = self.dir.len();
-        let mut others: Vec<usize> = (0..n).filter(|i| !self.detailed.contains(i)).collect();
+        out.sort_by_key(|r| r.range.start);
+        // The data region's items, in file order: blocks (a free entry has none) and chunks.
+        #[derive(Clone, Copy)]
+        enum Item {
+            Block(usize),
+            Chunk(usize),
+        }
+        let mut items: Vec<(Range<usize>, Item)> = (0..self.dir.len())
+            .filter(|&blk| !self.dir[blk].free)
+            .map(|blk| (self.dir[blk].stored(), Item::Block(blk)))
+            .chain(
+                self.chunks
+                    .iter()
+                    .enumerate()
+                    .map(|(c, ch)| (ch.records(), Item::Chunk(c))),
+            )
+            .collect();
+        items.sort_by_key(|i| i.0.start);
+        let what = |item: Item| match item {
+            Item::Block(blk) => format!("block {blk}"),
+            Item::Chunk(c) => format!("primitive chunk {c}"),
+        };
+        let live: Vec<usize> = (0..self.dir.len()).filter(|&i| !self.dir[i].free).collect();
+        let mut others: Vec<usize> = live
+            .iter()
+            .copied()
+            .filter(|i| !self.detailed.contains(i))
+            .collect();
         let step = others.len().div_ceil(8).max(1);
         others = others.into_iter().step_by(step).collect();
-        for blk in 0..n {
-            let e = self.dir[blk];
-            let detailed = self.detailed.contains(&blk);
-            if !detailed && !others.contains(&blk) {
-                continue;
-            }
-            let prev_end = if blk == 0 {
-                BLOCKS_START
-            } else {
-                self.dir[blk - 1].stored().end
+        let (region_start, region_len) = section(b, BLOCKS);
+        assert_eq!(region_start, BLOCKS_START, "the data region's start (§3)");
+        let region_end = region_start + region_len;
+        let mut prev_end = BLOCKS_START;
+        for (range, item) in items.iter().cloned() {
+            let shown = match item {
+                Item::Block(blk) => self.detailed.contains(&blk) || others.contains(&blk),
+                Item::Chunk(_) => true,
             };
-            if detailed && e.offset > prev_end {
+            let detailed = matches!(item, Item::Block(blk) if self.detailed.contains(&blk));
+            assert!(range.start >= prev_end, "{}: {} overlaps", self.name, what(item));
+            // What lies before the item: zero padding in a file as packed, every gap checked
+            // by verify (§8.2); in a later generation, bytes of older generations, not checked
+            // (§2.1), all of them regions.
+            if range.start > prev_end && self.generation == 1 && (detailed || shown) {
+                out.push(Region {
+                    defect: Some(format!("padding before {} is not zero", what(item))),
+                    ..file(
+                        format!("padding before {}", what(item)),
+                        RegionKind::Gap,
+                        prev_end..range.start,
+                    )
+                });
+            }
+            if range.start > prev_end && self.generation > 1 {
                 out.push(file(
-                    format!("padding before block {blk}"),
-                    RegionKind::BlockGap(blk),
-                    prev_end..e.offset,
+                    format!("older generations' bytes before {}", what(item)),
+                    RegionKind::Dead,
+                    prev_end..range.start,
                 ));
             }
+            prev_end = range.end;
+            let blk = match item {
+                Item::Chunk(c) => {
+                    out.push(file(
+                        format!("primitive chunk {c} records"),
+                        RegionKind::Chunk(c),
+                        range,
+                    ));
+                    continue;
+                }
+                Item::Block(blk) => blk,
+            };
+            if !shown {
+                continue;
+            }
+            let e = self.dir[blk];
             if !detailed || e.codec != CODEC_RAW {
                 let what = if e.codec == CODEC_RAW {
                     "raw bytes"
@@ -1137,6 +1571,7 @@ impl Fixture {
                 kind,
                 space: Space::Block(blk),
                 range,
+                defect: None,
             };
             out.push(in_block(
                 format!("block {blk} header"),
@@ -1168,15 +1603,45 @@ impl Fixture {
             }
             assert_eq!(end, raw.len(), "block {blk} ends with its last part (§8.3)");
         }
-        let (blocks_at, blocks_len) = section(b, BLOCKS);
-        let mut end = blocks_at + blocks_len;
-        assert_eq!(
-            end,
-            self.dir[n - 1].stored().end,
-            "the last block ends the section"
-        );
-        for (i, (name, ..)) in SECTIONS.iter().enumerate().take(section_count(b) - 1) {
-            let (offset, length) = section(b, i + 1);
+        // After the last item, to the directory: less than 64 bytes of zero padding in a file
+        // as packed (§3), older generations' bytes in a later one.
+        assert!(region_end >= prev_end, "{}: the data region's end", self.name);
+        if self.generation == 1 {
+            assert!(
+                region_end - prev_end < ALIGN,
+                "{}: the data region ends at the next multiple of 64 after its last item (§3)",
+                self.name
+            );
+        }
+        if region_end > prev_end {
+            let last = items.last().expect("items").1;
+            out.push(match self.generation {
+                1 => Region {
+                    defect: Some(format!(
+                        "padding after {} to the end of the data region is not zero",
+                        what(last)
+                    )),
+                    ..file(
+                        format!("padding after {}", what(last)),
+                        RegionKind::Gap,
+                        prev_end..region_end,
+                    )
+                },
+                _ => file(
+                    format!("older generations' bytes after {}", what(last)),
+                    RegionKind::Dead,
+                    prev_end..region_end,
+                ),
+            });
+        }
+        let mut end = region_end;
+        let kinds = section_kinds(flags_at(b, slot));
+        for (i, &kind) in kinds.iter().enumerate().skip(DIRECTORY) {
+            let (offset, length) = section(b, i);
+            let (name, ..) = SECTIONS[kind as usize - 2];
+            if i == DIRECTORY {
+                assert_eq!(offset, region_end, "the directory starts where the data region ends (§3)");
+            }
             if offset > end {
                 out.push(file(
                     format!("padding before the {name} section"),
@@ -1186,7 +1651,7 @@ impl Fixture {
             }
             out.push(file(
                 format!("{name} section"),
-                RegionKind::Section(i),
+                RegionKind::Section(kind as usize - 2),
                 offset..offset + length,
             ));
             end = offset + length;
@@ -1227,14 +1692,15 @@ impl Fixture {
         }
     }
 
-    /// The file with `new` written at `at` of `space`, checksums recomputed: a compressed block
-    /// is decoded, changed, compressed again and the file laid out again (§8).
+    /// The file with `new` written at `at` of `space`, checksums recomputed (those of the
+    /// fixture's generation): a compressed block is decoded, changed, compressed again and the
+    /// file laid out again (§8; a file as packed only).
     fn rewrite(&self, space: Space, at: usize, new: &[u8]) -> Vec<u8> {
         match (space, self.file_at(space, at)) {
             (_, Some(at)) => {
                 let mut b = self.bytes.clone();
                 b[at..at + new.len()].copy_from_slice(new);
-                fix_checksums(&mut b);
+                fix_checksums_at(&mut b, self.slot);
                 b
             }
             (Space::Block(blk), None) => {
@@ -1246,13 +1712,25 @@ impl Fixture {
         }
     }
 
+    /// The answers of the intact file's generation `generation` (this one, or the previous
+    /// one of an updated file), if the fixture has them.
+    fn answers(&self, generation: u64) -> Option<(&[Hit], &[u8])> {
+        if generation == self.generation {
+            return Some((&self.hits, &self.occluded));
+        }
+        self.previous
+            .as_ref()
+            .filter(|p| p.generation == generation)
+            .map(|p| (&p.hits[..], &p.occluded[..]))
+    }
+
     /// A name for field `at` of `region`, telling link records of the top tree (and their
     /// ropes) apart.
     fn field(&self, region: &Region, at: usize) -> String {
         let field = region.field(at);
         let record = match region.kind {
             RegionKind::Section(i) if i == NODES - 1 => Some(8),
-            RegionKind::Section(i) if i == ROPES - 1 => Some(ROPE_LEN),
+            RegionKind::Section(SECTION_ROPES) => Some(ROPE_LEN),
             _ => None,
         };
         if let Some(size) = record {
@@ -1471,6 +1949,195 @@ fn occluded_zstd_file() -> &'static Fixture {
             true,
         )
     })
+}
+
+/// The dragon's smallest decimation with the default build options, raw blocks, packed
+/// `--updatable` as `oavm-pack` packs it (`pack_mesh`, to disk): the primitive table (§8.6),
+/// its chunks after the blocks and its chunk directory the last section.
+fn updatable_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| updatable("dragon res4, updatable, raw", false))
+}
+
+/// The same, zstd-compressed blocks (so that a block rewritten and compressed again moves the
+/// chunks after it).
+fn updatable_zstd_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| updatable("dragon res4, updatable, zstd", true))
+}
+
+fn updatable(name: &str, compress: bool) -> Fixture {
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let path = dir.path().join("updatable.oavm");
+    let opts = oavm::build::PackOptions {
+        build: BuildOptions::default(),
+        blocks: blocks_16k(compress),
+        time: None,
+        mem_budget: None,
+        ropes: false,
+        occluders: false,
+        updatable: true,
+        bounds: None,
+    };
+    oavm::build::pack_mesh(dragon().clone(), "dragon", &path, &opts, &oavm::build::Quiet)
+        .expect("pack --updatable");
+    let bytes = std::fs::read(&path).expect("read");
+    let expect = Expect {
+        compressed: compress,
+        prims: true,
+        ..Expect::new(LeafKind::Cluster)
+    };
+    let fix = Fixture::examine(name, dragon(), bytes, expect);
+    // The table adds to the file and changes no block: the blocks are the file without it's.
+    let plain = match compress {
+        false => default_file(),
+        true => default_zstd_file(),
+    };
+    assert_eq!(fix.dir.len(), plain.dir.len(), "{name}: blocks");
+    for (b, (e, p)) in fix.dir.iter().zip(&plain.dir).enumerate() {
+        assert!(
+            fix.bytes[e.stored()] == plain.bytes[p.stored()] && e.offset == p.offset,
+            "{name}: block {b} is not the file without the table's"
+        );
+    }
+    fix
+}
+
+/// The triangles an update of [`updated_file`] removes, moves and inserts.
+struct UpdateEdits {
+    removed: Vec<u32>,
+    moved: Vec<u32>,
+    inserted: Vec<u32>,
+}
+
+/// [`updatable_file`] updated in place (`Updater`, §2.1): every primitive of a block in the
+/// middle of the directory removed (so that the block goes, and its entry may stay free,
+/// §8.2), the first 24 triangles of another block moved a hundredth of the way to the mesh's
+/// centre, and two triangles inserted: generation 2, in slot 1; its data region holds
+/// generation 1's blocks, chunks and sections as well as its own.
+fn updated_file() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let before = updatable_file();
+        let (mesh, bytes, edits) = update_of(before);
+        let old_dir = &before.dir;
+        let new_dir = directory(&bytes);
+        // The blocks the update wrote (new bytes in an old entry, or a new entry).
+        let written: Vec<usize> = (0..new_dir.len())
+            .filter(|&b| {
+                !new_dir[b].free
+                    && old_dir
+                        .get(b)
+                        .is_none_or(|o| (o.offset, o.stored_len) != (new_dir[b].offset, new_dir[b].stored_len))
+            })
+            .collect();
+        assert!(!written.is_empty(), "the update wrote no block");
+        let free = new_dir.iter().filter(|e| e.free).count();
+        eprintln!(
+            "update: {} removed, {} moved, {} inserted; blocks {:?} written, {free} free entries",
+            edits.removed.len(),
+            edits.moved.len(),
+            edits.inserted.len(),
+            written
+        );
+        let expect = Expect {
+            prims: true,
+            generation: 2,
+            previous: Some(before.bytes.clone()),
+            removed: edits.removed,
+            detail: vec![written[0], written[written.len() - 1]],
+            ..Expect::new(LeafKind::Cluster)
+        };
+        Fixture::examine(
+            "dragon res4, updatable, raw, generation 2",
+            &mesh,
+            bytes,
+            expect,
+        )
+    })
+}
+
+/// Updates a copy of `before`'s file (see [`updated_file`]): the mesh it then holds (a removed
+/// primitive keeps its old triangle there), the file's bytes, and the edits.
+fn update_of(before: &Fixture) -> (Mesh, Vec<u8>, UpdateEdits) {
+    use oavm::build::update::{UpdateOptions, Updater};
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let path = dir.path().join("updated.oavm");
+    std::fs::write(&path, &before.bytes).expect("write");
+    let prims_of = |b: usize| {
+        let mut p: Vec<u32> = block_triangles(&before.decoded[b])
+            .iter()
+            .map(|t| read_u32(t, 36))
+            .collect();
+        p.sort_unstable();
+        p.dedup();
+        p
+    };
+    let n = before.dir.len();
+    let removed = prims_of(n / 2);
+    let mut moved: Vec<u32> = prims_of(n / 4)
+        .into_iter()
+        .filter(|p| removed.binary_search(p).is_err())
+        .collect();
+    moved.truncate(24);
+    let mut mesh = dragon().clone();
+    let bounds = common::bounds(&mesh);
+    let centre = bounds.centre();
+    let mut u = Updater::open(&path).expect("open for an update");
+    assert_eq!(u.generation(), 1);
+    for &p in &removed {
+        u.remove(p).expect("remove");
+    }
+    let towards = |v: [f32; 3], f: f64| -> [f32; 3] {
+        std::array::from_fn(|k| (v[k] as f64 + (centre[k] - v[k] as f64) * f) as f32)
+    };
+    let mut add = |mesh: &mut Mesh, v: [[f32; 3]; 3]| -> [u32; 3] {
+        let first = mesh.positions.len() as u32;
+        mesh.positions.extend(v);
+        [first, first + 1, first + 2]
+    };
+    for &p in &moved {
+        let v = mesh.triangle(p as usize).map(|c| towards(c, 0.01));
+        u.set(p, v).expect("set");
+        let t = add(&mut mesh, v);
+        mesh.triangles[p as usize] = t;
+    }
+    let mut inserted = Vec::new();
+    for k in 0..2 {
+        // Half of a triangle of the first block, about its centroid, moved a little towards
+        // the centre: inside the mesh's box, so inside the root cube.
+        let t = mesh.triangle(prims_of(0)[k] as usize);
+        let c: [f32; 3] = std::array::from_fn(|i| (t[0][i] + t[1][i] + t[2][i]) / 3.0);
+        let v = t.map(|p| towards(std::array::from_fn(|i| (p[i] + c[i]) / 2.0), 0.001));
+        let p = u.insert(v).expect("insert");
+        assert_eq!(p as usize, mesh.triangles.len(), "inserted ids follow the table");
+        let t = add(&mut mesh, v);
+        mesh.triangles.push(t);
+        inserted.push(p);
+    }
+    let report = u
+        .commit(&UpdateOptions {
+            block_size: 16384,
+            compress: None,
+        })
+        .expect("commit");
+    assert_eq!(
+        (report.previous_generation, report.generation),
+        (1, 2),
+        "{report:?}"
+    );
+    assert_eq!(
+        (report.removed, report.moved, report.inserted),
+        (removed.len() as u64, moved.len() as u64, inserted.len() as u64),
+        "{report:?}"
+    );
+    let bytes = std::fs::read(&path).expect("read");
+    let edits = UpdateEdits {
+        removed,
+        moved,
+        inserted,
+    };
+    (mesh, bytes, edits)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1714,22 +2381,84 @@ fn layout_matches_the_spec() {
     assert_eq!(offset_of!(Header, checksum), HEADER_CHECKSUM);
     assert_eq!(offset_of!(Header, version), VERSION_AT);
     assert_eq!(offset_of!(Header, flags), FLAGS_AT);
-    assert_eq!(oavm::physical::format::FLAG_COMPRESSED, FLAG_COMPRESSED);
-    assert_eq!(oavm::physical::format::FLAG_CLUSTERS, FLAG_CLUSTERS);
-    assert_eq!(oavm::physical::format::FLAG_ROPES, FLAG_ROPES);
-    assert_eq!(oavm::physical::format::FLAG_OCCLUDERS, FLAG_OCCLUDERS);
-    assert_eq!(offset_of!(Header, section_count), 20);
+    use oavm::physical::format as f;
+    assert_eq!(f::VERSION, VERSION, "§12");
+    assert_eq!(f::MAGIC, *MAGIC);
+    assert_eq!(f::FLAG_MERGED, FLAG_MERGED);
+    assert_eq!(f::FLAG_COMPRESSED, FLAG_COMPRESSED);
+    assert_eq!(f::FLAG_CLUSTERS, FLAG_CLUSTERS);
+    assert_eq!(f::FLAG_ROPES, FLAG_ROPES);
+    assert_eq!(f::FLAG_OCCLUDERS, FLAG_OCCLUDERS);
+    assert_eq!(f::FLAG_PRIMS, FLAG_PRIMS);
+    assert_eq!(offset_of!(Header, section_count), SECTION_COUNT_AT);
+    assert_eq!(offset_of!(Header, section_table_offset), TABLE_OFFSET_AT);
     assert_eq!(offset_of!(Header, file_size), FILE_SIZE_AT);
     assert_eq!(offset_of!(Header, root_min), ROOT_MIN_AT);
     assert_eq!(offset_of!(Header, root_size), ROOT_SIZE_AT);
+    assert_eq!(offset_of!(Header, input_triangles), INPUT_TRIANGLES_AT);
     assert_eq!(offset_of!(Header, max_block_raw_len), MAX_BLOCK_RAW_LEN_AT);
+    assert_eq!(offset_of!(Header, generation), GENERATION_AT);
     let header_fields = [
         offset_of!(Header, block_count),
         offset_of!(Header, block_triangles),
         offset_of!(Header, stored_triangles),
+        offset_of!(Header, generation),
         offset_of!(Header, reserved),
     ];
-    assert_eq!(header_fields, [136, 152, 160, 168]);
+    assert_eq!(header_fields, [136, 152, 160, 168, RESERVED_AT]);
+    assert_eq!(
+        HEADER_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>(),
+        [
+            offset_of!(Header, magic),
+            offset_of!(Header, version),
+            offset_of!(Header, flags),
+            offset_of!(Header, header_size),
+            offset_of!(Header, section_count),
+            offset_of!(Header, section_table_offset),
+            offset_of!(Header, file_size),
+            offset_of!(Header, root_min),
+            offset_of!(Header, root_size),
+            offset_of!(Header, mesh_min),
+            offset_of!(Header, mesh_max),
+            offset_of!(Header, input_triangles),
+            offset_of!(Header, empty_leaves),
+            offset_of!(Header, solid_leaves),
+            offset_of!(Header, level_count),
+            offset_of!(Header, lattice_bits),
+            offset_of!(Header, max_depth),
+            offset_of!(Header, leaf_size),
+            offset_of!(Header, block_count),
+            offset_of!(Header, max_block_raw_len),
+            offset_of!(Header, block_triangles),
+            offset_of!(Header, stored_triangles),
+            offset_of!(Header, generation),
+            offset_of!(Header, reserved),
+            offset_of!(Header, checksum),
+        ]
+    );
+    // §2: reserved is u64[9], up to the checksum.
+    assert_eq!(RESERVED_AT + 9 * 8, HEADER_CHECKSUM);
+    // §2.1: the two header slots and the data region after them.
+    assert_eq!(HEADER_SLOTS.map(|s| s as u64), f::HEADER_SLOTS);
+    assert_eq!(HEADER_SLOTS[1], SLOT_LEN);
+    assert_eq!(f::DATA_START, BLOCKS_START as u64);
+    assert_eq!(BLOCKS_START, 2 * SLOT_LEN);
+    assert_eq!(f::FIRST_GENERATION, 1);
+    // §8.6: the primitive table.
+    assert_eq!(size_of::<f::PrimChunk>(), PRIM_CHUNK_LEN);
+    assert_eq!(
+        [
+            offset_of!(f::PrimChunk, offset),
+            offset_of!(f::PrimChunk, count),
+            offset_of!(f::PrimChunk, checksum),
+            offset_of!(f::PrimChunk, reserved),
+        ]
+        .to_vec(),
+        PRIM_CHUNK_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
+    assert_eq!(size_of::<f::PrimRecord>(), PRIM_RECORD_LEN);
+    assert_eq!(f::PRIM_CHUNK, PRIMS_PER_CHUNK as u64);
+    assert_eq!(f::PRIM_ABSENT, PRIM_ABSENT);
     assert_eq!(size_of::<SectionEntry>(), ENTRY_LEN);
     assert_eq!(offset_of!(SectionEntry, offset), ENTRY_OFFSET);
     assert_eq!(offset_of!(SectionEntry, length), ENTRY_LENGTH);
@@ -1833,14 +2562,28 @@ fn layout_matches_the_spec() {
         group_fields.to_vec(),
         GROUP_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
     );
-    assert_eq!(SectionKind::ALL.len(), SECTION_COUNT_ROPES);
+    assert_eq!(SectionKind::ALL.len(), 9, "§3: nine kinds");
     assert_eq!(SectionKind::BASE, SECTION_COUNT);
-    assert_eq!(SectionKind::count_for(0), SECTION_COUNT);
-    assert_eq!(SectionKind::count_for(FLAG_CLUSTERS), SECTION_COUNT);
     assert_eq!(SectionKind::count_for(FLAG_ROPES), SECTION_COUNT_ROPES);
-    assert_eq!(SectionKind::ALL[ROPES], SectionKind::Ropes);
-    assert_eq!(SectionKind::Ropes as usize, ROPES + 1, "§3: kind 8");
-    assert_eq!((TABLE_END, TABLE_END_ROPES), (256 + 336, 256 + 384), "§2");
+    assert_eq!(SectionKind::Ropes as u32, KIND_ROPES, "§3: kind 8");
+    assert_eq!(SectionKind::Prims as u32, KIND_PRIMS, "§3: kind 9");
+    assert_eq!(section_position(FLAG_ROPES, KIND_ROPES), Some(ROPES));
+    // §3: the seven sections, then ropes with ROPES, then the primitive table with PRIMS.
+    for flags in 0..64 {
+        let code: Vec<u32> = SectionKind::for_flags(flags).map(|k| k as u32).collect();
+        assert_eq!(section_kinds(flags), code, "flags {flags:#x}");
+        assert_eq!(SectionKind::count_for(flags), code.len(), "flags {flags:#x}");
+    }
+    assert_eq!(
+        (
+            TABLE_END,
+            table_range(0, FLAG_ROPES).end,
+            table_range(HEADER_SLOTS[1], FLAG_PRIMS).end,
+            table_range(0, FLAG_ROPES | FLAG_PRIMS).end,
+        ),
+        (256 + 336, 256 + 384, 2048 + 256 + 384, 256 + 432),
+        "§2, §3"
+    );
     assert_eq!(SectionKind::ALL[BLOCKS].record_size(), None);
     for (kind, (name, size, _)) in SectionKind::ALL[1..].iter().zip(SECTIONS) {
         assert_eq!((kind.name(), kind.record_size()), (name, Some(size as u64)));
@@ -1859,16 +2602,22 @@ fn layout_matches_the_spec() {
         roped_list_zstd_file(),
         occluded_file(),
         occluded_zstd_file(),
+        updatable_file(),
+        updatable_zstd_file(),
+        updated_file(),
     ] {
         // The section table is as long as the flags say (§2, §3).
         assert_eq!(
-            read_u32(&fix.bytes, 20) as usize,
-            if fix.ropes {
-                SECTION_COUNT_ROPES
-            } else {
-                SECTION_COUNT
-            },
+            read_u32(&fix.bytes, fix.slot + SECTION_COUNT_AT) as usize,
+            SECTION_COUNT + fix.ropes as usize + fix.prims as usize,
             "{}: section_count",
+            fix.name
+        );
+        // §2.1: the section table follows its slot's header.
+        assert_eq!(
+            read_u64(&fix.bytes, fix.slot + TABLE_OFFSET_AT) as usize,
+            fix.slot + HEADER_LEN,
+            "{}: section_table_offset",
             fix.name
         );
         // Recomputing the checksums of an intact file changes nothing: the tests compute them
@@ -1881,8 +2630,9 @@ fn layout_matches_the_spec() {
             fix.name
         );
         // Laying the file out again, each detailed block stored again (compressed as the
-        // writer compresses), gives the same bytes: the tests lay files out as the writer does.
-        for &blk in &fix.detailed {
+        // writer compresses), gives the same bytes: the tests lay files out as the writer does
+        // (a file as packed; an update's blocks lie anywhere, §2.1).
+        for &blk in fix.detailed.iter().filter(|_| fix.generation == 1) {
             let e = fix.dir[blk];
             let stored = match e.codec {
                 CODEC_RAW => fix.decoded[blk].clone(),
@@ -1903,7 +2653,7 @@ fn layout_matches_the_spec() {
         let holding = fix
             .decoded
             .iter()
-            .filter(|raw| !block_parts(raw)[PART_OCCLUDERS].is_empty())
+            .filter(|raw| !raw.is_empty() && !block_parts(raw)[PART_OCCLUDERS].is_empty())
             .count();
         assert_eq!(
             holding > 0,
@@ -1923,6 +2673,8 @@ fn layout_matches_the_spec() {
         roped_list_zstd_file(),
         occluded_file(),
         occluded_zstd_file(),
+        updatable_zstd_file(),
+        updated_file(),
     ] {
         let blk = fix.detailed[0];
         let r = fix
@@ -1973,6 +2725,36 @@ fn layout_matches_the_spec() {
         assert!(
             !checksum_defect(&b),
             "{}: recomputed checksums are accepted",
+            fix.name
+        );
+    }
+    // The same for a primitive chunk's records (§8.6), whose checksum is in the chunk
+    // directory: the change is seen by it, and, recomputed, by the comparison of the blocks'
+    // triangles with the table.
+    for fix in [updatable_file(), updatable_zstd_file(), updated_file()] {
+        let c = fix.chunks.len() / 2;
+        let at = fix.chunks[c].offset;
+        let mut b = fix.bytes.clone();
+        b[at] ^= 1;
+        let defects = |b: &[u8]| {
+            open(b)
+                .expect("opens")
+                .verify()
+                .map(|r| r.defects)
+                .unwrap_or_else(|e| vec![e.to_string()])
+        };
+        let d = defects(&b);
+        assert!(
+            d.iter()
+                .any(|d| d.contains(&format!("primitive chunk {c}: checksum mismatch"))),
+            "{}: {d:?}",
+            fix.name
+        );
+        let b = fix.rewrite(Space::File, at, &[b[at]]);
+        let d = defects(&b);
+        assert!(
+            !d.is_empty() && !d.iter().any(|d| d.contains("checksum")),
+            "{}: recomputed checksums are accepted, the table is not: {d:?}",
             fix.name
         );
     }

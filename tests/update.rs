@@ -392,3 +392,64 @@ fn interrupted_updates_leave_a_readable_generation() {
     check(&std::fs::read(&p2).unwrap(), 2, &after, "updated after a crash");
     let _ = p;
 }
+
+/// `oavm-pack --updatable`, `oavm-update` with a BART scene at a time, `--json`, and
+/// `--compact`: the file after each answers as a fresh pack of the frame; the compacted file is
+/// generation 1, smaller, with no free entry, and answers the same.
+#[test]
+fn cli_updates_and_compacts() {
+    let scene = shared_scene("bart/kitchen/kitchen.aff");
+    let dir = TempDir::new().unwrap();
+    let file = dir.path().join("k.oavm");
+    common::pack(&scene, &file, &["--updatable", "--time", "0"]);
+    for t in ["6", "9.5"] {
+        let (out, stdout, stderr) = common::run(
+            common::bin("oavm-update")
+                .arg(&file)
+                .arg(&scene)
+                .args(["--time", t, "--json"]),
+        );
+        assert!(out.status.success(), "{stderr}");
+        let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        assert!(v["update"]["moved"].as_u64().unwrap() > 0, "{stdout}");
+        assert!(v["update"]["bytes_written"].as_u64().unwrap() > 0, "{stdout}");
+    }
+    let mesh = oavm::mesh::load_at(&scene, Some(9.5)).unwrap();
+    let bounds = common::bounds(&mesh);
+    check_same_as_fresh(&file, &mesh, &bounds, "kitchen at 9.5 through the CLI");
+    let before = std::fs::metadata(&file).unwrap().len();
+    let rays = ray_sets(&Scene::open(&file).unwrap(), &bounds);
+    let want = answers(&Scene::open(&file).unwrap(), &rays);
+    let (out, stdout, stderr) = common::run(
+        common::bin("oavm-update")
+            .arg(&file)
+            .args(["--compact", "--json"]),
+    );
+    assert!(out.status.success(), "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(v["compacted"]["generation"].as_u64(), Some(3), "{stdout}");
+    let after = std::fs::metadata(&file).unwrap().len();
+    assert!(after < before, "compacting {before} bytes gave {after}");
+    let s = Scene::open(&file).unwrap();
+    assert_eq!(s.file().header().generation, 1);
+    assert!(s.file().directory().iter().all(|e| !e.is_free()));
+    assert!(answers(&s, &rays) == want);
+    verify(&file);
+    // And it updates on.
+    let (out, _, stderr) = common::run(
+        common::bin("oavm-update")
+            .arg(&file)
+            .arg(&scene)
+            .args(["--time", "12"]),
+    );
+    assert!(out.status.success(), "{stderr}");
+    verify(&file);
+    // A file without the table: a clear error, a non-zero exit, the file untouched.
+    let plain = dir.path().join("plain.oavm");
+    common::pack(&scene, &plain, &[]);
+    let bytes = std::fs::read(&plain).unwrap();
+    let (out, _, stderr) = common::run(common::bin("oavm-update").arg(&plain).arg(&scene));
+    assert!(!out.status.success());
+    assert!(stderr.contains("--updatable"), "{stderr}");
+    assert!(std::fs::read(&plain).unwrap() == bytes);
+}

@@ -12,10 +12,10 @@
 //! the root cube fitted to both frames); both frames are packed fresh for their answers (closest
 //! hits' `t` bits and primitives, and any-hit answers, to random and primary rays). An
 //! uninterrupted update is timed; then each of N kills (spread over the scenes) copies the
-//! packed file, opens a reader on it, starts `oavm-update` on it, waits a random time between 0
-//! and 1.5 times the update's duration (so kills land in every phase: reading the mesh,
-//! rebuilding, appending blocks, the syncs, the header), sends SIGKILL, and checks the file
-//! and the reader. Every tenth kill is followed by an update run to completion on the killed
+//! packed file, opens a reader on it, starts `oavm-update` on it, waits a random time (every
+//! other kill between 0 and 1.5 times the update's duration, the others in its last 40 %, where
+//! it writes: so kills land in every phase, reading the mesh, rebuilding, appending blocks, the
+//! syncs, the header), sends SIGKILL, and checks the file and the reader. Every tenth kill is followed by an update run to completion on the killed
 //! file, which must answer as the new frame: a crash leaves a file that later updates work on.
 
 use std::path::{Path, PathBuf};
@@ -248,7 +248,14 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()?;
-        let wait = Duration::from_secs_f64(rng.unit() * 1.5 * out.update_seconds);
+        // Half the kills anywhere in the update's run, half in its last 40 % (where it writes:
+        // the mesh is read and the subtrees built before anything is written).
+        let at = if k % 2 == 0 {
+            rng.unit() * 1.5
+        } else {
+            0.6 + 0.4 * rng.unit()
+        };
+        let wait = Duration::from_secs_f64(at * out.update_seconds);
         std::thread::sleep(wait);
         let finished = matches!(child.try_wait()?, Some(s) if s.success());
         let _ = child.kill();

@@ -17,6 +17,9 @@ use oavm::logical::{
 use oavm::mesh::AffScene;
 use oavm::output::Output;
 use oavm::rays::{self, Bounds, Camera};
+use oavm::render::animate::{
+    self, AnimateOptions, Animation, AnimationReport, CameraChoice, FirstPack, FrameReport,
+};
 use oavm::render::{
     self, Look, PointLight, RenderOptions, RenderStats, ShadedOptions, ShadedStats,
 };
@@ -30,7 +33,9 @@ use serde::Serialize;
 /// ray traced with the scene's materials and lights, reflections and refractions). With --rays and
 /// --hits (closest hit) or --occluded (any hit), traces a ray file in the formats of RAYS.md.
 /// With --random N or --primary WxH (and --shadow), traces rays it makes and reports the figures
-/// only. With --verify, checks every byte of the file. Outputs are written atomically, through
+/// only. With --verify, checks every byte of the file. With --frames A..B, renders frames of an
+/// animation (--view), bringing the file to each frame by a local update (or, with --rebuild, a
+/// full pack), ray traced as with --shade, to numbered PNGs in the -o directory. Outputs are written atomically, through
 /// symlinks, never over a directory, device or FIFO, nor over an input.
 #[derive(Parser, Debug)]
 #[command(name = "oavm-trace", version)]
@@ -75,7 +80,8 @@ struct Args {
     /// Check every section, checksum and invariant; exit non-zero on any defect.
     #[arg(long)]
     verify: bool,
-    /// Render mode: the image to write (default: the file's name with .png).
+    /// Render mode: the image to write (default: the file's name with .png). With --frames:
+    /// the directory the frames go to (`frame_00012.png`; created if missing).
     #[arg(short, long, value_name = "PNG", conflicts_with_all = ["rays", "random", "primary", "verify"])]
     output: Option<PathBuf>,
     /// Render mode: image width (default 1024, or the --view scene's resolution).
@@ -90,14 +96,38 @@ struct Args {
     /// --light replaces the scene's lights by one white light.
     #[arg(long, conflicts_with_all = ["rays", "random", "primary", "verify"])]
     shade: bool,
-    /// Render mode with --shade: the most bounces of reflection and refraction (default 5, at
-    /// most 16; 0: none).
-    #[arg(long, value_name = "N", requires = "shade")]
+    /// Render mode with --shade or --frames: the most bounces of reflection and refraction
+    /// (default 5, at most 16; 0: none).
+    #[arg(long, value_name = "N")]
     depth: Option<u32>,
     /// With --view: pose the scene at this time (default: its animation start, as oavm-pack
     /// does) for its camera, lights and materials. Give the time the file was packed at.
-    #[arg(long, value_name = "T", requires = "view")]
+    #[arg(long, value_name = "T", requires = "view", conflicts_with = "frames")]
     time: Option<f64>,
+    /// Animation mode: render frames A..B (A to B-1; A..=B; or one frame A) of the --view
+    /// scene's animation (`a start end frames`: frame f at start + f (end - start) / frames):
+    /// for each frame, bring FILE to its triangles by a local update (FILE must be packed with
+    /// `oavm-pack --updatable`, its root cube holding every frame: see --pack), ray trace it as
+    /// --shade does (the frame's lights and materials, shadows, reflection and refraction to
+    /// --depth) and write OUT_DIR/frame_NNNNN.png (-o, required). The camera is the --view
+    /// scene's `v` block, or its camera path with --camera-path.
+    #[arg(long, value_name = "A..B", value_parser = parse_frames, requires = "view",
+          conflicts_with_all = ["rays", "random", "primary", "verify"])]
+    frames: Option<std::ops::Range<u64>>,
+    /// With --frames: read frame f's triangles from PATTERN, its {} replaced by f padded to
+    /// five digits (e.g. DIR/rain_{}.ply of `cargo run --example rain`), triangle i being
+    /// primitive i, instead of posing the --view scene, which gives the camera, lights and
+    /// materials.
+    #[arg(long, value_name = "PATTERN", requires = "frames")]
+    frame_meshes: Option<String>,
+    /// With --frames: pack each frame whole into FILE (replacing it) instead of updating it:
+    /// the full rebuild per frame, to compare with. The images are the same, byte for byte.
+    #[arg(long, requires = "frames")]
+    rebuild: bool,
+    /// With --frames: first pack FILE (replacing it) from frame A, updatable, with a root cube
+    /// that holds every frame of the range (each frame posed to find its bounds).
+    #[arg(long, requires = "frames", conflicts_with = "rebuild")]
+    pack: bool,
     #[command(flatten)]
     camera: cli::CameraArgs,
     #[command(flatten)]
@@ -123,6 +153,10 @@ enum Mode {
         wave: usize,
     },
     Verify,
+    Frames {
+        out_dir: PathBuf,
+        range: std::ops::Range<u64>,
+    },
 }
 
 #[derive(Debug)]
@@ -172,7 +206,28 @@ impl Args {
                 "--random N or --primary WxH",
             )
         })
-        .or_else(|| given(self.depth.is_some() && !self.shade, "--depth", "--shade"))
+        .or_else(|| {
+            given(
+                self.depth.is_some() && !self.shade && self.frames.is_none(),
+                "--depth",
+                "--shade or --frames",
+            )
+        })
+        .or_else(|| {
+            given(
+                self.frames.is_some() && self.output.is_none(),
+                "--frames",
+                "-o OUT_DIR (the directory of the frames' images)",
+            )
+        })
+        .or_else(|| {
+            given(
+                (self.frame_meshes.is_some() || self.rebuild || self.pack)
+                    && self.frames.is_none(),
+                "--frame-meshes/--rebuild/--pack",
+                "--frames A..B",
+            )
+        })
         .or_else(|| {
             given(
                 self.time.is_some() && self.camera.view.is_none(),
@@ -187,6 +242,17 @@ impl Args {
     fn mode(&self) -> Result<Mode, Error> {
         if self.verify {
             return Ok(Mode::Verify);
+        }
+        if let Some(range) = &self.frames {
+            let out_dir = self.output.clone().ok_or_else(|| {
+                Error::Invalid(
+                    "--frames needs -o OUT_DIR, the directory the frames' images go to".into(),
+                )
+            })?;
+            return Ok(Mode::Frames {
+                out_dir,
+                range: range.clone(),
+            });
         }
         if let Some(rays) = &self.rays {
             let query = match (&self.hits, &self.occluded) {
@@ -244,8 +310,10 @@ fn main() -> ExitCode {
 
 fn run(args: &Args, start: Instant) -> Result<(), Error> {
     let mode = args.mode()?;
-    if let Mode::Verify = mode {
-        return verify(args);
+    match mode {
+        Mode::Verify => return verify(args),
+        Mode::Frames { out_dir, range } => return frames(args, &out_dir, range),
+        _ => {}
     }
     let t = Instant::now();
     let mut scene = Scene::open_with(
@@ -296,7 +364,7 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         Mode::Render { image } => ctx.render(&image),
         Mode::Batch { rays, query } => ctx.batch(&rays, &query),
         Mode::Bench { set, shadow, wave } => ctx.bench(set, shadow, wave),
-        Mode::Verify => Ok(()),
+        Mode::Verify | Mode::Frames { .. } => Ok(()),
     })
 }
 
@@ -339,6 +407,169 @@ fn verify(args: &Args) -> Result<(), Error> {
         )));
     }
     Ok(())
+}
+
+/// `--frames A..B`: an animation, each frame updated into the file (or packed whole, with
+/// --rebuild) and rendered (`oavm::render::animate`).
+fn frames(args: &Args, out_dir: &Path, range: std::ops::Range<u64>) -> Result<(), Error> {
+    let view = args
+        .camera
+        .view
+        .as_deref()
+        .ok_or_else(|| Error::Invalid("--frames needs --view SCENE.aff".into()))?;
+    let anim = match &args.frame_meshes {
+        Some(pattern) => Animation::with_meshes(view, pattern, range)?,
+        None => Animation::new(view, range)?,
+    };
+    let threads = args.trace.threads.unwrap_or_else(cli::cores).max(1);
+    let opts = AnimateOptions {
+        mode: if args.rebuild {
+            animate::Mode::Rebuild
+        } else {
+            animate::Mode::Update
+        },
+        out_dir: Some(out_dir.to_owned()),
+        width: args.width,
+        height: args.height,
+        max_depth: args.depth.unwrap_or(render::DEFAULT_MAX_DEPTH),
+        camera: if args.camera.camera_path {
+            CameraChoice::Path
+        } else {
+            CameraChoice::View
+        },
+        light: args.camera.light,
+        scene: SceneOptions {
+            mem_budget: args.trace.mem_budget,
+            threads,
+            check_blocks: !args.trace.no_block_checks,
+            block_reads: args.trace.block_reads.into(),
+            walk: args.trace.walk.into(),
+        },
+        order: args.trace.order,
+        ..AnimateOptions::default()
+    };
+    cli::with_threads(threads, || {
+        let first = match args.pack {
+            true => {
+                let p = anim.pack_first(&args.file, &opts.pack)?;
+                if !args.json {
+                    cli::print_text(&format!(
+                        "packed {} from frame {} ({} triangles, {} bytes, {:.3} s), root cube \
+                         around {:?}..{:?}\n",
+                        args.file.display(),
+                        p.frame,
+                        p.pack.stats.input_triangles,
+                        p.pack.file_bytes,
+                        p.pack.total_seconds,
+                        p.bounds.0,
+                        p.bounds.1
+                    ))?;
+                }
+                Some(p)
+            }
+            false => None,
+        };
+        let mut printed = Ok(());
+        let report = animate::animate(&anim, &args.file, &opts, &mut |r| {
+            if !args.json && printed.is_ok() {
+                printed = cli::print_text(&frame_line(r));
+            }
+        })?;
+        printed?;
+        if args.json {
+            #[derive(Serialize)]
+            struct Frames<'a> {
+                #[serde(skip_serializing_if = "Option::is_none")]
+                packed: Option<FirstPack>,
+                #[serde(flatten)]
+                animation: &'a AnimationReport,
+            }
+            return cli::print_json(&Frames {
+                packed: first,
+                animation: &report,
+            });
+        }
+        cli::print_text(&format!(
+            "{} frames ({}x{}, {}, depth {}) on {} threads: {:.2} frames/s ({:.3} s a frame: \
+             {} {:.3} s, open {:.3} s, render {:.3} s); {:.2} Mrays/s; {} bytes written, file \
+             {} bytes\n",
+            report.frames,
+            report.width,
+            report.height,
+            match report.mode {
+                animate::Mode::Update => "updated",
+                animate::Mode::Rebuild => "rebuilt",
+            },
+            report.max_depth,
+            report.threads,
+            report.fps,
+            report.frame_seconds / report.frames.max(1) as f64,
+            match report.mode {
+                animate::Mode::Update => "update",
+                animate::Mode::Rebuild => "pack",
+            },
+            report.update_seconds / report.frames.max(1) as f64,
+            report.open_seconds / report.frames.max(1) as f64,
+            report.render_seconds / report.frames.max(1) as f64,
+            report.mrays_per_s,
+            report.bytes_written,
+            report.file_bytes,
+        ))
+    })
+}
+
+/// One frame of `--frames`, as a line of text.
+fn frame_line(r: &FrameReport) -> String {
+    let how = match (&r.update, &r.pack) {
+        (Some(u), _) => format!(
+            "update {:.3} s ({} moved, {} inserted, {} removed; {} of {} blocks rebuilt; {} \
+             bytes written)",
+            r.update_seconds,
+            u.moved,
+            u.inserted,
+            u.removed,
+            u.blocks_rebuilt,
+            u.blocks_before,
+            u.bytes_written
+        ),
+        (_, Some(p)) => format!(
+            "pack {:.3} s ({} blocks, {} bytes)",
+            r.update_seconds, p.block_count, p.file_bytes
+        ),
+        _ => format!("no change ({:.3} s)", r.update_seconds),
+    };
+    let image = r
+        .image
+        .as_ref()
+        .map_or(String::new(), |p| format!(" -> {}", p.display()));
+    format!(
+        "frame {} (time {}): {how}; render {:.3} s ({} rays, {:.2} Mrays/s){image}\n",
+        r.frame, r.time, r.render_seconds, r.render.rays, r.render.mrays_per_s
+    )
+}
+
+/// Parses `--frames`: `A..B` (A to B-1), `A..=B` (A to B) or `A` (one frame).
+fn parse_frames(text: &str) -> Result<std::ops::Range<u64>, String> {
+    let number = |s: &str| {
+        s.trim()
+            .parse::<u64>()
+            .map_err(|e| format!("{s:?} is not a frame number: {e}"))
+    };
+    let (a, b) = if let Some((a, b)) = text.split_once("..=") {
+        let b = number(b)?;
+        (number(a)?, b.checked_add(1).ok_or("the range is too large")?)
+    } else if let Some((a, b)) = text.split_once("..") {
+        (number(a)?, number(b)?)
+    } else {
+        let a = number(text)?;
+        (a, a.checked_add(1).ok_or("the frame is too large")?)
+    };
+    if a >= b {
+        return Err(format!(
+            "{text:?}: the range is empty (A..B renders frames A to B-1; A..=B, or one frame A)"
+        ));
+    }
+    Ok(a..b)
 }
 
 /// One tracing run: the scene and what every mode reports besides its rays.

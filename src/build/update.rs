@@ -409,21 +409,20 @@ fn descend(top: &Top, t: &LatticeTri, out: &mut Vec<usize>) {
     }
 }
 
-/// Subtrees to build together: their roots (one level, Morton order), and the triangles over
-/// them all.
+/// Subtrees to build together: the block they were in (whose triangles but the changed ones
+/// they take), their roots (one level, Morton order), and the changed triangles that reach
+/// them.
 struct Job {
+    block: Option<u32>,
     level: u32,
     codes: Vec<u64>,
     records: Vec<TriRecord>,
 }
 
-/// What the blocks an update removes held.
-#[derive(Default)]
+/// The leaves of the blocks an update removes.
 struct Removed {
     empty: u64,
     solid: u64,
-    /// The triangles of each block, by block.
-    triangles: HashMap<u32, Vec<TriRecord>>,
 }
 
 /// The distinct triangles a decoded block stores, and its leaf counts.
@@ -525,7 +524,12 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         }
     }
     let top = read_top(file, &path)?;
-    let changed: HashSet<u32> = changes.iter().map(|c| c.prim).collect();
+    // The changed primitives, as a bitset (a bit per primitive id: 16 MB for 128 million).
+    let mut changed = vec![0u64; (old_count.max(u.count)).div_ceil(64) as usize];
+    for c in &changes {
+        changed[c.prim as usize / 64] |= 1 << (c.prim % 64);
+    }
+    let is_changed = |p: u32| changed.get(p as usize / 64).is_some_and(|w| w >> (p % 64) & 1 != 0);
 
     // 2. Where the changes reach: blocks to rebuild (old or new triangle overlaps a root), and
     // the new triangles by link or empty leaf.
@@ -582,38 +586,19 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     blocks.sort_unstable();
     report.diff_seconds += t0.elapsed().as_secs_f64();
 
-    // 3. The subtrees to build: every root of every reached block, every empty leaf reached.
+    // 3. The subtrees to build: the roots of every reached block together, every empty leaf
+    // reached alone.
     let t1 = Instant::now();
     let directory = file.directory();
     let reader = BlockReader::new(file);
-    let decoded: Vec<(u32, Vec<TriRecord>, u64, u64)> = blocks
-        .par_iter()
-        .map(|&b| {
-            let e = directory
-                .get(b as usize)
-                .ok_or_else(|| invalid(&path, format!("a link to block {b}, past the directory")))?;
-            let raw = reader
-                .read(file.bytes(), b, e)
-                .map_err(|err| invalid(&path, err))?;
-            let view =
-                BlockView::parse(&raw, b, e).map_err(|w| invalid(&path, format!("block {b}: {w}")))?;
-            let (tris, empty, solid) = block_triangles(&view);
-            Ok((b, tris, empty, solid))
-        })
-        .collect::<Result<_, Error>>()?;
-    let mut removed = Removed::default();
-    for (b, tris, empty, solid) in decoded {
-        removed.empty += empty;
-        removed.solid += solid;
-        removed.triangles.insert(b, tris);
-    }
-    report.leaves_before = removed.empty + removed.solid;
     let mut jobs: Vec<Job> = Vec::new();
     let mut replaced: HashSet<usize> = HashSet::new();
     for &b in &blocks {
-        let count = directory[b as usize].root_count;
-        let mut roots = Vec::with_capacity(count as usize);
-        for root in 0..count {
+        let e = directory
+            .get(b as usize)
+            .ok_or_else(|| invalid(&path, format!("a link to block {b}, past the directory")))?;
+        let mut roots = Vec::with_capacity(e.root_count as usize);
+        for root in 0..e.root_count {
             let &(level, code) = top
                 .roots
                 .get(&(b, root))
@@ -627,20 +612,15 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         if roots.iter().any(|r| r.0 != level) {
             return Err(invalid(&path, format!("block {b}: roots at different levels")));
         }
-        // The block's triangles but the changed ones, and the changed ones that now reach one
-        // of its roots; each root takes those that overlap its cell.
-        let mut records: Vec<TriRecord> = removed.triangles[&b]
-            .iter()
-            .filter(|t| !changed.contains(&t.prim))
-            .copied()
-            .collect();
+        let mut records = Vec::new();
         for &(level, code) in &roots {
             let i = top.at[&(level, code)];
             replaced.insert(i);
-            records.extend(new_at.get(&i).into_iter().flatten());
+            records.extend(new_at.remove(&i).into_iter().flatten());
         }
         report.subtrees_rebuilt += roots.len() as u64;
         jobs.push(Job {
+            block: Some(b),
             level,
             codes: roots.iter().map(|r| r.1).collect(),
             records,
@@ -650,17 +630,15 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         replaced.insert(i);
         let n = top.nodes[i];
         jobs.push(Job {
+            block: None,
             level: n.level,
             codes: vec![n.code],
             records: new_at.remove(&i).unwrap_or_default(),
         });
     }
+    drop(new_at);
     report.empty_leaves_filled = filled.len() as u64;
     report.subtrees_rebuilt += filled.len() as u64;
-    for j in &mut jobs {
-        j.records.sort_unstable_by_key(|r| r.prim);
-        j.records.dedup_by_key(|r| r.prim);
-    }
     let build = BuildOptions {
         max_depth: header.max_depth,
         leaf_size: header.leaf_size,
@@ -675,99 +653,6 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         root_min: header.root_min,
         root_size: header.root_size,
     });
-    let built: Vec<Subtree> = jobs
-        .par_iter()
-        .map(|j| {
-            build_subtrees(
-                &j.records,
-                j.level,
-                &j.codes,
-                &lattice,
-                &build,
-                opts.block_size,
-                0,
-                clusters.as_ref(),
-            )
-        })
-        .collect::<Result<_, Error>>()?;
-    drop(jobs);
-
-    // 4. Block ids: the freed entries first (lowest first), then new ones.
-    let mut free: Vec<u32> = blocks.clone();
-    free.extend(
-        directory
-            .iter()
-            .enumerate()
-            .filter(|(_, e)| e.is_free())
-            .map(|(b, _)| b as u32),
-    );
-    free.sort_unstable();
-    free.dedup();
-    let mut free = free.into_iter();
-    let mut next_id = directory.len() as u32;
-    let mut new_blocks: Vec<BlockParts> = Vec::new();
-    let mut top_nodes: Vec<TopNode> = top
-        .nodes
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| !replaced.contains(i))
-        .map(|(_, n)| *n)
-        .collect();
-    let mut level_end = header.level_count;
-    for s in built {
-        let ids: Vec<u32> = s
-            .split
-            .blocks
-            .iter()
-            .map(|_| {
-                free.next().unwrap_or_else(|| {
-                    next_id += 1;
-                    next_id - 1
-                })
-            })
-            .collect();
-        for mut n in s.split.top {
-            if let TopKind::Link { block, root } = n.kind {
-                n.kind = TopKind::Link {
-                    block: ids[block as usize],
-                    root,
-                };
-            }
-            top_nodes.push(n);
-        }
-        for (mut b, id) in s.split.blocks.into_iter().zip(ids) {
-            b.id = id;
-            new_blocks.push(b);
-        }
-        level_end = level_end.max(s.level_end);
-    }
-    let (mut added_empty, mut added_solid) = (0u64, 0u64);
-    for b in &new_blocks {
-        let (empty, solid) = leaf_counts(b.unit.as_ref());
-        added_empty += empty;
-        added_solid += solid;
-        report.volumes_after += b.unit.volumes.len() as u64;
-    }
-    report.leaves_after = added_empty + added_solid;
-
-    // 5. The top tree's empty leaves merged again, as a whole.
-    let top_empty_before = top
-        .nodes
-        .iter()
-        .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
-        .count() as u64;
-    remerge_top(&mut top_nodes, build.merge);
-    let top_empty_after = top_nodes
-        .iter()
-        .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
-        .count() as u64;
-    report.top_empty_before = top_empty_before;
-    report.top_empty_after = top_empty_after;
-    let top_unit = assemble_top(top_nodes)?;
-    report.build_seconds = t1.elapsed().as_secs_f64();
-
-    // 6. The new generation.
-    let t2 = Instant::now();
     let compress = match opts.compress {
         Some(c) => c,
         None => (header.flags & FLAG_COMPRESSED != 0).then_some(DEFAULT_ZSTD_LEVEL),
@@ -776,6 +661,9 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         block_size: opts.block_size,
         compress,
     };
+
+    // 4. The writer of the new generation: the directory with the reached blocks' entries
+    // freed, appending after everything the file holds.
     let mut dir: Vec<BlockEntry> = directory.to_vec();
     let mut bounds: Vec<Vec<LinkBounds>> = dir
         .iter()
@@ -810,19 +698,141 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         Some(chunks),
     )
     .map_err(io)?;
-    // Blocks in id order past the directory's end (a writer fills the directory in order).
-    new_blocks.sort_unstable_by_key(|b| b.id);
-    for batch in new_blocks.chunks(64) {
-        let stored: Vec<StoredBlock> = batch
+
+    // 5. Build and write, a batch of jobs at a time (what is held is one batch's triangles and
+    // blocks): each reached block decoded, its triangles but the changed ones added to the
+    // changed ones that now reach its roots; block ids from the freed entries first (lowest
+    // first), then new ones at the directory's end, in increasing order.
+    let mut free: Vec<u32> = blocks.clone();
+    free.extend(
+        directory
+            .iter()
+            .enumerate()
+            .filter(|(_, e)| e.is_free())
+            .map(|(b, _)| b as u32),
+    );
+    free.sort_unstable();
+    free.dedup();
+    let mut free = free.into_iter();
+    let mut next_id = directory.len() as u32;
+    let mut top_nodes: Vec<TopNode> = top
+        .nodes
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !replaced.contains(i))
+        .map(|(_, n)| *n)
+        .collect();
+    let mut level_end = header.level_count;
+    let (mut added_empty, mut added_solid) = (0u64, 0u64);
+    let (mut removed_empty, mut removed_solid) = (0u64, 0u64);
+    let mut write_seconds = 0.0;
+    let batch_size = 4 * rayon::current_num_threads().max(1);
+    while !jobs.is_empty() {
+        let batch: Vec<Job> = jobs.drain(..batch_size.min(jobs.len())).collect();
+        let built: Vec<(Subtree, u64, u64)> = batch
+            .into_par_iter()
+            .map(|mut j| {
+                let (mut empty, mut solid) = (0, 0);
+                if let Some(b) = j.block {
+                    let e = &directory[b as usize];
+                    let raw = reader
+                        .read(file.bytes(), b, e)
+                        .map_err(|err| invalid(&path, err))?;
+                    let view = BlockView::parse(&raw, b, e)
+                        .map_err(|w| invalid(&path, format!("block {b}: {w}")))?;
+                    let (tris, le, ls) = block_triangles(&view);
+                    (empty, solid) = (le, ls);
+                    j.records
+                        .extend(tris.into_iter().filter(|t| !is_changed(t.prim)));
+                }
+                j.records.sort_unstable_by_key(|r| r.prim);
+                j.records.dedup_by_key(|r| r.prim);
+                let s = build_subtrees(
+                    &j.records,
+                    j.level,
+                    &j.codes,
+                    &lattice,
+                    &build,
+                    opts.block_size,
+                    0,
+                    clusters.as_ref(),
+                )?;
+                Ok((s, empty, solid))
+            })
+            .collect::<Result<_, Error>>()?;
+        let mut new_blocks: Vec<BlockParts> = Vec::new();
+        for (s, empty, solid) in built {
+            removed_empty += empty;
+            removed_solid += solid;
+            let ids: Vec<u32> = s
+                .split
+                .blocks
+                .iter()
+                .map(|_| {
+                    free.next().unwrap_or_else(|| {
+                        next_id += 1;
+                        next_id - 1
+                    })
+                })
+                .collect();
+            for mut n in s.split.top {
+                if let TopKind::Link { block, root } = n.kind {
+                    n.kind = TopKind::Link {
+                        block: ids[block as usize],
+                        root,
+                    };
+                }
+                top_nodes.push(n);
+            }
+            for (mut b, id) in s.split.blocks.into_iter().zip(ids) {
+                b.id = id;
+                new_blocks.push(b);
+            }
+            level_end = level_end.max(s.level_end);
+        }
+        for b in &new_blocks {
+            let (empty, solid) = leaf_counts(b.unit.as_ref());
+            added_empty += empty;
+            added_solid += solid;
+            report.volumes_after += b.unit.volumes.len() as u64;
+        }
+        let tw = Instant::now();
+        // Ids past the directory's end are placed in order (a writer fills the directory in
+        // order); they were handed out in increasing order.
+        new_blocks.sort_unstable_by_key(|b| b.id);
+        let stored: Vec<StoredBlock> = new_blocks
             .par_iter()
             .map(|b| store_block(b.unit.as_ref(), b.root_level, b.id, &block_opts))
             .collect::<Result<_, _>>()?;
         for s in stored {
             w.place(s).map_err(io)?;
         }
+        report.blocks_written += new_blocks.len() as u64;
+        write_seconds += tw.elapsed().as_secs_f64();
     }
-    report.blocks_written = new_blocks.len() as u64;
-    drop(new_blocks);
+    report.leaves_before = removed_empty + removed_solid;
+    report.leaves_after = added_empty + added_solid;
+    let removed = Removed {
+        empty: removed_empty,
+        solid: removed_solid,
+    };
+
+    // 6. The top tree's empty leaves merged again, as a whole.
+    let top_empty_before = top
+        .nodes
+        .iter()
+        .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
+        .count() as u64;
+    remerge_top(&mut top_nodes, build.merge);
+    let top_empty_after = top_nodes
+        .iter()
+        .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
+        .count() as u64;
+    report.top_empty_before = top_empty_before;
+    report.top_empty_after = top_empty_after;
+    let top_unit = assemble_top(top_nodes)?;
+    report.build_seconds = t1.elapsed().as_secs_f64() - write_seconds;
+    let t2 = Instant::now();
 
     // The primitive chunks that changed, and the header's triangle counts and mesh bounds.
     let new_count = u.count;
@@ -873,7 +883,7 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         ..header
     };
     let (_, end) = w.finish(&meta, top_unit.as_ref()).map_err(io)?;
-    report.write_seconds = t2.elapsed().as_secs_f64();
+    report.write_seconds = write_seconds + t2.elapsed().as_secs_f64();
     report.file_bytes = std::fs::metadata(&path).map_err(io)?.len();
     report.bytes_written = end - start + (std::mem::size_of::<Header>() as u64);
     report.blocks_rebuilt = blocks.len() as u64;

@@ -420,7 +420,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     pub fn check_unchanged(&self) -> Result<(), Error> {
         self.file
             .data()
-            .check_unchanged_at(self.file.header().generation)
+            .check_unchanged_at(self.file.slot(), self.file.header())
             .map_err(|source| Error::Changed {
                 path: self.path.clone(),
                 source,

@@ -164,11 +164,12 @@ fn table_err(what: impl Into<String>) -> FormatError {
     FormatError::SectionTable(what.into())
 }
 
-/// Whether an update wrote a generation newer than `generation` to the file `f` (spec §2.1):
-/// one of its header slots holds a valid header of a later generation. What a reader of
-/// `generation` asks when the file's size or change time moved: an update only appends and
-/// writes the other slot, so the bytes it reads are as they were.
-pub fn newer_generation_written(f: &std::fs::File, generation: u64) -> bool {
+/// Whether the file `f`, whose size or change time moved since a reader read `header` from
+/// slot `slot`, still holds that generation as it was (spec §2.1): its slot holds the same
+/// header (an update since wrote the other slot, or was interrupted), or a slot holds a later
+/// generation (an update wrote it; two updates wrote over the reader's slot). An update only
+/// appends and writes a slot, so the bytes the reader uses are then as they were.
+pub fn generation_intact(f: &std::fs::File, slot: usize, header: &Header) -> bool {
     use std::os::unix::fs::FileExt;
     let Ok(len) = f.metadata().map(|m| m.len()) else {
         return false;
@@ -177,8 +178,13 @@ pub fn newer_generation_written(f: &std::fs::File, generation: u64) -> bool {
     if f.read_exact_at(&mut first, 0).is_err() {
         return false;
     }
+    let at = HEADER_SLOTS.get(slot).copied().unwrap_or(0) as usize;
+    let mine = bytemuck::bytes_of(header);
+    if first.get(at..at + mine.len()) == Some(mine) {
+        return true;
+    }
     (0..HEADER_SLOTS.len())
-        .any(|slot| read_header(&first, slot, len).is_ok_and(|h| h.generation > generation))
+        .any(|s| read_header(&first, s, len).is_ok_and(|h| h.generation > header.generation))
 }
 
 /// Reads and checks the header in slot `slot` (spec §2, §2.1) of a file whose first bytes

@@ -17,7 +17,7 @@ pub(crate) mod verify;
 pub(crate) mod writer;
 
 pub use block::{BlockError, BlockReader, BlockView, ReadBlock};
-pub use file::{AlignedBytes, OavmFile, SlotState, newer_generation_written};
+pub use file::{AlignedBytes, OavmFile, SlotState, generation_intact};
 pub use inspect::{
     DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel, inspect,
 };

@@ -10,6 +10,7 @@
 //! Both trace tile by tile ([`TILE`]) on at most [`Scene::threads`] threads, and both give the
 //! same image, byte for byte, whatever the number of threads and the order of the tiles.
 
+pub mod animate;
 mod look;
 mod whitted;
 

@@ -2,34 +2,58 @@
 //! out by hand for the tests and the fuzz targets that build or damage files byte by byte: they
 //! must not take offsets from the code they check. Shared by `tests/corruption.rs` and
 //! `fuzz/targets.rs` (through `#[path]`); a change of the format changes this file with the spec.
+//! As of format version 5 (generations in two header slots, the primitive table).
 #![allow(dead_code)]
 
+/// §12: the version this layout describes.
+pub const VERSION: u32 = 5;
+/// §2: the magic bytes a header starts with.
+pub const MAGIC: &[u8; 8] = b"\x89OAVM\r\n\x1a";
 /// §2: the header is 256 bytes; its last 8 are the checksum of the bytes before them and of the
 /// section table.
 pub const HEADER_LEN: usize = 256;
 pub const HEADER_CHECKSUM: usize = 248;
-/// §2: header fields these tests rewrite.
+/// §2: header fields these tests rewrite (offsets in the header, whichever slot it is in).
 pub const VERSION_AT: usize = 8;
 pub const FLAGS_AT: usize = 12;
+pub const SECTION_COUNT_AT: usize = 20;
+pub const TABLE_OFFSET_AT: usize = 24;
 pub const FILE_SIZE_AT: usize = 32;
 pub const ROOT_MIN_AT: usize = 40;
 pub const ROOT_SIZE_AT: usize = 64;
+pub const INPUT_TRIANGLES_AT: usize = 96;
 pub const MAX_BLOCK_RAW_LEN_AT: usize = 144;
-/// §3: the section table follows the header: seven 48-byte entries.
+pub const GENERATION_AT: usize = 168;
+/// §2: `reserved`, u64[9], zero.
+pub const RESERVED_AT: usize = 176;
+/// §2, §2.1: the two header slots, each a header and its section table, zero after the table
+/// to the slot's end. Generation `g` is in slot `(g - 1) mod 2`; a file as packed is
+/// generation 1, in slot 0, and its slot 1 is all zero.
+pub const HEADER_SLOTS: [usize; 2] = [0, 2048];
+pub const SLOT_LEN: usize = 2048;
+/// §3: the section table follows its slot's header: 48-byte entries, seven in every file.
 pub const ENTRY_LEN: usize = 48;
 pub const SECTION_COUNT: usize = 7;
+/// Where slot 0's table ends in a file with no optional section (no ropes, no primitive table).
 pub const TABLE_END: usize = HEADER_LEN + SECTION_COUNT * ENTRY_LEN;
 /// §3: fields of a section table entry.
+pub const ENTRY_KIND: usize = 0;
 pub const ENTRY_OFFSET: usize = 8;
 pub const ENTRY_LENGTH: usize = 16;
+pub const ENTRY_COUNT: usize = 24;
 pub const ENTRY_CHECKSUM: usize = 40;
-/// §3: positions in the section table.
+/// §3: positions in the section table of the seven sections every file has (kind - 1).
 pub const BLOCKS: usize = 0;
 pub const DIRECTORY: usize = 1;
 pub const LEVELS: usize = 2;
 pub const NODES: usize = 3;
+pub const RANKS: usize = 4;
+pub const VOLUMES: usize = 5;
 pub const LINK_BOUNDS: usize = 6;
-/// §2: the blocks section starts at offset 4096.
+/// §3: the kinds of the sections after them, each present by a flag, in this order.
+pub const KIND_ROPES: u32 = 8;
+pub const KIND_PRIMS: u32 = 9;
+/// §2, §3: the blocks section (the data region) starts at offset 4096, after both slots.
 pub const BLOCKS_START: usize = 4096;
 /// §8.2: a directory entry and its fields.
 pub const DIR_LEN: usize = 48;
@@ -47,17 +71,39 @@ pub const CODEC_ZSTD: u32 = 1;
 pub const RAW_ALIGN: usize = 4096;
 pub const ALIGN: usize = 64;
 /// §2: flag bits.
+pub const FLAG_MERGED: u32 = 1;
 pub const FLAG_COMPRESSED: u32 = 2;
 pub const FLAG_CLUSTERS: u32 = 4;
-/// §8.3: a block's header, and where its counts are: `level_count` (u32), then from
+pub const FLAG_ROPES: u32 = 8;
+pub const FLAG_OCCLUDERS: u32 = 16;
+pub const FLAG_PRIMS: u32 = 32;
+/// §8.6: the primitive table's chunk directory entry (`PrimChunk`, 32 bytes) and its fields,
+/// a chunk's records (`PrimRecord`, 36 bytes: three corners), primitives per chunk, and the
+/// bits of every word of an absent primitive's record.
+pub const PRIM_CHUNK_LEN: usize = 32;
+pub const PC_OFFSET: usize = 0;
+pub const PC_COUNT: usize = 8;
+pub const PC_CHECKSUM: usize = 16;
+pub const PC_RESERVED: usize = 24;
+pub const PRIM_RECORD_LEN: usize = 36;
+pub const PRIMS_PER_CHUNK: usize = 4096;
+pub const PRIM_ABSENT: u32 = 0xffff_ffff;
+/// §8.3: a block's header (104 bytes), and where its counts are: `level_count` (u32), then from
 /// `node_count` on seven u64 counts, one per part after the level table, in part order (nodes,
-/// ranks, volumes, refs, triangles, cluster nodes, groups), then `block_id`.
-pub const BLOCK_HEADER_LEN: usize = 80;
+/// ranks, volumes, refs, triangles, cluster nodes, groups), then `block_id`, then the counts of
+/// the parts added later: `rope_count`, `occluder_node_count`, `occluder_count` (bytes 80..104
+/// were padding before ropes and occluders; the level table still starts at 128).
+pub const BLOCK_HEADER_LEN: usize = 104;
 pub const BH_LEVEL_COUNT: usize = 4;
 pub const BH_NODE_COUNT: usize = 16;
 pub const BH_BLOCK_ID: usize = 72;
-/// §8.3: a block's parts, the level table first.
-pub const BLOCK_PART_COUNT: usize = 8;
+pub const BH_ROPE_COUNT: usize = 80;
+pub const BH_OCCLUDER_NODE_COUNT: usize = 88;
+pub const BH_OCCLUDER_COUNT: usize = 96;
+/// §8.3: a block's parts, the level table first, the ropes ninth, the occluder nodes and the
+/// occluders tenth and eleventh; the parts from the ninth on take no place when empty.
+pub const BLOCK_PART_COUNT: usize = 11;
+pub const FIRST_LATE_PART: usize = 8;
 /// §7.1: a cluster node (80 bytes) and the fields these tests rewrite.
 pub const CLUSTER_NODE_LEN: usize = 80;
 pub const CN_ORIGIN: usize = 0;
@@ -81,3 +127,29 @@ pub const KIND_LINK: u32 = 3;
 pub const LINK_ROOT_MASK: u32 = (1 << 30) - 1;
 /// §8.3: a decoded block starts with this tag.
 pub const BLOCK_TAG: &[u8; 4] = b"OBLK";
+
+/// §3: the kinds of the sections a file with these header flags has, in table order: the
+/// seven every file has, then ropes with `ROPES`, then the primitive table with `PRIMS`.
+pub fn section_kinds(flags: u32) -> Vec<u32> {
+    let mut kinds: Vec<u32> = (1..=SECTION_COUNT as u32).collect();
+    if flags & FLAG_ROPES != 0 {
+        kinds.push(KIND_ROPES);
+    }
+    if flags & FLAG_PRIMS != 0 {
+        kinds.push(KIND_PRIMS);
+    }
+    kinds
+}
+
+/// §3: the position in the section table of the section of `kind`, if a file with these flags
+/// has it.
+pub fn section_position(flags: u32, kind: u32) -> Option<usize> {
+    section_kinds(flags).iter().position(|&k| k == kind)
+}
+
+/// §2.1: where the section table of the slot at `slot_at` starts, and where it ends for a file
+/// with these flags (the header checksum covers it; zero bytes follow it to the slot's end).
+pub fn table_range(slot_at: usize, flags: u32) -> std::ops::Range<usize> {
+    let start = slot_at + HEADER_LEN;
+    start..start + section_kinds(flags).len() * ENTRY_LEN
+}

@@ -118,7 +118,7 @@ use std::sync::{
 
 use super::held::ReadyMap;
 use crate::os::{Changed, MappedFile, PageBuf};
-use crate::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD};
+use crate::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD, Header};
 use crate::physical::{AlignedBytes, BlockError, BlockReader};
 
 /// Where the pager reads blocks from: the whole file's bytes, with hints for the kernel.
@@ -149,10 +149,11 @@ pub trait BlockSource: Sync {
     fn check_unchanged(&self) -> Result<(), Changed> {
         Ok(())
     }
-    /// [`Self::check_unchanged`] for a reader of `generation` (format-spec §2.1): an update
-    /// that appended a later generation changed none of the bytes it reads.
-    fn check_unchanged_at(&self, generation: u64) -> Result<(), Changed> {
-        let _ = generation;
+    /// [`Self::check_unchanged`] for a reader of the generation whose header it read from
+    /// slot `slot` (format-spec §2.1): an update, which only appends and writes a header slot,
+    /// changed none of the bytes it reads.
+    fn check_unchanged_at(&self, slot: usize, header: &Header) -> Result<(), Changed> {
+        let _ = (slot, header);
         self.check_unchanged()
     }
 }
@@ -180,10 +181,8 @@ impl BlockSource for MappedFile {
     fn check_unchanged(&self) -> Result<(), Changed> {
         MappedFile::check_unchanged(self)
     }
-    fn check_unchanged_at(&self, generation: u64) -> Result<(), Changed> {
-        self.check_unchanged_unless(|f| {
-            crate::physical::newer_generation_written(f, generation)
-        })
+    fn check_unchanged_at(&self, slot: usize, header: &Header) -> Result<(), Changed> {
+        self.check_unchanged_unless(|f| crate::physical::generation_intact(f, slot, header))
     }
 }
 
