@@ -453,3 +453,53 @@ fn cli_updates_and_compacts() {
     assert!(stderr.contains("--updatable"), "{stderr}");
     assert!(std::fs::read(&plain).unwrap() == bytes);
 }
+
+/// The streaming pack (`--mem-budget`) writes the same primitive table as the in-memory one,
+/// and its file updates the same way.
+#[test]
+fn streamed_updatable_files_update() {
+    let mesh = common::load_shared("dragon/dragon_vrip_res3.ply");
+    let dir = TempDir::new().unwrap();
+    let ply = dir.path().join("dragon.ply");
+    std::fs::write(&ply, common::binary_ply(&mesh)).unwrap();
+    let b = common::bounds(&mesh);
+    let room = (b.min, [b.max[0], b.max[1] + 0.02, b.max[2]]);
+    let streamed = dir.path().join("streamed.oavm");
+    let opts = PackOptions {
+        updatable: true,
+        bounds: Some(room),
+        mem_budget: Some(4 << 20),
+        ..PackOptions::default()
+    };
+    let r = oavm::build::pack(&ply, &streamed, &opts, &Quiet).unwrap();
+    assert!(r.streaming.is_some_and(|s| s.chunks > 1), "not streamed in chunks");
+    let in_memory = dir.path().join("memory.oavm");
+    let opts = PackOptions {
+        mem_budget: None,
+        ..opts
+    };
+    oavm::build::pack(&ply, &in_memory, &opts, &Quiet).unwrap();
+    let table = |p: &Path| {
+        let s = Scene::open(p).unwrap();
+        let f = s.file();
+        let chunks: &[oavm::physical::format::PrimChunk] =
+            f.records(oavm::physical::format::SectionKind::Prims);
+        chunks
+            .iter()
+            .flat_map(|c| {
+                f.bytes()[c.offset as usize..(c.offset + 36 * c.count) as usize].to_vec()
+            })
+            .collect::<Vec<u8>>()
+    };
+    assert!(table(&streamed) == table(&in_memory), "primitive tables differ");
+    verify(&streamed);
+    let mut moved = mesh.clone();
+    for p in moved.positions.iter_mut().filter(|p| p[0] > 0.0) {
+        p[1] += 0.01;
+    }
+    let mut u = Updater::open(&streamed).unwrap();
+    u.set_mesh(&moved).unwrap();
+    let r = commit(u);
+    assert!(r.moved > 1000, "{r:?}");
+    check_same_as_fresh(&streamed, &moved, &common::bounds(&moved), "streamed dragon moved");
+}

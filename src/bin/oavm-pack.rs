@@ -74,7 +74,7 @@ struct Args {
     occluders: bool,
     /// Store the primitive table (format-spec §8.6: every input triangle's corners by
     /// primitive id, 36 bytes a triangle), so that `oavm-update` can bring the file to new
-    /// geometry in place. Not with --ropes, --occluders or --mem-budget.
+    /// geometry in place. Not with --ropes or --occluders.
     #[arg(long)]
     updatable: bool,
     /// Fit the root cube to hold the box LO..HI as well as the mesh (X,Y,Z..X,Y,Z, world

@@ -222,8 +222,7 @@ impl Args {
         })
         .or_else(|| {
             given(
-                (self.frame_meshes.is_some() || self.rebuild || self.pack)
-                    && self.frames.is_none(),
+                (self.frame_meshes.is_some() || self.rebuild || self.pack) && self.frames.is_none(),
                 "--frame-meshes/--rebuild/--pack",
                 "--frames A..B",
             )
@@ -557,7 +556,10 @@ fn parse_frames(text: &str) -> Result<std::ops::Range<u64>, String> {
     };
     let (a, b) = if let Some((a, b)) = text.split_once("..=") {
         let b = number(b)?;
-        (number(a)?, b.checked_add(1).ok_or("the range is too large")?)
+        (
+            number(a)?,
+            b.checked_add(1).ok_or("the range is too large")?,
+        )
     } else if let Some((a, b)) = text.split_once("..") {
         (number(a)?, number(b)?)
     } else {

@@ -35,7 +35,7 @@ pub struct PackOptions {
     pub updatable: bool,
     /// Fit the root cube to hold this box (`lo`, `hi`, world units) as well as the mesh: room
     /// for later updates to move triangles into (an update refuses geometry outside the root
-    /// cube). In memory only.
+    /// cube).
     pub bounds: Option<([f32; 3], [f32; 3])>,
 }
 
@@ -58,13 +58,6 @@ impl PackOptions {
             return Err(Error::Invalid(format!(
                 "--bounds {lo:?}..{hi:?}: corners must be finite, the first below the second"
             )));
-        }
-        if (self.updatable || self.bounds.is_some()) && self.mem_budget.is_some() {
-            return Err(Error::Invalid(
-                "--updatable or --bounds with --mem-budget: the streaming pack does not \
-                 write the primitive table or take bounds yet; pack in memory"
-                    .into(),
-            ));
         }
         Ok(())
     }
@@ -195,14 +188,6 @@ fn pack_without_ropes(
         (None, Some(_)) => None,
     };
     if let Some(budget) = budget {
-        if opts.updatable || opts.bounds.is_some() {
-            return Err(Error::Invalid(format!(
-                "{}: too large to build in memory ({} bytes available), and the streaming \
-                 pack does not write the primitive table --updatable needs, nor take --bounds, yet",
-                mesh_path.display(),
-                crate::os::available_memory().unwrap_or(0)
-            )));
-        }
         return streaming::pack_streaming(mesh_path, output, opts, budget, progress);
     }
     let t0 = Instant::now();

@@ -855,7 +855,7 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
                 None => u.stored(p).unwrap_or(PrimRecord::ABSENT),
             })
             .collect();
-        w.replace_prim_chunk(c as usize, &records).map_err(io)?;
+        w.write_prim_chunk(c as usize, &records).map_err(io)?;
     }
     w.truncate_prim_chunks(new_count.div_ceil(PRIM_CHUNK) as usize);
     report.prim_chunks_written = touched.len() as u64;

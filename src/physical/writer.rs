@@ -516,9 +516,9 @@ impl<S: Sink> FileWriter<S> {
         Ok(block.entry_id)
     }
 
-    /// Writes chunk `c` of the primitive table again, with `records` (spec §8.6): an update's
-    /// changed primitives.
-    pub fn replace_prim_chunk(&mut self, c: usize, records: &[PrimRecord]) -> std::io::Result<()> {
+    /// Writes chunk `c` of the primitive table (spec §8.6): the next one, or one written before
+    /// again (an update's changed primitives).
+    pub fn write_prim_chunk(&mut self, c: usize, records: &[PrimRecord]) -> std::io::Result<()> {
         self.pad_to(SECTION_ALIGN)?;
         let bytes: &[u8] = bytemuck::cast_slice(records);
         let entry = PrimChunk {

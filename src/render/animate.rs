@@ -531,7 +531,11 @@ pub fn animate(
             let given = opts.pack.bounds.is_some();
             (
                 Some(pack),
-                if given { 0.0 } else { t.elapsed().as_secs_f64() },
+                if given {
+                    0.0
+                } else {
+                    t.elapsed().as_secs_f64()
+                },
             )
         }
     };
@@ -612,9 +616,8 @@ fn one_frame(
     let frame = anim.frame(f)?;
     let pose_seconds = t.elapsed().as_secs_f64();
     let v = pick_camera(&frame.view, &anim.view, opts.camera)?;
-    let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg).map_err(|e| {
-        Error::Invalid(format!("{}: viewpoint: {e}", anim.view.display()))
-    })?;
+    let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
+        .map_err(|e| Error::Invalid(format!("{}: viewpoint: {e}", anim.view.display())))?;
     let width = opts.width.unwrap_or(v.resolution.0);
     let height = opts.height.unwrap_or(v.resolution.1);
     let mut look = Look::from_aff(&frame.view);

@@ -14,19 +14,22 @@ use super::super::subtree::build_subtree;
 use super::super::write::write_blocks;
 use super::super::{HeaderFields, LeafKind, Progress};
 use super::plan::Plan;
-use super::{Bounds, Written};
+use super::{Bounds, PrimSpill, Written};
+use crate::physical::format::{PRIM_CHUNK, PrimRecord};
 use crate::error::Error;
 use crate::output::Output;
 use crate::physical::writer::{FileSink, FileWriter};
 
 /// Builds every chunk of `plan` in Morton order and writes its blocks into `out`, then the top
 /// tree and the header; commits `out`.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn build_and_write(
     mut out: Output,
     plan: &Plan,
     spill: &SpillBuckets,
     lattice: &Lattice,
     bounds: &Bounds,
+    prims: Option<&PrimSpill>,
     opts: &PackOptions,
     progress: &dyn Progress,
 ) -> Result<Written, Error> {
@@ -62,6 +65,16 @@ pub(super) fn build_and_write(
         progress.at(i as u64 + 1);
     }
     let top = assemble_top(top_nodes)?;
+    if let Some(p) = prims {
+        // The primitive table after the blocks, a chunk at a time.
+        let mut buf = vec![PrimRecord::ABSENT; PRIM_CHUNK as usize];
+        for c in 0..bounds.input.div_ceil(PRIM_CHUNK) {
+            let start = c * PRIM_CHUNK;
+            let n = (bounds.input - start).min(PRIM_CHUNK) as usize;
+            p.read(start, &mut buf[..n])?;
+            w.write_prim_chunk(c as usize, &buf[..n]).map_err(io)?;
+        }
+    }
 
     // The top tree above the chunks, in the counts.
     for n in &plan.top {

@@ -58,6 +58,7 @@ use super::subdivide::Lattice;
 use super::{BuildStats, Progress, is_degenerate};
 use crate::error::Error;
 use crate::mesh::stream::{PlyStream, StreamTriangle};
+use crate::physical::format::PrimRecord;
 use crate::output::Output;
 
 pub use plan::HISTOGRAM_LEVEL;
@@ -125,8 +126,14 @@ pub(super) fn pack_streaming(
         .map_err(|e| ply.check_unchanged().err().unwrap_or(e.into()))?;
     ply.check_unchanged()?;
 
-    // 2. Bounds of the non-degenerate triangles, hence the root cube.
-    let b = bounds(&ply, &positions, progress)?;
+    // 2. Bounds of the non-degenerate triangles, hence the root cube; with --updatable, every
+    // triangle's record of the primitive table (format-spec §8.6) into an unnamed temporary
+    // file beside the output, by primitive id, copied after the blocks.
+    let prims = match opts.updatable {
+        true => Some(PrimSpill::new(out.path())?),
+        false => None,
+    };
+    let b = bounds(&ply, &positions, prims.as_ref(), progress)?;
     let parse_seconds = t0.elapsed().as_secs_f64();
     if b.input > u32::MAX as u64 {
         return Err(Error::Invalid(format!(
@@ -140,7 +147,13 @@ pub(super) fn pack_streaming(
             mesh_path.display()
         )));
     }
-    let lattice = Lattice::fit(b.lo, b.hi)?;
+    let lattice = match opts.bounds {
+        Some((lo, hi)) => Lattice::fit(
+            std::array::from_fn(|k| b.lo[k].min(lo[k])),
+            std::array::from_fn(|k| b.hi[k].max(hi[k])),
+        )?,
+        None => Lattice::fit(b.lo, b.hi)?,
+    };
 
     // 3. Histogram, top of the tree and chunks; 4. distribution into spill buckets.
     let plan = plan::plan(
@@ -157,7 +170,16 @@ pub(super) fn pack_streaming(
 
     // 5. Chunks, in Morton order, each built in memory and written as blocks; 6. the top.
     let t_chunks = Instant::now();
-    let done = chunks::build_and_write(out, &plan, &spill, &lattice, &b, opts, progress)?;
+    let done = chunks::build_and_write(
+        out,
+        &plan,
+        &spill,
+        &lattice,
+        &b,
+        prims.as_ref(),
+        opts,
+        progress,
+    )?;
     let chunk_seconds = t_chunks.elapsed().as_secs_f64();
 
     let stats = BuildStats::new(
@@ -198,10 +220,67 @@ pub(super) fn pack_streaming(
     })
 }
 
-/// Pass 2: the bounds of the non-degenerate triangles, and the triangle counts.
+/// The primitive table's records (format-spec §8.6), held in an unnamed temporary file by
+/// primitive id while the chunks are built.
+pub(super) struct PrimSpill {
+    file: std::fs::File,
+    path: std::path::PathBuf,
+}
+
+impl PrimSpill {
+    fn new(out: &Path) -> Result<PrimSpill, Error> {
+        let dir = out
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let file = tempfile::tempfile_in(dir).map_err(|e| Error::io(dir, e))?;
+        Ok(PrimSpill {
+            file,
+            path: dir.to_owned(),
+        })
+    }
+
+    /// Writes the records of a batch (runs of consecutive primitive ids in one write each).
+    fn write(&self, batch: &[StreamTriangle]) -> Result<(), Error> {
+        use std::os::unix::fs::FileExt;
+        let size = std::mem::size_of::<PrimRecord>() as u64;
+        let mut run: Vec<u8> = Vec::new();
+        let mut first = 0u32;
+        let flush = |run: &mut Vec<u8>, first: u32| -> Result<(), Error> {
+            if !run.is_empty() {
+                self.file
+                    .write_all_at(run, first as u64 * size)
+                    .map_err(|e| Error::io(&self.path, e))?;
+                run.clear();
+            }
+            Ok(())
+        };
+        for (i, (id, v)) in batch.iter().enumerate() {
+            if i == 0 || *id != first + (run.len() as u64 / size) as u32 {
+                flush(&mut run, first)?;
+                first = *id;
+            }
+            run.extend_from_slice(bytemuck::bytes_of(&PrimRecord { v: *v }));
+        }
+        flush(&mut run, first)
+    }
+
+    /// The records of primitives `start .. start + buf.len()`.
+    pub(super) fn read(&self, start: u64, buf: &mut [PrimRecord]) -> Result<(), Error> {
+        use std::os::unix::fs::FileExt;
+        let size = std::mem::size_of::<PrimRecord>() as u64;
+        self.file
+            .read_exact_at(bytemuck::cast_slice_mut(buf), start * size)
+            .map_err(|e| Error::io(&self.path, e))
+    }
+}
+
+/// Pass 2: the bounds of the non-degenerate triangles, and the triangle counts; every
+/// triangle's record into `prims`, if given.
 fn bounds(
     ply: &PlyStream,
     positions: &[[f32; 3]],
+    prims: Option<&PrimSpill>,
     progress: &dyn Progress,
 ) -> Result<Bounds, Error> {
     let mut b = Bounds {
@@ -211,6 +290,9 @@ fn bounds(
         stored: 0,
     };
     b.input = pass(ply, positions, "bounds", progress, &mut |batch| {
+        if let Some(p) = prims {
+            p.write(batch)?;
+        }
         for (_, v) in batch {
             if is_degenerate(v) {
                 continue;
