@@ -3,26 +3,28 @@
 //! `tests/golden/` and reopened here by today's code. `tests/golden/README.md` says for each file
 //! the commit and the command that made it and its sha256.
 //!
-//! - The current version (4) opens, verifies, and traces the committed ray set to answers
+//! - The current version (5) opens, verifies, and traces the committed ray set to answers
 //!   byte-identical to the recorded ones, in the library and through `oavm-trace`: its files of
 //!   clusters (the default leaves, format-spec.md §7.1), raw and zstd-compressed, to `v4.hits` /
 //!   `v3.occl` (version 3's closest hits but at five ties, where clusters name the smallest
-//!   primitive id, and its any-hit answers); its file of leaf lists (`--leaf list`, format 3's
-//!   leaves in a version-4 file) to version 3's own `v3.hits` / `v3.occl`, byte for byte. The
-//!   recorded answers are
-//!   themselves checked: they hit often, agree with each other (a ray is occluded exactly when
-//!   it has a closest hit) and with the f64 reference over the mesh's triangles (rays aimed at
-//!   shared edges and vertices aside, where either triangle is right), and each recorded hit is
-//!   at the `t` the triangle test gives for the triangle it names.
-//! - Older versions (1, 2, 3) fail to open with `FormatError::Version { expected: 4, found }`
+//!   primitive id, and its any-hit answers), as version 4 answered; its file of leaf lists
+//!   (`--leaf list`) to version 3's own `v3.hits` / `v3.occl`, byte for byte; and a file packed
+//!   `--updatable` and updated twice by `oavm-update` (format-spec.md §2.1: generation 3, the
+//!   first two generations' bytes dead in it, its header in slot 0 again) to `v4.hits` /
+//!   `v3.occl` too. The recorded answers are themselves checked: they hit often, agree with each
+//!   other (a ray is occluded exactly when it has a closest hit) and with the f64 reference over
+//!   the mesh's triangles (rays aimed at shared edges and vertices aside, where either triangle
+//!   is right), and each recorded hit is at the `t` the triangle test gives for the triangle it
+//!   names.
+//! - Older versions (1 to 4) fail to open with `FormatError::Version { expected: 5, found }`
 //!   and a message that names the file and says to repack, in the library and through
 //!   `oavm-trace` (non-zero exit, nothing written).
 //! - A golden file that is missing is a failure, never a skip.
 //!
-//! When the format moves to version 5, `CURRENT` becomes 5, `v5*.oavm` and their answers join
-//! the golden files (made as the README says), and the `v4*.oavm` files move to the rejected
-//! versions: their recorded answers stay (and their sha256 in the README), so the files keep
-//! proving what version 4 answered.
+//! When the format moves to version 6, `CURRENT` becomes 6, `v6*.oavm` and their answers join
+//! the golden files (made as the README says), and the `v5*.oavm` files move to the rejected
+//! versions: the recorded answers stay (and their sha256 in the README), so the files keep
+//! proving what version 5 answered.
 
 mod common;
 
@@ -38,7 +40,7 @@ use tempfile::TempDir;
 /// The format version today's code writes and reads (`format-spec.md` §12). Written out rather
 /// than taken from the crate: a version bump must come with a new golden file, and this test
 /// failing is what says so.
-const CURRENT: u32 = 4;
+const CURRENT: u32 = 5;
 
 /// A golden file of the current version: its name, whether its solid leaves are clusters (the
 /// header's `CLUSTERS` flag, format-spec.md §2), and the answers it must trace to.
@@ -69,22 +71,29 @@ const V4_ANSWERS: Answers = Answers {
 };
 
 /// The golden files of the current version: clusters raw and with every block
-/// zstd-compressed, and leaf lists (which answer as version 3 did, byte for byte).
-const CURRENT_FILES: [Current; 3] = [
+/// zstd-compressed, leaf lists (which answer as version 3 did, byte for byte), and a file of
+/// clusters packed `--updatable` then updated twice (to moved triangles and back: generation
+/// 3, with the dead bytes of generations 1 and 2), which answers as the packed files do.
+const CURRENT_FILES: [Current; 4] = [
     Current {
-        name: "v4.oavm",
+        name: "v5.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
     Current {
-        name: "v4-zstd.oavm",
+        name: "v5-zstd.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
     Current {
-        name: "v4-list.oavm",
+        name: "v5-list.oavm",
         clusters: false,
         answers: V3_ANSWERS,
+    },
+    Current {
+        name: "v5-updated.oavm",
+        clusters: true,
+        answers: V4_ANSWERS,
     },
 ];
 
@@ -92,11 +101,14 @@ const CURRENT_FILES: [Current; 3] = [
 const ALL_ANSWERS: [Answers; 2] = [V3_ANSWERS, V4_ANSWERS];
 
 /// The golden files of earlier versions, which must be rejected, and their versions.
-const REJECTED: [(&str, u32); 4] = [
+const REJECTED: [(&str, u32); 7] = [
     ("v1.oavm", 1),
     ("v2.oavm", 2),
     ("v3.oavm", 3),
     ("v3-zstd.oavm", 3),
+    ("v4.oavm", 4),
+    ("v4-zstd.oavm", 4),
+    ("v4-list.oavm", 4),
 ];
 
 /// The ray set (`RAYS.md`).

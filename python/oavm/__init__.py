@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import re
-from typing import Any, NamedTuple, Optional, Union
+from typing import Any, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -45,6 +45,8 @@ __all__ = [
     "Scene",
     "open",
     "pack",
+    "update",
+    "compact",
     "rays",
 ]
 
@@ -322,6 +324,72 @@ def open(path: PathLike, *, mem_budget: Union[None, int, str] = None,  # noqa: A
     return Scene(path, mem_budget=mem_budget, walk=walk)
 
 
+def _box(name: str, box: Any) -> Optional[Tuple[Tuple[float, float, float], Tuple[float, float, float]]]:
+    """``None``, or a ``(lo, hi)`` pair of three finite numbers each, ``lo <= hi``."""
+    if box is None:
+        return None
+    try:
+        lo, hi = box
+        lo = tuple(float(c) for c in lo)
+        hi = tuple(float(c) for c in hi)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected (lo, hi), two sequences of three numbers, got {box!r}") from None
+    if len(lo) != 3 or len(hi) != 3 or not all(np.isfinite(lo + hi)) or any(a > b for a, b in zip(lo, hi)):
+        raise ValueError(f"{name}: expected finite corners lo <= hi of three numbers each, got {box!r}")
+    return lo, hi  # type: ignore[return-value]
+
+
+def update(
+    path: PathLike,
+    mesh: Any,
+    *,
+    time: Optional[float] = None,
+    block_size: Union[None, int, str] = None,
+    compress: Union[None, bool, int] = None,
+    threads: Optional[int] = None,
+) -> dict:
+    """Brings the file at ``path`` (packed with ``updatable=True``) to the triangles of
+    ``mesh`` in place: a path (an AFF scene posed at ``time``) or a ``(vertices, faces)`` pair
+    whose face ``i`` is primitive ``i``. Only the blocks whose triangles moved, appeared or went
+    are rebuilt; the update is a new generation of the file (format-spec §2.1), so a crash
+    leaves the previous or the new one, and scenes opened before keep answering as before.
+    Returns the report as a dict (primitives moved, inserted, removed; blocks rebuilt; bytes
+    written; seconds). ``compress``: a zstd level for the new blocks, ``False`` for raw
+    (default: as the file's blocks are)."""
+    p = os.fspath(path)
+    opts = dict(
+        block_size=_bytes("block_size", block_size),
+        compress=None if compress in (None, True, False) else _count("compress", compress, -(1 << 17), 22),
+        raw=compress is False,
+        threads=_count("threads", threads, 1, 1024),
+    )
+    if compress is True:
+        opts["compress"] = 3
+    if isinstance(mesh, (str, bytes, os.PathLike)):
+        return json.loads(_native.update_file(p, os.fsdecode(mesh), time=time, **opts))
+    if time is not None:
+        raise ValueError("time poses an AFF scene file, not a mesh given as arrays")
+    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
+        v = _real_array("vertices", mesh[0])
+        f = _real_array("faces", mesh[1])
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise ValueError(f"vertices: expected shape (V, 3), got {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise ValueError(f"faces: expected shape (F, 3) (triangles), got {f.shape}")
+        if f.size and (f.min() < 0 or f.max() > 0xFFFFFFFE):
+            raise MeshError("arrays: a vertex index is negative or does not fit in 32 bits")
+        v32 = _float32_c(v)
+        f32 = np.require(f, dtype=np.uint32, requirements=["C_CONTIGUOUS", "ALIGNED"])
+        return json.loads(_native.update_arrays(p, v32, f32, **opts))
+    raise ValueError(f"mesh: expected a path or a (vertices, faces) pair of arrays, got {type(mesh).__name__}")
+
+
+def compact(path: PathLike) -> dict:
+    """Rewrites an updated file without the blocks older generations left, atomically, as a
+    file of generation 1; scenes opened before keep the old file. Returns the report."""
+    return json.loads(_native.compact(os.fspath(path)))
+
+
 def pack(
     mesh: Any,
     out_path: PathLike,
@@ -335,6 +403,8 @@ def pack(
     block_size: Union[None, int, str] = None,
     threads: Optional[int] = None,
     ropes: bool = False,
+    updatable: bool = False,
+    bounds: Optional[Tuple[Sequence[float], Sequence[float]]] = None,
 ) -> dict:
     """Packs a triangle mesh into an ``.oavm`` file, written atomically (it appears only when
     complete). Returns the pack report as a dict (triangles, nodes, leaves, volumes, bytes,
@@ -351,7 +421,10 @@ def pack(
     ``leaf``: ``"cluster"`` (a wide BVH per leaf, the fastest) or ``"list"`` (the OAVM paper's
     triangle lists); ``block_size``: target size of a block, the unit of paging (default 256K);
     ``threads``: build threads (default one per core; the file is the same for any count);
-    ``ropes``: add ropes (format-spec §8.4) for ``oavm.open(..., walk="ropes")``."""
+    ``ropes``: add ropes (format-spec §8.4) for ``oavm.open(..., walk="ropes")``;
+    ``updatable``: store the primitive table, which :func:`update` needs (36 bytes a
+    triangle); ``bounds``: ``(lo, hi)`` corners of a box the root cube must hold as well as the
+    mesh, room for updates to move triangles into."""
     level: Optional[int]
     if compress is None or compress is False:
         level = None
@@ -368,6 +441,8 @@ def pack(
         progress=bool(progress),
         threads=_count("threads", threads, 1, 1024),
         ropes=bool(ropes),
+        updatable=bool(updatable),
+        bounds=_box("bounds", bounds),
     )
     out = os.fspath(out_path)
     if isinstance(mesh, (str, bytes, os.PathLike)):

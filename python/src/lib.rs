@@ -16,6 +16,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use oavm::build::update::{UpdateOptions, Updater};
 use oavm::build::{BuildOptions, LeafKind, PackOptions, PackReport};
 use oavm::logical::{BlockReads, IO_THREADS_PER_CORE, Order, SceneOptions, Walk};
 use oavm::mesh::Mesh;
@@ -436,6 +437,8 @@ fn pack_options(
     mem_budget: Option<u64>,
     block_size: Option<u64>,
     ropes: bool,
+    updatable: bool,
+    bounds: Option<([f32; 3], [f32; 3])>,
 ) -> PyResult<PackOptions> {
     let leaf = match leaf {
         "cluster" => LeafKind::Cluster,
@@ -461,8 +464,8 @@ fn pack_options(
         mem_budget,
         ropes,
         occluders: false,
-        updatable: false,
-        bounds: None,
+        updatable,
+        bounds,
     };
     opts.validate().map_err(to_py)?;
     Ok(opts)
@@ -491,7 +494,8 @@ fn run_pack(
 /// Packs a mesh file (PLY, OBJ, AFF); the report as JSON.
 #[pyfunction]
 #[pyo3(signature = (mesh, out, leaf="cluster", leaf_size=None, max_depth=None, compress=None,
-                    mem_budget=None, block_size=None, progress=true, threads=None, ropes=false))]
+                    mem_budget=None, block_size=None, progress=true, threads=None, ropes=false,
+                    updatable=false, bounds=None))]
 #[allow(clippy::too_many_arguments)]
 fn pack_file(
     py: Python<'_>,
@@ -506,9 +510,11 @@ fn pack_file(
     progress: bool,
     threads: Option<usize>,
     ropes: bool,
+    updatable: bool,
+    bounds: Option<([f32; 3], [f32; 3])>,
 ) -> PyResult<String> {
     let opts = pack_options(
-        leaf, leaf_size, max_depth, compress, mem_budget, block_size, ropes,
+        leaf, leaf_size, max_depth, compress, mem_budget, block_size, ropes, updatable, bounds,
     )?;
     run_pack(py, progress, threads, |bar| {
         oavm::build::pack(&mesh, &out, &opts, bar)
@@ -519,7 +525,8 @@ fn pack_file(
 /// the report as JSON.
 #[pyfunction]
 #[pyo3(signature = (vertices, faces, out, leaf="cluster", leaf_size=None, max_depth=None,
-                    compress=None, block_size=None, progress=true, threads=None, ropes=false))]
+                    compress=None, block_size=None, progress=true, threads=None, ropes=false,
+                    updatable=false, bounds=None))]
 #[allow(clippy::too_many_arguments)]
 fn pack_arrays(
     py: Python<'_>,
@@ -534,10 +541,31 @@ fn pack_arrays(
     progress: bool,
     threads: Option<usize>,
     ropes: bool,
+    updatable: bool,
+    bounds: Option<([f32; 3], [f32; 3])>,
 ) -> PyResult<String> {
     let opts = pack_options(
-        leaf, leaf_size, max_depth, compress, None, block_size, ropes,
+        leaf, leaf_size, max_depth, compress, None, block_size, ropes, updatable, bounds,
     )?;
+    let (mesh, name) = arrays_mesh(&vertices, &faces)?;
+    run_pack(py, progress, threads, |bar| {
+        // The options were checked above: what is invalid now is the mesh (an index out of
+        // range, a non-finite corner, no triangles), reported as for a mesh file.
+        oavm::build::pack_mesh(mesh, &name, &out, &opts, bar).map_err(|e| match e {
+            Error::Invalid(what) => {
+                Error::Mesh(oavm::error::MeshError::Arrays(format!("{name}: {what}")))
+            }
+            e => e,
+        })
+    })
+}
+
+/// A mesh from a `(V, 3)` float32 vertex array and a `(F, 3)` uint32 face array, and its name
+/// for reports.
+fn arrays_mesh(
+    vertices: &PyReadonlyArray2<'_, f32>,
+    faces: &PyReadonlyArray2<'_, u32>,
+) -> PyResult<(Mesh, String)> {
     let three = |name: &str, shape: &[usize]| {
         if shape[1] == 3 {
             Ok(())
@@ -567,16 +595,90 @@ fn pack_arrays(
         mesh.positions.len(),
         mesh.triangles.len()
     );
-    run_pack(py, progress, threads, |bar| {
-        // The options were checked above: what is invalid now is the mesh (an index out of
-        // range, a non-finite corner, no triangles), reported as for a mesh file.
-        oavm::build::pack_mesh(mesh, &name, &out, &opts, bar).map_err(|e| match e {
-            Error::Invalid(what) => {
-                Error::Mesh(oavm::error::MeshError::Arrays(format!("{name}: {what}")))
-            }
-            e => e,
+    Ok((mesh, name))
+}
+
+/// Runs an update of the file at `path` to `mesh` (loaded inside, with the GIL released).
+fn run_update(
+    py: Python<'_>,
+    path: PathBuf,
+    threads: Option<usize>,
+    opts: UpdateOptions,
+    mesh: impl FnOnce() -> Result<Mesh, Error> + Send,
+) -> PyResult<String> {
+    opts.validate().map_err(to_py)?;
+    let pool = pool(threads.unwrap_or_else(cores).max(1))?;
+    let report = py
+        .detach(|| {
+            pool.install(|| {
+                let mut u = Updater::open(&path)?;
+                let mesh = mesh()?;
+                u.set_mesh(&mesh)?;
+                drop(mesh);
+                u.commit(&opts)
+            })
         })
+        .map_err(to_py)?;
+    serde_json::to_string(&report)
+        .map_err(|e| OavmError::new_err(format!("cannot write the report: {e}")))
+}
+
+fn update_options(block_size: Option<u64>, compress: Option<i32>, raw: bool) -> UpdateOptions {
+    UpdateOptions {
+        block_size: block_size.unwrap_or(DEFAULT_BLOCK_SIZE),
+        compress: if raw { Some(None) } else { compress.map(Some) },
+    }
+}
+
+/// Updates a file packed with `updatable=True` to the triangles of a mesh file (an AFF scene
+/// posed at `time`); the report as JSON.
+#[pyfunction]
+#[pyo3(signature = (path, mesh, time=None, block_size=None, compress=None, raw=false, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn update_file(
+    py: Python<'_>,
+    path: PathBuf,
+    mesh: PathBuf,
+    time: Option<f64>,
+    block_size: Option<u64>,
+    compress: Option<i32>,
+    raw: bool,
+    threads: Option<usize>,
+) -> PyResult<String> {
+    let opts = update_options(block_size, compress, raw);
+    run_update(py, path, threads, opts, || {
+        Ok(oavm::mesh::load_at(&mesh, time)?)
     })
+}
+
+/// Updates a file packed with `updatable=True` to a mesh given as arrays (face i is primitive
+/// i); the report as JSON.
+#[pyfunction]
+#[pyo3(signature = (path, vertices, faces, block_size=None, compress=None, raw=false, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn update_arrays(
+    py: Python<'_>,
+    path: PathBuf,
+    vertices: PyReadonlyArray2<'_, f32>,
+    faces: PyReadonlyArray2<'_, u32>,
+    block_size: Option<u64>,
+    compress: Option<i32>,
+    raw: bool,
+    threads: Option<usize>,
+) -> PyResult<String> {
+    let opts = update_options(block_size, compress, raw);
+    let (mesh, _) = arrays_mesh(&vertices, &faces)?;
+    run_update(py, path, threads, opts, || Ok(mesh))
+}
+
+/// Rewrites an updated file without what older generations left; the report as JSON.
+#[pyfunction]
+fn compact(py: Python<'_>, path: PathBuf) -> PyResult<String> {
+    let report = py
+        .detach(|| oavm::build::update::compact(&path, &path))
+        .map_err(to_py)?;
+    serde_json::to_string(&report)
+        .map_err(|e| OavmError::new_err(format!("cannot write the report: {e}")))
 }
 
 /// The rays of pixels `start..stop` (row-major from the top left) of a `width` x `height`
@@ -638,6 +740,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(open, m)?)?;
     m.add_function(wrap_pyfunction!(pack_file, m)?)?;
     m.add_function(wrap_pyfunction!(pack_arrays, m)?)?;
+    m.add_function(wrap_pyfunction!(update_file, m)?)?;
+    m.add_function(wrap_pyfunction!(update_arrays, m)?)?;
+    m.add_function(wrap_pyfunction!(compact, m)?)?;
     m.add_function(wrap_pyfunction!(camera_rays, m)?)?;
     m.add("OavmError", m.py().get_type::<OavmError>())?;
     m.add("FormatError", m.py().get_type::<FormatError>())?;

@@ -286,6 +286,25 @@ impl Updater {
         if n > u32::MAX as u64 {
             return Err(invalid(&self.path, "primitive ids are 32-bit"));
         }
+        // Untrusted: every index in range, every corner finite, before anything is read.
+        let nv = mesh.positions.len() as u64;
+        if let Some((i, t)) = mesh
+            .triangles
+            .iter()
+            .enumerate()
+            .find(|(_, t)| t.iter().any(|&v| v as u64 >= nv))
+        {
+            return Err(invalid(
+                &self.path,
+                format!("the new mesh's triangle {i} holds vertex index {t:?}, past its {nv} vertices"),
+            ));
+        }
+        if let Some(i) = mesh.positions.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
+            return Err(invalid(
+                &self.path,
+                format!("the new mesh's vertex {i} is not finite"),
+            ));
+        }
         self.edits.clear();
         let old = self.file.header().input_triangles;
         self.count = n;
