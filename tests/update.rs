@@ -76,7 +76,10 @@ fn check_same_as_fresh(updated: &Path, mesh: &Mesh, bounds: &Bounds, what: &str)
     let hit_count = hb.iter().filter(|h| h.1 != u32::MAX).count();
     assert!(hit_count >= 1000, "{what}: only {hit_count} hits");
     let differ = ha.iter().zip(&hb).filter(|(x, y)| x != y).count();
-    assert_eq!(differ, 0, "{what}: {differ} closest hits differ from a fresh pack");
+    assert_eq!(
+        differ, 0,
+        "{what}: {differ} closest hits differ from a fresh pack"
+    );
     assert_eq!(oa, ob, "{what}: any-hit answers differ from a fresh pack");
     compare_with_reference(mesh, &a, &rays, 29).require(20, 2, what);
 }
@@ -113,7 +116,12 @@ fn kitchen_frames_answer_as_fresh_packs() {
             r.blocks_before
         );
         rebuilt_some = true;
-        check_same_as_fresh(&file, mesh, &common::bounds(mesh), &format!("kitchen at {t}"));
+        check_same_as_fresh(
+            &file,
+            mesh,
+            &common::bounds(mesh),
+            &format!("kitchen at {t}"),
+        );
     }
     assert!(rebuilt_some);
 }
@@ -165,8 +173,9 @@ fn edits_by_primitive_id_answer_as_fresh_packs() {
         ..PackOptions::default()
     };
     oavm::build::pack_mesh(mesh.clone(), "quads", &file, &opts, &Quiet).unwrap();
-    let mut current: Vec<Option<[[f32; 3]; 3]>> =
-        (0..mesh.triangles.len()).map(|i| Some(mesh.triangle(i))).collect();
+    let mut current: Vec<Option<[[f32; 3]; 3]>> = (0..mesh.triangles.len())
+        .map(|i| Some(mesh.triangle(i)))
+        .collect();
     let as_mesh = |tris: &[Option<[[f32; 3]; 3]>]| -> Mesh {
         // Removed primitives stay as degenerate triangles, which hold the id and no triangle.
         let mut positions = Vec::new();
@@ -308,13 +317,20 @@ fn refused_updates_leave_the_file_as_it_was() {
     let mut u = Updater::open(&file).unwrap();
     u.set(0, [[5.0, 0.0, 0.0], [5.1, 0.0, 0.0], [5.0, 0.1, 0.0]])
         .unwrap();
-    let e = u.commit(&UpdateOptions::default()).err().unwrap().to_string();
+    let e = u
+        .commit(&UpdateOptions::default())
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("outside the file's root cube"), "{e}");
     assert!(std::fs::read(&file).unwrap() == bytes);
     // Past the primitives, and non-finite corners.
     let mut u = Updater::open(&file).unwrap();
     assert!(u.set(mesh.triangles.len() as u32, [[0.0; 3]; 3]).is_err());
-    assert!(u.set(0, [[f32::NAN, 0.0, 0.0], [0.0; 3], [0.0; 3]]).is_err());
+    assert!(
+        u.set(0, [[f32::NAN, 0.0, 0.0], [0.0; 3], [0.0; 3]])
+            .is_err()
+    );
     // A second updater while one holds the file.
     let e = Updater::open(&file).err().unwrap().to_string();
     assert!(e.contains("another update holds the file"), "{e}");
@@ -350,7 +366,10 @@ fn interrupted_updates_leave_a_readable_generation() {
     let (slot, data) = (2048..4096, 4096..old.len());
     assert!(old[slot.clone()].iter().all(|&b| b == 0));
     assert!(new[..2048] == old[..2048], "slot 0 was written");
-    assert!(new[data.clone()] == old[data.clone()], "the previous generation's bytes changed");
+    assert!(
+        new[data.clone()] == old[data.clone()],
+        "the previous generation's bytes changed"
+    );
     assert!(new.len() > old.len());
 
     let check = |bytes: &[u8], generation: u64, want: &(Vec<(u32, u32)>, Vec<u8>), what: &str| {
@@ -389,7 +408,12 @@ fn interrupted_updates_leave_a_readable_generation() {
     u.set_mesh(&moved).unwrap();
     let r = commit(u);
     assert_eq!(r.generation, 2);
-    check(&std::fs::read(&p2).unwrap(), 2, &after, "updated after a crash");
+    check(
+        &std::fs::read(&p2).unwrap(),
+        2,
+        &after,
+        "updated after a crash",
+    );
     let _ = p;
 }
 
@@ -412,7 +436,10 @@ fn cli_updates_and_compacts() {
         assert!(out.status.success(), "{stderr}");
         let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
         assert!(v["update"]["moved"].as_u64().unwrap() > 0, "{stdout}");
-        assert!(v["update"]["bytes_written"].as_u64().unwrap() > 0, "{stdout}");
+        assert!(
+            v["update"]["bytes_written"].as_u64().unwrap() > 0,
+            "{stdout}"
+        );
     }
     let mesh = oavm::mesh::load_at(&scene, Some(9.5)).unwrap();
     let bounds = common::bounds(&mesh);
@@ -472,7 +499,10 @@ fn streamed_updatable_files_update() {
         ..PackOptions::default()
     };
     let r = oavm::build::pack(&ply, &streamed, &opts, &Quiet).unwrap();
-    assert!(r.streaming.is_some_and(|s| s.chunks > 1), "not streamed in chunks");
+    assert!(
+        r.streaming.is_some_and(|s| s.chunks > 1),
+        "not streamed in chunks"
+    );
     let in_memory = dir.path().join("memory.oavm");
     let opts = PackOptions {
         mem_budget: None,
@@ -486,12 +516,13 @@ fn streamed_updatable_files_update() {
             f.records(oavm::physical::format::SectionKind::Prims);
         chunks
             .iter()
-            .flat_map(|c| {
-                f.bytes()[c.offset as usize..(c.offset + 36 * c.count) as usize].to_vec()
-            })
+            .flat_map(|c| f.bytes()[c.offset as usize..(c.offset + 36 * c.count) as usize].to_vec())
             .collect::<Vec<u8>>()
     };
-    assert!(table(&streamed) == table(&in_memory), "primitive tables differ");
+    assert!(
+        table(&streamed) == table(&in_memory),
+        "primitive tables differ"
+    );
     verify(&streamed);
     let mut moved = mesh.clone();
     for p in moved.positions.iter_mut().filter(|p| p[0] > 0.0) {
@@ -501,5 +532,10 @@ fn streamed_updatable_files_update() {
     u.set_mesh(&moved).unwrap();
     let r = commit(u);
     assert!(r.moved > 1000, "{r:?}");
-    check_same_as_fresh(&streamed, &moved, &common::bounds(&moved), "streamed dragon moved");
+    check_same_as_fresh(
+        &streamed,
+        &moved,
+        &common::bounds(&moved),
+        "streamed dragon moved",
+    );
 }

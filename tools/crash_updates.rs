@@ -70,9 +70,7 @@ fn parse_spec(s: &str) -> Result<Spec> {
         let (la, lb) = (a.clone(), b.clone());
         Ok(Spec {
             name: format!("{} -> {}", a.display(), b.display()),
-            load: Box::new(move |second| {
-                Ok(oavm::mesh::load(if second { &lb } else { &la })?)
-            }),
+            load: Box::new(move |second| Ok(oavm::mesh::load(if second { &lb } else { &la })?)),
             update_args: vec![b.display().to_string()],
         })
     }
@@ -155,7 +153,9 @@ fn run() -> Result<bool> {
         .and_then(Path::parent)
         .map(|d| d.join("oavm-update"))
         .filter(|p| p.exists())
-        .ok_or("oavm-update is not built: cargo build --release --features cli --bin oavm-update")?;
+        .ok_or(
+            "oavm-update is not built: cargo build --release --features cli --bin oavm-update",
+        )?;
     let dir = tempfile::TempDir::new()?;
     let mut rng = Rng(seed);
     let mut outcomes = Vec::new();
@@ -217,10 +217,18 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
     let want_a = digest(&Scene::open(&fa)?, &rays)?;
     let want_b = digest(&Scene::open(&fb)?, &rays)?;
     if want_a == want_b {
-        return Err(format!("{}: both frames answer alike: nothing to tell apart", spec.name).into());
+        return Err(format!(
+            "{}: both frames answer alike: nothing to tell apart",
+            spec.name
+        )
+        .into());
     }
     if digest(&Scene::open(&base)?, &rays)? != want_a {
-        return Err(format!("{}: the packed first frame answers otherwise than a fresh pack", spec.name).into());
+        return Err(format!(
+            "{}: the packed first frame answers otherwise than a fresh pack",
+            spec.name
+        )
+        .into());
     }
     drop((a, b));
 
@@ -235,7 +243,11 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
         .status()?;
     out.update_seconds = t0.elapsed().as_secs_f64();
     if !st.success() || digest(&Scene::open(&work)?, &rays)? != want_b {
-        return Err(format!("{}: an uninterrupted update failed or answered wrongly", spec.name).into());
+        return Err(format!(
+            "{}: an uninterrupted update failed or answered wrongly",
+            spec.name
+        )
+        .into());
     }
 
     for k in 0..kills {

@@ -134,7 +134,9 @@ fn parse_box(s: &str) -> Result<([f32; 3], [f32; 3]), String> {
     let (lo, hi) = (cli::parse_vec3(a)?, cli::parse_vec3(b)?);
     let f = |v: [f64; 3]| v.map(|c| c as f32);
     if (0..3).any(|k| lo[k] > hi[k] || !(f(lo)[k].is_finite() && f(hi)[k].is_finite())) {
-        return Err(format!("{s:?}: the first corner must be below the second, per axis"));
+        return Err(format!(
+            "{s:?}: the first corner must be below the second, per axis"
+        ));
     }
     Ok((f(lo), f(hi)))
 }

@@ -100,7 +100,14 @@ struct Report {
 fn human_compact(c: &CompactReport) -> String {
     format!(
         "{:<22} {} (generation {} -> 1): {} -> {} bytes, {} blocks, {} free entries dropped, {:.3} s\n",
-        "compacted", c.file, c.generation, c.bytes_before, c.bytes_after, c.blocks, c.free_entries, c.seconds
+        "compacted",
+        c.file,
+        c.generation,
+        c.bytes_before,
+        c.bytes_after,
+        c.blocks,
+        c.free_entries,
+        c.seconds
     )
 }
 
@@ -132,7 +139,11 @@ fn human(r: &UpdateReport) -> String {
         "subtrees",
         format!(
             "{} rebuilt ({} empty top-tree leaves filled); leaves {} -> {}, {} volumes",
-            r.subtrees_rebuilt, r.empty_leaves_filled, r.leaves_before, r.leaves_after, r.volumes_after
+            r.subtrees_rebuilt,
+            r.empty_leaves_filled,
+            r.leaves_before,
+            r.leaves_after,
+            r.volumes_after
         ),
     );
     line(

@@ -26,9 +26,9 @@ pub mod ropes;
 mod spill;
 mod stats;
 mod streaming;
+pub(crate) mod subdivide;
 mod subtree;
 pub mod update;
-pub(crate) mod subdivide;
 mod write;
 
 use std::time::Instant;

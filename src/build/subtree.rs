@@ -95,12 +95,14 @@ pub(crate) fn build_subtrees(
                     });
                 }
                 levels[l].codes.extend(lv.codes);
-                levels[l].nodes.extend(lv.nodes.into_iter().map(|n| match n {
-                    BuildNode::Leaf(ids) => {
-                        BuildNode::Leaf(ids.into_iter().map(|i| mine[i as usize]).collect())
-                    }
-                    other => other,
-                }));
+                levels[l]
+                    .nodes
+                    .extend(lv.nodes.into_iter().map(|n| match n {
+                        BuildNode::Leaf(ids) => {
+                            BuildNode::Leaf(ids.into_iter().map(|i| mine[i as usize]).collect())
+                        }
+                        other => other,
+                    }));
             }
         }
         levels
@@ -109,7 +111,12 @@ pub(crate) fn build_subtrees(
     let laid = layout_from(&levels, level, &boxes, records, &tris)?;
     drop((levels, boxes, tris));
     let mut counts = TreeCounts::default();
-    counts.add(laid.tree.as_ref(), level, laid.empty_leaves, laid.solid_leaves);
+    counts.add(
+        laid.tree.as_ref(),
+        level,
+        laid.empty_leaves,
+        laid.solid_leaves,
+    );
     let level_end = level + laid.tree.levels.len() as u32;
     let split = partition(
         laid.tree.as_ref(),

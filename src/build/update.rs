@@ -194,7 +194,8 @@ impl Updater {
         }
         let chunks: &[PrimChunk] = self.file.records(SectionKind::Prims);
         let ch = chunks.get((prim / PRIM_CHUNK) as usize)?;
-        let at = ch.offset as usize + (prim % PRIM_CHUNK) as usize * std::mem::size_of::<PrimRecord>();
+        let at =
+            ch.offset as usize + (prim % PRIM_CHUNK) as usize * std::mem::size_of::<PrimRecord>();
         let bytes = self
             .file
             .bytes()
@@ -268,7 +269,8 @@ impl Updater {
         for prim in prims {
             if let Some(v) = self.triangle(prim) {
                 let t = v.map(|p| {
-                    let q = m.transform_point3(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+                    let q =
+                        m.transform_point3(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
                     [q.x as f32, q.y as f32, q.z as f32]
                 });
                 self.set(prim, t)?;
@@ -296,10 +298,16 @@ impl Updater {
         {
             return Err(invalid(
                 &self.path,
-                format!("the new mesh's triangle {i} holds vertex index {t:?}, past its {nv} vertices"),
+                format!(
+                    "the new mesh's triangle {i} holds vertex index {t:?}, past its {nv} vertices"
+                ),
             ));
         }
-        if let Some(i) = mesh.positions.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
+        if let Some(i) = mesh
+            .positions
+            .iter()
+            .position(|p| p.iter().any(|c| !c.is_finite()))
+        {
             return Err(invalid(
                 &self.path,
                 format!("the new mesh's vertex {i} is not finite"),
@@ -332,6 +340,10 @@ impl Updater {
         commit(self, opts)
     }
 }
+
+/// What a run of changes reaches: the top-tree nodes their old triangles overlap, and each new
+/// triangle with every node it overlaps.
+type Reached = (Vec<usize>, Vec<(usize, TriRecord)>);
 
 /// A changed primitive: before and after ([`PrimRecord::ABSENT`]: none).
 #[derive(Clone, Copy)]
@@ -548,11 +560,15 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     for c in &changes {
         changed[c.prim as usize / 64] |= 1 << (c.prim % 64);
     }
-    let is_changed = |p: u32| changed.get(p as usize / 64).is_some_and(|w| w >> (p % 64) & 1 != 0);
+    let is_changed = |p: u32| {
+        changed
+            .get(p as usize / 64)
+            .is_some_and(|w| w >> (p % 64) & 1 != 0)
+    };
 
     // 2. Where the changes reach: blocks to rebuild (old or new triangle overlaps a root), and
     // the new triangles by link or empty leaf.
-    let reached: Vec<(Vec<usize>, Vec<(usize, TriRecord)>)> = changes
+    let reached: Vec<Reached> = changes
         .par_chunks(1024)
         .map(|cs| {
             let mut nodes = Vec::new();
@@ -629,7 +645,10 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
             continue;
         };
         if roots.iter().any(|r| r.0 != level) {
-            return Err(invalid(&path, format!("block {b}: roots at different levels")));
+            return Err(invalid(
+                &path,
+                format!("block {b}: roots at different levels"),
+            ));
         }
         let mut records = Vec::new();
         for &(level, code) in &roots {
@@ -959,7 +978,10 @@ fn mesh_bounds(u: &Updater, header: &Header, changes: &[Change]) -> ([f32; 3], [
     };
     if lo[0] > hi[0] {
         // No triangle left: the bounds of nothing, as a pack of degenerate triangles has.
-        return (header.root_min.map(|c| c as f32), header.root_min.map(|c| c as f32));
+        return (
+            header.root_min.map(|c| c as f32),
+            header.root_min.map(|c| c as f32),
+        );
     }
     (lo, hi)
 }

@@ -291,9 +291,9 @@ fn check_table_complete(
     for (c, chunk) in table.iter().enumerate() {
         for (i, r) in chunk.iter().enumerate() {
             let prim = c as u64 * PRIM_CHUNK + i as u64;
-            let stored = seen
-                .get(prim as usize / 64)
-                .is_some_and(|w| w.load(std::sync::atomic::Ordering::Relaxed) >> (prim % 64) & 1 != 0);
+            let stored = seen.get(prim as usize / 64).is_some_and(|w| {
+                w.load(std::sync::atomic::Ordering::Relaxed) >> (prim % 64) & 1 != 0
+            });
             let should = !r.is_absent() && !crate::build::is_degenerate(&r.v);
             if stored != should {
                 if should {
@@ -392,9 +392,10 @@ fn check_block(
     if unit.clusters.is_none() {
         totals.triangles = view.triangles.len() as u64;
     }
-    let lanes = view.groups.iter().flat_map(|g| {
-        (0..g.count.min(8) as usize).map(move |l| (g.prim[l], g.triangle(l)))
-    });
+    let lanes = view
+        .groups
+        .iter()
+        .flat_map(|g| (0..g.count.min(8) as usize).map(move |l| (g.prim[l], g.triangle(l))));
     let records = view.triangles.iter().chain(view.occluders);
     let mut mismatched = 0u64;
     let mut example = None;

@@ -419,8 +419,7 @@ fn read_section_table(
                 )));
             }
         }
-        if kind == SectionKind::Directory && s.offset != prev_end.next_multiple_of(SECTION_ALIGN)
-        {
+        if kind == SectionKind::Directory && s.offset != prev_end.next_multiple_of(SECTION_ALIGN) {
             return Err(table_err(format!(
                 "{name}: starts at {}, not where the data region ends ({prev_end})",
                 s.offset

@@ -167,7 +167,9 @@ impl SectionKind {
 
     /// The sections a file with these header flags has, in file order.
     pub fn for_flags(flags: u32) -> impl Iterator<Item = SectionKind> {
-        SectionKind::ALL.into_iter().filter(move |k| k.present(flags))
+        SectionKind::ALL
+            .into_iter()
+            .filter(move |k| k.present(flags))
     }
 
     /// How many sections a file with these header flags has.

@@ -162,7 +162,11 @@ pub fn check_block_placement<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects
             ));
             continue;
         }
-        items.push((ch.offset, end.unwrap_or(ch.offset), format!("primitive chunk {c}")));
+        items.push((
+            ch.offset,
+            end.unwrap_or(ch.offset),
+            format!("primitive chunk {c}"),
+        ));
     }
     if first_generation {
         // Already in file order: blocks by directory order, then chunks.

@@ -428,7 +428,9 @@ impl<S: Sink> FileWriter<S> {
             )));
         }
         if bounds.len() != directory.len() {
-            return Err(std::io::Error::other("one bounds list per directory entry expected"));
+            return Err(std::io::Error::other(
+                "one bounds list per directory entry expected",
+            ));
         }
         Ok(FileWriter {
             sink,
@@ -563,7 +565,9 @@ impl<S: Sink> FileWriter<S> {
     /// record per input triangle, in primitive-id order. Call once, after the last block.
     pub fn push_prims(&mut self, records: &[PrimRecord]) -> std::io::Result<()> {
         if self.prims.is_some() {
-            return Err(std::io::Error::other("the primitive table was written twice"));
+            return Err(std::io::Error::other(
+                "the primitive table was written twice",
+            ));
         }
         let mut chunks = Vec::with_capacity(records.len().div_ceil(PRIM_CHUNK as usize));
         for chunk in records.chunks(PRIM_CHUNK as usize) {

@@ -15,9 +15,9 @@ use super::super::write::write_blocks;
 use super::super::{HeaderFields, LeafKind, Progress};
 use super::plan::Plan;
 use super::{Bounds, PrimSpill, Written};
-use crate::physical::format::{PRIM_CHUNK, PrimRecord};
 use crate::error::Error;
 use crate::output::Output;
+use crate::physical::format::{PRIM_CHUNK, PrimRecord};
 use crate::physical::writer::{FileSink, FileWriter};
 
 /// Builds every chunk of `plan` in Morton order and writes its blocks into `out`, then the top

@@ -58,8 +58,8 @@ use super::subdivide::Lattice;
 use super::{BuildStats, Progress, is_degenerate};
 use crate::error::Error;
 use crate::mesh::stream::{PlyStream, StreamTriangle};
-use crate::physical::format::PrimRecord;
 use crate::output::Output;
+use crate::physical::format::PrimRecord;
 
 pub use plan::HISTOGRAM_LEVEL;
 
