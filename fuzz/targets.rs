@@ -492,7 +492,7 @@ pub fn probe_rays(lo: [f32; 3], hi: [f32; 3]) -> Vec<Ray> {
 // Offsets, from format-spec.md, as the tests state them (a mismatch with the code would only
 // make the fuzzing weaker, never wrong: everything here is bounds-checked).
 #[path = "../tests/common/layout.rs"]
-mod layout;
+pub mod layout;
 use layout::*;
 
 /// At most this many directory entries are fixed up (each costs a hash of its block).
@@ -523,42 +523,72 @@ fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
 }
 
 /// Rewrites `b` as a tool that edits a file in place would, so that only the structural checks
-/// can tell what changed:
+/// can tell what changed. For each header slot that holds a header (slot 0 always, slot 1 when
+/// it starts with the magic; §2.1), the newer generation first, with the flags and the section
+/// table of that slot (seven sections, the ropes with flag `ROPES`, the primitive table with
+/// `PRIMS`, §3):
 ///
-/// 1. `file_size` (§2) is set to the buffer's length (so inserting or removing bytes still gets
-///    past the first header check);
+/// 1. `file_size` (§2) is set to where the slot's last section ends, if that is inside the
+///    buffer, else to the buffer's length (so inserting or removing bytes, or appending them,
+///    still gets past the first header check);
 /// 2. every directory entry (§8.2, in the directory section as the section table places it)
-///    whose stored bytes lie in the file gets their checksum. A block marked zstd (codec 1) whose
-///    stored bytes are a decoded block (they start with the tag `OBLK`, §8.3) is compressed
-///    first, in place: the frame is written at its offset, the rest of its old bytes zeroed,
-///    `stored_len` and `raw_len` set (and the blocks section's length, if the block ended it).
-///    So a seed whose blocks are raw but marked zstd lets the mutator change the *contents* of
+///    but a free one (all zero) whose stored bytes lie in the file gets their checksum. A block
+///    marked zstd (codec 1) whose stored bytes are a decoded block (they start with the tag
+///    `OBLK`, §8.3) is compressed first, in place: the rest of its old bytes zeroed, the frame
+///    written at its offset, or, if the block ended the data region (the region ends where the
+///    directory starts, §3, at the next multiple of 64 after its last item), at the last
+///    multiple of 64 that keeps it ending there; `offset`, `stored_len` and `raw_len` set. So a
+///    seed whose blocks are raw but marked zstd lets the mutator change the *contents* of
 ///    compressed blocks, which it could not reach through a frame's bytes;
-/// 3. every section's checksum but the blocks' (§3), over the range its entry gives;
-/// 4. the header checksum (§2): header bytes 0..248, then the section table.
+/// 3. every primitive chunk (§8.6, in the chunk directory) whose records lie in the file gets
+///    their checksum;
+/// 4. every section's checksum but the blocks' (§3), over the range its entry gives;
+/// 5. the header checksum (§2): header bytes 0..248, then the section table.
 ///
-/// Ranges that are not inside the buffer are left alone (open or the pager rejects them).
+/// Ranges that are not inside the buffer are left alone (open or the pager rejects them). A
+/// block both generations refer to is compressed for the newer one (the older one's entry
+/// then describes bytes that are no longer the block: the fix-up keeps the newest generation
+/// sound).
 pub fn fix_checksums(b: &mut [u8]) {
-    // A file with ropes (flag bit 3, §8.4) has an eighth section and a longer table.
-    let sections = match read_u32(b, FLAGS_AT) {
-        Some(flags) if flags & 8 != 0 => SECTION_COUNT + 1,
-        _ => SECTION_COUNT,
+    let mut slots = vec![HEADER_SLOTS[0]];
+    if b.get(HEADER_SLOTS[1]..HEADER_SLOTS[1] + MAGIC.len()) == Some(&MAGIC[..]) {
+        slots.push(HEADER_SLOTS[1]);
+    }
+    slots.sort_by_key(|&slot| std::cmp::Reverse(read_u64(b, slot + GENERATION_AT)));
+    for slot in slots {
+        fix_slot(b, slot);
+    }
+}
+
+/// [`fix_checksums`] for the header slot at offset `slot`.
+fn fix_slot(b: &mut [u8], slot: usize) {
+    let Some(flags) = read_u32(b, slot + FLAGS_AT) else {
+        return;
     };
-    let table_end = HEADER_LEN + sections * ENTRY_LEN;
-    if b.len() < table_end {
+    let kinds = section_kinds(flags);
+    let table = table_range(slot, flags);
+    if b.len() < table.end {
         return;
     }
-    write_u64(b, FILE_SIZE_AT, b.len() as u64);
-    let dir_entry = HEADER_LEN + DIRECTORY * ENTRY_LEN;
-    let (Some(dir_at), Some(dir_len)) = (
-        read_u64(b, dir_entry + ENTRY_OFFSET),
-        read_u64(b, dir_entry + ENTRY_LENGTH),
-    ) else {
-        return;
+    let entry = |i: usize| table.start + i * ENTRY_LEN;
+    let section = |b: &[u8], i: usize| {
+        Some((
+            read_u64(b, entry(i) + ENTRY_OFFSET)?,
+            read_u64(b, entry(i) + ENTRY_LENGTH)?,
+        ))
     };
-    if let Some(dir) = range(dir_at, dir_len, b.len()) {
+    let last_end = section(b, kinds.len() - 1)
+        .and_then(|(at, len)| at.checked_add(len))
+        .filter(|&end| end <= b.len() as u64);
+    write_u64(b, slot + FILE_SIZE_AT, last_end.unwrap_or(b.len() as u64));
+    // The data region's end: where the blocks section ends (the directory's start, §3).
+    let region_end = section(b, BLOCKS).and_then(|(at, len)| at.checked_add(len));
+    if let Some(dir) = section(b, DIRECTORY).and_then(|(at, len)| range(at, len, b.len())) {
         for i in 0..(dir.len() / DIR_LEN).min(MAX_FIXED_BLOCKS) {
             let e = dir.start + i * DIR_LEN;
+            if b[e..e + DIR_LEN].iter().all(|&x| x == 0) {
+                continue; // a free entry (§8.2)
+            }
             let (Some(at), Some(len), Some(codec)) = (
                 read_u64(b, e + DIR_OFFSET),
                 read_u64(b, e + DIR_STORED_LEN),
@@ -574,45 +604,63 @@ pub fn fix_checksums(b: &mut [u8]) {
                     && frame.len() <= stored.len()
                 {
                     let raw_len = stored.len() as u64;
-                    b[stored.clone()].fill(0);
-                    b[stored.start..stored.start + frame.len()].copy_from_slice(&frame);
-                    write_u64(b, e + DIR_STORED_LEN, frame.len() as u64);
-                    write_u64(b, e + DIR_RAW_LEN, raw_len);
-                    // A block that ended the blocks section still ends it (§2: no padding
-                    // after the last block).
-                    let blocks = HEADER_LEN + BLOCKS * ENTRY_LEN;
-                    if let (Some(at), Some(len)) = (
-                        read_u64(b, blocks + ENTRY_OFFSET),
-                        read_u64(b, blocks + ENTRY_LENGTH),
-                    ) && at.checked_add(len) == Some(stored.end as u64)
-                        && at <= stored.start as u64
-                    {
-                        let end = (stored.start + frame.len()) as u64;
-                        write_u64(b, blocks + ENTRY_LENGTH, end - at);
+                    // A block that ended the data region still ends it (§3: the directory
+                    // starts at the next multiple of 64 after the region's last item).
+                    let ends_region = region_end.is_some_and(|end| {
+                        (stored.end as u64).next_multiple_of(ALIGN as u64) == end
+                    });
+                    let start = match region_end {
+                        Some(end) if ends_region => {
+                            let at = (end as usize - frame.len()) / ALIGN * ALIGN;
+                            at.max(stored.start)
+                        }
+                        _ => stored.start,
+                    };
+                    if start + frame.len() <= b.len() {
+                        b[stored.clone()].fill(0);
+                        b[start..start + frame.len()].copy_from_slice(&frame);
+                        write_u64(b, e + DIR_OFFSET, start as u64);
+                        write_u64(b, e + DIR_STORED_LEN, frame.len() as u64);
+                        write_u64(b, e + DIR_RAW_LEN, raw_len);
                     }
                 }
+                let at = read_u64(b, e + DIR_OFFSET).unwrap_or(0);
                 let len = read_u64(b, e + DIR_STORED_LEN).unwrap_or(0);
-                let sum = xxh3_64(&b[stored.start..stored.start + len as usize]);
-                write_u64(b, e + DIR_CHECKSUM, sum);
+                if let Some(r) = range(at, len, b.len()) {
+                    let sum = xxh3_64(&b[r]);
+                    write_u64(b, e + DIR_CHECKSUM, sum);
+                }
                 continue;
             }
             let sum = xxh3_64(&b[stored]);
             write_u64(b, e + DIR_CHECKSUM, sum);
         }
     }
-    for i in DIRECTORY..sections {
-        let e = HEADER_LEN + i * ENTRY_LEN;
-        let (Some(at), Some(len)) = (read_u64(b, e + ENTRY_OFFSET), read_u64(b, e + ENTRY_LENGTH))
-        else {
-            continue;
-        };
-        if let Some(r) = range(at, len, b.len()) {
-            let sum = xxh3_64(&b[r]);
-            write_u64(b, e + ENTRY_CHECKSUM, sum);
+    let prims = section_position(flags, KIND_PRIMS).and_then(|i| section(b, i));
+    if let Some(chunks) = prims.and_then(|(at, len)| range(at, len, b.len())) {
+        for c in 0..(chunks.len() / PRIM_CHUNK_LEN).min(MAX_FIXED_BLOCKS) {
+            let e = chunks.start + c * PRIM_CHUNK_LEN;
+            let (Some(at), Some(count)) = (read_u64(b, e + PC_OFFSET), read_u64(b, e + PC_COUNT))
+            else {
+                continue;
+            };
+            let records = count
+                .checked_mul(PRIM_RECORD_LEN as u64)
+                .and_then(|len| range(at, len, b.len()));
+            if let Some(r) = records {
+                let sum = xxh3_64(&b[r]);
+                write_u64(b, e + PC_CHECKSUM, sum);
+            }
         }
     }
-    let mut covered = Vec::with_capacity(HEADER_CHECKSUM + sections * ENTRY_LEN);
-    covered.extend_from_slice(&b[..HEADER_CHECKSUM]);
-    covered.extend_from_slice(&b[HEADER_LEN..table_end]);
-    write_u64(b, HEADER_CHECKSUM, xxh3_64(&covered));
+    for i in DIRECTORY..kinds.len() {
+        if let Some(r) = section(b, i).and_then(|(at, len)| range(at, len, b.len())) {
+            let sum = xxh3_64(&b[r]);
+            write_u64(b, entry(i) + ENTRY_CHECKSUM, sum);
+        }
+    }
+    let mut covered = Vec::with_capacity(HEADER_CHECKSUM + table.len());
+    covered.extend_from_slice(&b[slot..slot + HEADER_CHECKSUM]);
+    covered.extend_from_slice(&b[table]);
+    write_u64(b, slot + HEADER_CHECKSUM, xxh3_64(&covered));
 }

@@ -119,14 +119,15 @@ fn open_bugs_still_fail() {
 /// The corpora of the `.oavm` targets reach today's format, so that replaying them exercises
 /// more than the version check: each holds files that open as the current version (for
 /// `oavm_fixed`, after its checksum fix-up) and verify clean, some of clusters and some of leaf
-/// lists (format-spec.md §2, flag `CLUSTERS`). A format change that leaves the corpora behind
-/// fails here: make the seeds again (`tools/fuzz.sh seeds`) and merge them (`tools/fuzz.sh
-/// cmin`). Files of other versions stay in the corpora (they cover the version check) and must
+/// lists (format-spec.md §2, flag `CLUSTERS`), some with the primitive table (flag `PRIMS`,
+/// §8.6) and some of a generation after the first (§2.1: read from header slot 1). A format
+/// change that leaves the corpora behind fails here: make the seeds again (`tools/fuzz.sh
+/// seeds`) and merge them (`tools/fuzz.sh cmin`). Files of other versions stay in the corpora (they cover the version check) and must
 /// be rejected by it: a `FormatError::Version` naming their version.
 #[test]
 fn oavm_corpora_reach_the_current_format() {
     use oavm::physical::AlignedBytes;
-    use oavm::physical::format::{FLAG_CLUSTERS, MAGIC, VERSION};
+    use oavm::physical::format::{FLAG_CLUSTERS, FLAG_PRIMS, MAGIC, VERSION};
     use oavm::{Error, FormatError, Scene};
 
     let mut summary = Vec::new();
@@ -134,6 +135,7 @@ fn oavm_corpora_reach_the_current_format() {
         let dir = fuzz_dir().join("corpus").join(target);
         let corpus = files(&dir).unwrap_or_else(|| panic!("{} is missing", dir.display()));
         let (mut clusters, mut lists, mut current, mut other_versions) = (0, 0, 0, 0);
+        let (mut prims, mut updated) = (0, 0);
         for f in &corpus {
             let data = std::fs::read(f).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
             let mut bytes = AlignedBytes::from_slice(&data);
@@ -145,9 +147,6 @@ fn oavm_corpora_reach_the_current_format() {
             let b = bytes.as_ref();
             let version = (b.len() >= 256 && b[..8] == MAGIC)
                 .then(|| u32::from_le_bytes(b[8..12].try_into().expect("4 bytes")));
-            let flags = b
-                .get(12..16)
-                .map_or(0, |f| u32::from_le_bytes(f.try_into().expect("4 bytes")));
             match (version, Scene::from_bytes(bytes, "corpus.oavm")) {
                 (Some(v), Err(Error::Format { source, .. })) if v != VERSION => {
                     assert!(
@@ -163,10 +162,14 @@ fn oavm_corpora_reach_the_current_format() {
                 (_, Ok(scene)) => {
                     current += 1;
                     if scene.verify().is_ok_and(|r| r.is_ok()) {
+                        // The flags of the generation read (in either slot).
+                        let flags = scene.file().header().flags;
                         match flags & FLAG_CLUSTERS != 0 {
                             true => clusters += 1,
                             false => lists += 1,
                         }
+                        prims += (flags & FLAG_PRIMS != 0) as usize;
+                        updated += (scene.file().header().generation > 1) as usize;
                     }
                 }
                 (_, Err(_)) => {}
@@ -174,40 +177,43 @@ fn oavm_corpora_reach_the_current_format() {
         }
         summary.push(format!(
             "{target}: {} files, {current} open as version {VERSION} ({clusters} of clusters \
-             and {lists} of lists verify clean), {other_versions} of other versions rejected",
+             and {lists} of lists verify clean, {prims} of them with the primitive table, \
+             {updated} of a later generation), {other_versions} of other versions rejected",
             corpus.len()
         ));
         assert!(
-            clusters > 0 && lists > 0,
+            clusters > 0 && lists > 0 && prims > 0 && updated > 0,
             "fuzz/corpus/{target}/ has {clusters} sound files of clusters and {lists} of lists \
-             of version {VERSION}: the corpus is stale (tools/fuzz.sh seeds, then cmin)"
+             of version {VERSION}, {prims} with the primitive table and {updated} of a later \
+             generation: the corpus is stale (tools/fuzz.sh seeds, then cmin)"
         );
     }
     println!("{}", summary.join("\n"));
 }
 
 /// The checksum fix-up of `oavm_fixed` (fuzz/README.md) does what it claims: on an intact file
-/// it changes nothing, and a raw file whose blocks are marked zstd comes out as a sound
-/// compressed file (verify finds nothing) that answers the probe rays as the raw one does.
+/// it changes nothing (a file as packed, one with the primitive table, and one of generation 2,
+/// with both header slots), it restores the checksums of either generation when they are
+/// zeroed, and a raw file whose blocks are marked zstd comes out as a sound compressed file
+/// (verify finds nothing) that answers the probe rays as the raw one does (with the blocks the
+/// last items of the data region, and with the primitive chunks after them).
 #[test]
 fn checksum_fixup_keeps_files_sound() {
     use oavm::build::encode_with;
+    use oavm::build::update::{UpdateOptions, Updater};
     use oavm::physical::{AlignedBytes, BlockOptions};
     use oavm::{BuildOptions, Hit, Scene};
+    use targets::layout::*;
 
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/scenes/cornell_box/CornellBox-Original.obj");
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let mesh = oavm::mesh::parse_obj(&bytes, "cornell").expect("the Cornell box parses");
-    let (parts, _) = oavm::build::build(
-        &mesh,
-        &BuildOptions {
-            leaf_size: 1,
-            ..BuildOptions::default()
-        },
-        &oavm::build::Quiet,
-    )
-    .expect("build");
+    let build = BuildOptions {
+        leaf_size: 1,
+        ..BuildOptions::default()
+    };
+    let (parts, _) = oavm::build::build(&mesh, &build, &oavm::build::Quiet).expect("build");
     let answers = |file: &[u8]| {
         let scene = Scene::from_bytes(AlignedBytes::from_slice(file), "test.oavm").expect("open");
         let report = scene.verify().expect("verify");
@@ -218,16 +224,66 @@ fn checksum_fixup_keeps_files_sound() {
         scene.intersect_batch(&rays, &mut hits).expect("trace");
         (scene.file().header().block_count, hits)
     };
+    let fixed = |file: &[u8]| {
+        let mut b = AlignedBytes::from_slice(file);
+        targets::fix_checksums(b.as_mut_slice());
+        b.as_ref().to_vec()
+    };
+    let u64_at = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    // Every block marked zstd (§8.2 codec at entry offset 24), the header flagged COMPRESSED
+    // (§2 flags at 12, bit 1): what the `_zmark` seeds are.
+    let marked = |file: &[u8], blocks: u64| {
+        let mut b = file.to_vec();
+        b[FLAGS_AT] |= FLAG_COMPRESSED as u8;
+        let dir = u64_at(&b, HEADER_LEN + DIRECTORY * ENTRY_LEN + ENTRY_OFFSET) as usize;
+        for i in 0..blocks as usize {
+            b[dir + DIR_LEN * i + DIR_CODEC] = CODEC_ZSTD as u8;
+        }
+        fixed(&b)
+    };
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let packed = dir.path().join("updatable.oavm");
+    let opts = oavm::build::PackOptions {
+        build,
+        blocks: BlockOptions {
+            block_size: 4096,
+            compress: None,
+        },
+        time: None,
+        mem_budget: None,
+        ropes: false,
+        occluders: false,
+        updatable: true,
+        bounds: None,
+    };
+    oavm::build::pack_mesh(mesh.clone(), "cornell", &packed, &opts, &oavm::build::Quiet)
+        .expect("pack --updatable");
+    let updatable = std::fs::read(&packed).expect("read");
+    let mut u = Updater::open(&packed).expect("open for an update");
+    for p in 0..4 {
+        let t = mesh.triangle(p);
+        let c: [f32; 3] = std::array::from_fn(|k| (t[0][k] + t[1][k] + t[2][k]) / 3.0);
+        u.set(
+            p as u32,
+            t.map(|v| std::array::from_fn(|k| (v[k] + c[k]) / 2.0)),
+        )
+        .expect("set");
+    }
+    u.commit(&UpdateOptions {
+        block_size: 4096,
+        compress: None,
+    })
+    .expect("commit");
+    let updated = std::fs::read(&packed).expect("read");
+    assert_eq!(u64_at(&updated, HEADER_SLOTS[1] + GENERATION_AT), 2);
     for compress in [None, Some(3)] {
         let opts = BlockOptions {
             block_size: 4096,
             compress,
         };
         let file = encode_with(&parts, &opts).expect("encode");
-        let mut fixed = AlignedBytes::from_slice(file.as_ref());
-        targets::fix_checksums(fixed.as_mut_slice());
         assert!(
-            fixed.as_ref() == file.as_ref(),
+            fixed(file.as_ref()) == file.as_ref(),
             "the fix-up changed an intact file"
         );
         if compress.is_some() {
@@ -235,20 +291,51 @@ fn checksum_fixup_keeps_files_sound() {
         }
         let (blocks, expected) = answers(file.as_ref());
         assert!(blocks > 1, "the test wants a file of several blocks");
-        // Every block marked zstd (§8.2 codec at entry offset 24), the header flagged COMPRESSED
-        // (§2 flags at 12, bit 1): what the `_zmark` seeds are.
-        let mut marked = AlignedBytes::from_slice(file.as_ref());
-        let b = marked.as_mut_slice();
-        b[12] |= 2;
-        let dir = u64::from_le_bytes(b[256 + 48 + 8..256 + 48 + 16].try_into().unwrap()) as usize;
-        for i in 0..blocks as usize {
-            b[dir + 48 * i + 24] = 1;
-        }
-        targets::fix_checksums(b);
-        let (_, got) = answers(b);
+        let (_, got) = answers(&marked(file.as_ref(), blocks));
         assert_eq!(
             got, expected,
             "the fixed-up compressed file answers differently"
+        );
+    }
+    // With the primitive table, its chunks after the blocks (§8.6).
+    assert!(
+        fixed(&updatable) == updatable,
+        "the fix-up changed an updatable file"
+    );
+    let (blocks, expected) = answers(&updatable);
+    let (_, got) = answers(&marked(&updatable, blocks));
+    assert_eq!(
+        got, expected,
+        "the fixed-up compressed updatable file answers differently"
+    );
+    // Generation 2, in slot 1, generation 1 in slot 0 (§2.1): both slots fixed up, each with
+    // its own table.
+    assert!(
+        fixed(&updated) == updated,
+        "the fix-up changed a file of generation 2"
+    );
+    answers(&updated);
+    for slot in HEADER_SLOTS {
+        let mut b = updated.clone();
+        let flags = u32::from_le_bytes(b[slot + FLAGS_AT..slot + FLAGS_AT + 4].try_into().unwrap());
+        let table = table_range(slot, flags);
+        let chunks = section_position(flags, KIND_PRIMS).expect("a primitive table");
+        let at = |i: usize| table.start + i * ENTRY_LEN;
+        let dir_at = u64_at(&b, at(DIRECTORY) + ENTRY_OFFSET) as usize;
+        let chunks_at = u64_at(&b, at(chunks) + ENTRY_OFFSET) as usize;
+        for zero in [
+            slot + HEADER_CHECKSUM,
+            slot + FILE_SIZE_AT,
+            at(DIRECTORY) + ENTRY_CHECKSUM,
+            at(chunks) + ENTRY_CHECKSUM,
+            dir_at + DIR_CHECKSUM,
+            chunks_at + PC_CHECKSUM,
+        ] {
+            b[zero..zero + 8].fill(0);
+        }
+        assert!(
+            fixed(&b) == updated,
+            "the fix-up does not restore slot {slot}'s generation"
         );
     }
 }

@@ -161,6 +161,9 @@ struct Machine {
     commit: String,
     /// Uncommitted changes in the work tree when measured.
     dirty: bool,
+    /// The 1-minute load average (`/proc/loadavg`) at the start and at the end: other work on
+    /// the machine, which the timings include.
+    load_average: [f64; 2],
 }
 
 #[derive(Serialize)]
@@ -204,7 +207,16 @@ fn machine() -> Machine {
         commit: git(&["rev-parse", "--short", "HEAD"]).unwrap_or_default(),
         dirty: git(&["status", "--porcelain", "--untracked-files=no"])
             .is_some_and(|s| !s.is_empty()),
+        load_average: [load_average(); 2],
     }
+}
+
+/// The 1-minute load average (0 where `/proc/loadavg` cannot be read).
+fn load_average() -> f64 {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|l| l.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0.0)
 }
 
 fn main() -> std::process::ExitCode {
@@ -315,6 +327,7 @@ fn run(args: &Args) -> Result<(), Error> {
             peak_rss_bytes: oavm::os::peak_rss_bytes(),
         });
         report.seconds = started.elapsed().as_secs_f64();
+        report.machine.load_average[1] = load_average();
         // Written after every scene, so that a long run leaves what it measured.
         write(args, &report)?;
     }
@@ -372,12 +385,15 @@ fn mb(bytes: f64) -> String {
 fn markdown(r: &Report) -> String {
     let m = &r.machine;
     let mut t = format!(
-        "Measured on {} ({} cores, {:.1} GiB), commit {}{}; {} frames a scene after the one \
-         packed, depth {}, threads: one per core. A frame's time is the update (or full pack), \
+        "Measured on {} ({} cores, {:.1} GiB; load average {:.1} at the start, {:.1} at the \
+         end), commit {}{}; {} frames a scene after the one packed, depth {}, threads: one per \
+         core. A frame's time is the update (or full pack), \
          opening the file and the render; fps = frames / the sum of those.\n\n",
         m.cpu,
         m.cores,
         m.memory_bytes.unwrap_or(0) as f64 / (1u64 << 30) as f64,
+        m.load_average[0],
+        m.load_average[1],
         m.commit,
         if m.dirty {
             " (with uncommitted changes)"
@@ -389,7 +405,7 @@ fn markdown(r: &Report) -> String {
     );
     if !r.steps_only {
         t += "| scene | triangles | size | fps, updates | fps, rebuilds | paper fps | update ms/frame | \
-              pack ms/frame | render ms/frame | Mrays/s | bytes written / update | file bytes | \
+              pack ms/frame | render ms/frame | Mrays/s | bytes written / update | file after updates | \
               same images |\n|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n";
         for s in &r.scenes {
             for run in &s.runs {

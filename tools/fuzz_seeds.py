@@ -7,6 +7,10 @@
                                              and 200 triangles of the dragon, to pack
     tools/fuzz_seeds.py zmark OUT FILE...    for each raw .oavm FILE, OUT/<name>_zmark.oavm
                                              (see zmark below)
+    tools/fuzz_seeds.py moved IN OUT         the ascii PLY IN with its last 6 faces dropped
+                                             and its first face's corners moved a tenth of
+                                             the way to the mesh's centre: what oavm-update
+                                             makes generation 2 of a seed from
 
 SCENES is ../shared/scenes. The ray files and .oavm seeds are made by the project's own binaries
 (tools/fuzz_seeds.sh). Seeds are small on purpose: libFuzzer mutates small inputs much faster,
@@ -47,16 +51,23 @@ def zmark(out, paths):
 
     The oavm_fixed target's fix-up compresses such blocks before opening (fuzz/targets.rs,
     fix_checksums), so mutations reach the decoded contents of compressed blocks. Laid out again
-    with every block and section at the next multiple of 64 (what §8.2 asks of compressed
-    blocks), not of 4096, to keep them small; the fix-up recomputes the checksums."""
+    (format-spec.md version 5, §2, §3, §8.2, §8.6) with every block, primitive chunk and section
+    at the next multiple of 64 (what §8.2 asks of compressed blocks), not of 4096, to keep them
+    small: header slot 0, slot 1 (zero: generation 1 only), the data region from 4096 (the
+    blocks in directory order, then the primitive chunks, if the file has the table), ending at
+    the next multiple of 64, where the directory starts, then the other sections in table
+    order; the fix-up recomputes the checksums."""
     up = lambda x: (x + 63) // 64 * 64
-    entry = lambda i: 256 + 48 * i  # §3: section entry i
+    entry = lambda i: 256 + 48 * i  # §3: section entry i of slot 0
     for path in paths:
         with open(path, "rb") as fh:
             b = fh.read()
-        sec = [struct.unpack_from("<QQ", b, entry(i) + 8) for i in range(7)]
-        new = bytearray(b[:sec[0][0]])
-        struct.pack_into("<I", new, 12, struct.unpack_from("<I", b, 12)[0] | 2)  # §2: COMPRESSED
+        assert not any(b[2048:4096]), f"{path}: zmark lays out files of generation 1"
+        flags = struct.unpack_from("<I", b, 12)[0]
+        kinds = list(range(1, 8)) + [8] * bool(flags & 8) + [9] * bool(flags & 32)
+        sec = [struct.unpack_from("<QQ", b, entry(i) + 8) for i in range(len(kinds))]
+        new = bytearray(b[:4096])
+        struct.pack_into("<I", new, 12, flags | 2)  # §2: COMPRESSED
         directory = bytearray(b[sec[1][0]:sec[1][0] + sec[1][1]])
         for e in range(0, len(directory), 48):  # §8.2: each block, 64-aligned
             off, stored = struct.unpack_from("<QQ", directory, e)
@@ -64,15 +75,44 @@ def zmark(out, paths):
             struct.pack_into("<Q", directory, e, len(new))
             struct.pack_into("<I", directory, e + 24, 1)  # codec: zstd
             new += b[off:off + stored]
-        struct.pack_into("<QQ", new, entry(0) + 8, sec[0][0], len(new) - sec[0][0])
-        for i in range(1, 7):
+        chunks = bytearray()
+        if 9 in kinds:  # §8.6: each chunk of 36-byte records, 64-aligned
+            at, length = sec[kinds.index(9)]
+            chunks = bytearray(b[at:at + length])
+            for e in range(0, len(chunks), 32):
+                off, count = struct.unpack_from("<QQ", chunks, e)
+                new += bytes(up(len(new)) - len(new))
+                struct.pack_into("<Q", chunks, e, len(new))
+                new += b[off:off + 36 * count]
+        new += bytes(up(len(new)) - len(new))  # §3: the directory starts where the region ends
+        struct.pack_into("<QQ", new, entry(0) + 8, 4096, len(new) - 4096)
+        for i, kind in enumerate(kinds[1:], start=1):
             new += bytes(up(len(new)) - len(new))
             struct.pack_into("<Q", new, entry(i) + 8, len(new))
-            new += directory if i == 1 else b[sec[i][0]:sec[i][0] + sec[i][1]]
+            new += {2: directory, 9: chunks}.get(kind, b[sec[i][0]:sec[i][0] + sec[i][1]])
         struct.pack_into("<Q", new, 32, len(new))  # §2: file_size
         name = os.path.basename(path).replace(".oavm", "_zmark.oavm")
         with open(os.path.join(out, name), "wb") as fh:
             fh.write(new)
+
+
+def moved(src, dst):
+    """See the module's documentation: the new geometry of an update of a seed."""
+    with open(src) as fh:
+        head, body = fh.read().split("end_header\n", 1)
+    nv = int(re.search(r"element vertex (\d+)", head).group(1))
+    nf = int(re.search(r"element face (\d+)", head).group(1))
+    rows = body.splitlines()
+    verts = [[float(x) for x in r.split()] for r in rows[:nv]]
+    faces = rows[nv:nv + nf - 6]
+    centre = [sum(v[k] for v in verts) / nv for k in range(3)]
+    for i in map(int, faces[0].split()[1:]):
+        verts[i] = [c + (m - c) / 10 for c, m in zip(verts[i], centre)]
+    head = re.sub(r"element face \d+", f"element face {len(faces)}", head)
+    with open(dst, "w") as fh:
+        fh.write(head + "end_header\n")
+        fh.write("".join(" ".join(repr(c) for c in v) + "\n" for v in verts))
+        fh.write("".join(f + "\n" for f in faces))
 
 
 if sys.argv[1] == "cuts":
@@ -80,6 +120,9 @@ if sys.argv[1] == "cuts":
     sys.exit(0)
 if sys.argv[1] == "zmark":
     zmark(sys.argv[2], sys.argv[3:])
+    sys.exit(0)
+if sys.argv[1] == "moved":
+    moved(sys.argv[2], sys.argv[3])
     sys.exit(0)
 assert sys.argv[1] == "meshes", __doc__
 SCENES, OUT = sys.argv[2], sys.argv[3]

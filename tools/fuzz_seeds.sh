@@ -10,7 +10,8 @@
 # small inputs mutate faster and keep the committed corpus small; several blocks (4 KiB target
 # size), compressed and raw, deep trees and unmerged volumes fit in that. Both kinds of solid
 # leaf (format-spec.md §2 flag CLUSTERS): clusters, the default (§7.1, §7.2), and leaf lists
-# (`--leaf list`, §6, §7; the seeds named *_list).
+# (`--leaf list`, §6, §7; the seeds named *_list); files with the primitive table (*_upd, §8.6)
+# and of generation 2 (*_gen2, §2.1: updated in place by oavm-update). Format version 5.
 #
 # The binaries are built in $CARGO_TARGET_DIR if it is set (else target/).
 set -euo pipefail
@@ -70,6 +71,22 @@ pack dragon60_leaf4_z_list dragon60.ply --leaf list --leaf-size 4 --max-depth 6 
 pack dragon20_nomerge_z_list dragon20.ply --leaf list --block-size 4K --no-merge --leaf-size 4 --compress
 pack museum_block_list museum_block.aff --leaf list --block-size 4K
 pack keys_t_list keys_only.aff --leaf list --time 0.5
+# With the primitive table (`--updatable`, format-spec.md §8.6: chunks after the blocks, a last
+# section); and small compressed ones updated in place by oavm-update to the cut with 6 faces
+# removed and one moved (tools/fuzz_seeds.py moved): generation 2, in header slot 1, its data
+# region holding generation 1's blocks and sections as well as its own (§2.1). An update
+# appends from the next multiple of 4096, so generation 2 of dragon60_4k_upd would be 40 KB.
+pack dragon60_4k_upd dragon60.ply --block-size 4K --leaf-size 16 --updatable
+pack dragon60_4k_upd_list dragon60.ply --leaf list --block-size 4K --updatable
+python3 tools/fuzz_seeds.py moved "$tmp/dragon20.ply" "$tmp/dragon20_moved.ply"
+pack dragon20_upd_z dragon20.ply --block-size 4K --leaf-size 4 --updatable --compress=1
+pack dragon20_upd_z_list dragon20.ply --leaf list --block-size 4K --leaf-size 4 --updatable \
+    --compress=1
+for s in dragon20_upd_z dragon20_upd_z_list; do
+    cp "$tmp/$s.oavm" "$tmp/${s}_gen2.oavm"
+    "$bin/oavm-update" "$tmp/${s}_gen2.oavm" "$tmp/dragon20_moved.ply" --block-size 4096 \
+        --threads 1 >/dev/null
+done
 for f in "$tmp"/*.oavm; do
     size=$(stat -c %s "$f")
     if [ "$size" -gt 24576 ]; then
@@ -96,7 +113,7 @@ pack dragon20_nomerge_list dragon20.ply --leaf list --block-size 4K --no-merge -
 python3 tools/fuzz_seeds.py zmark "$seeds/oavm_fixed" \
     "$tmp"/cornell.oavm "$tmp"/dragon200_4k.oavm "$tmp"/museum_block.oavm "$tmp"/dragon20_nomerge.oavm \
     "$tmp"/cornell_list.oavm "$tmp"/dragon200_4k_list.oavm "$tmp"/museum_block_list.oavm \
-    "$tmp"/dragon20_nomerge_list.oavm
+    "$tmp"/dragon20_nomerge_list.oavm "$tmp"/dragon60_4k_upd.oavm "$tmp"/dragon60_4k_upd_list.oavm
 
 for t in "$seeds"/*; do
     printf '%-11s %3d files %7d bytes\n' "$(basename "$t")" "$(ls "$t" | wc -l)" "$(cat "$t"/* | wc -c)"

@@ -36,11 +36,13 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
             return Err(FormatError::BigEndianHost);
         }
         let bytes = data.as_ref();
+        // A slot is valid when its header and section table are (spec §2.1: what an
+        // interrupted update can leave wrong); the chosen generation's level table is then
+        // checked, and damage there is an error, not a reason to read an older generation.
         let read = |slot: usize| -> Result<_, FormatError> {
             let header = read_header(bytes, slot, bytes.len() as u64)?;
             let sections = read_section_table(bytes, &header, slot)?;
-            let levels = read_levels(bytes, &header, &sections)?;
-            Ok((header, sections, levels))
+            Ok((header, sections))
         };
         let first = read(0);
         let second_at = HEADER_SLOTS[1] as usize;
@@ -50,7 +52,7 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
         let second = second_used.then(|| read(1));
         // The valid slot of the highest generation (spec §2.1); a file whose slot 0 is broken
         // and whose slot 1 was never written reports slot 0's defect.
-        let (slot, (header, sections, levels), other_slot) = match (first, second) {
+        let (slot, (header, sections), other_slot) = match (first, second) {
             (Ok(a), None) => (0, a, SlotState::Unused),
             (Err(e), None) => return Err(e),
             (Ok(a), Some(Ok(b))) => {
@@ -70,6 +72,7 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
             (Err(e), Some(Ok(b))) => (1, b, SlotState::Invalid(e.to_string())),
             (Err(e), Some(Err(_))) => return Err(e),
         };
+        let levels = read_levels(bytes, &header, &sections)?;
         Ok(OavmFile {
             data,
             header,
