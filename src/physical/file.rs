@@ -56,12 +56,8 @@ impl<D: AsRef<[u8]>> OavmFile<D> {
             (Ok(a), None) => (0, a, SlotState::Unused),
             (Err(e), None) => return Err(e),
             (Ok(a), Some(Ok(b))) => {
-                if a.0.generation == b.0.generation {
-                    return Err(header_err(format!(
-                        "both header slots hold generation {}",
-                        a.0.generation
-                    )));
-                }
+                // Generation g is valid only in slot (g - 1) mod 2 (read_header), so two
+                // valid slots never hold the same generation.
                 if a.0.generation > b.0.generation {
                     (0, a, SlotState::Older(b.0.generation))
                 } else {
