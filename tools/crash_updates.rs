@@ -250,6 +250,7 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
         .into());
     }
 
+    let started = Instant::now();
     for k in 0..kills {
         std::fs::copy(&base, &work)?;
         // A reader of the previous generation, open across the update.
@@ -326,6 +327,13 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
                 fail("an update after the kill failed or answered wrongly".into());
             }
             out.resumed += 1;
+            eprintln!(
+                "{}: {} kills, {} failures ({:.0} s)",
+                spec.name,
+                k + 1,
+                out.failures.len(),
+                started.elapsed().as_secs_f64()
+            );
         }
     }
     Ok(out)
