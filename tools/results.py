@@ -3,6 +3,7 @@
 
     python3 tools/results.py BENCH.json [--clusters CLUSTERS.json] [--scaling SCALING.json] \\
         [--stackless STACKLESS.json [--stackless-lists LISTS.json]] [--shadow SHADOW.json] \\
+        [--anim A.json[,B.json]] [--anim-steps C.json[,D.json]] \\
         [--kitchen-png PATH] [--commit COMMIT] [--command CMD] > docs/results.md
     python3 tools/results.py --shadow SHADOW.json [--commit COMMIT]   # that section alone
 
@@ -12,7 +13,9 @@ leaves (clusters: a wide BVH per solid leaf); SCALING.json (optional) one over t
 decimations, for build times against triangle count. SHADOW.json (optional: without it, or
 when the file does not exist, the page has no shadow-ray section) is tools/results.sh's merge of
 its `oavm-bench --json --shadow-variant` runs, one per scene, each scene with the `args` it was
-run with. The page names the commit and the file format version it measured (`format_version`
+run with. ANIM and ANIM-STEPS (optional) are `anim_bench` reports (tools/anim_bench.rs): the
+first render animations at the paper's sizes (Table 3), the second (`--steps-only`) time the
+updates alone. The page names the commit and the file format version it measured (`format_version`
 of the JSON), which tests/docs.rs compares with the code's. Rebuilds, from our measurements, the
 tables of the OAVM paper (Yuan et al., Acta Optica Sinica 37(1), 2017, 120001,
 DOI 10.3788/aos201737.0120001): Table 2 (creation time, total nodes, total pointers), Fig. 7
@@ -618,6 +621,117 @@ def shadow_section(w, data, commit):
     w("")
 
 
+# The OAVM paper's Table 3 (Yuan et al. 2017): frames a second on the CPU with textures, shadows
+# and secondary rays, at 1024x768, 800x600 and 400x300; its Rain has 15 million balls.
+PAPER_TABLE3 = {"kitchen": (3.1, 4.6, 11.8), "robots": (3.9, 5.3, 16.6),
+                "museum": (5.6, 6.8, 20.6), "rain": (1.5, 2.3, 5.8)}
+PAPER_SIZES = {1024: 0, 800: 1, 400: 2}
+
+
+def paper_fps(name, width):
+    for key, row in PAPER_TABLE3.items():
+        if key.rstrip("s") in name.lower():
+            return row[PAPER_SIZES[width]] if width in PAPER_SIZES else None
+    return None
+
+
+def anim_machine(reports):
+    """The machine and commit line of `anim_bench` runs (one per report)."""
+    out = []
+    for r in reports:
+        m = r["machine"]
+        out.append(f"commit `{m['commit']}`{' (uncommitted changes)' if m['dirty'] else ''}, "
+                   f"{m['cpu']}, {m['cores']} cores, load average {m['load_average'][0]:.1f} "
+                   f"at the start and {m['load_average'][1]:.1f} at the end, {r['seconds']:.0f} s")
+    return "; ".join(dict.fromkeys(out))
+
+
+def mean(xs):
+    xs = list(xs)
+    return sum(xs) / len(xs) if xs else float("nan")
+
+
+def anim_section(w, table3, steps, commit, version):
+    """Table 3 (frames a second by updates and by full rebuilds) and the update cost per frame
+    step, from `anim_bench` JSON: `table3` runs render at the paper's sizes, `steps` runs
+    (`--steps-only`) time the updates alone."""
+    w("## Dynamic scenes: the OAVM paper's Table 3\n")
+    w(f"Measured at commit `{commit}`, file format version {version}, by "
+      "`cargo run --release --example anim_bench` (tools/anim_bench.rs) as tools/results.sh runs "
+      "it. Each scene is packed updatable (`oavm-pack --updatable`: the primitive table, a root "
+      "cube that holds every frame measured) at its first frame; each later frame is brought "
+      "into the file by a local update (`oavm-update`: the changed triangles found by "
+      "primitive id, only the blocks they reach rebuilt, a new generation appended and synced, "
+      "format-spec §2.1) and rendered in Whitted's way (`oavm-trace --frames --shade`: shadow "
+      "rays to every scene light, reflection and refraction from the AFF materials, "
+      "depth 5). The same frames are then packed whole each frame (the full rebuild the paper "
+      "compares with) and rendered again; the two must give the same images byte for byte "
+      "(the last column). A frame's time is the update (or full pack, with its write and "
+      "syncs), opening the file and the render, on 2 threads; posing the frame (BART) or "
+      "reading its PLY (Rain) and writing PNGs are not counted. BART frames are from the "
+      "middle of each animation, where its objects move; the camera follows BART's camera "
+      "path where the scene has one. Rain is `tools/rain.rs --seed 1` (octahedra of radius "
+      "0.1 falling in a 100-unit box, every ball moving every frame), at fewer balls than the "
+      "paper's 15 million (the counts are in the table).\n")
+    w(f"Runs: {anim_machine(table3)}.\n")
+    w("| scene | triangles | size | fps, updates | fps, full rebuilds | the paper's fps | "
+      "update ms/frame | full pack ms/frame | render ms/frame | Mrays/s | same images |")
+    w("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|")
+    ratios = []
+    for r in table3:
+        for sc in r["scenes"]:
+            for run in sc["runs"]:
+                u, b = run["update"], run["rebuild"]
+                n = max(u["frames"], 1)
+                p = paper_fps(sc["name"], run["width"])
+                ratios.append((sc["name"], run["width"], u["fps"], b["fps"], p))
+                w(f"| {sc['name']} | {sc['triangles']:,} | {run['width']}x{run['height']} | "
+                  f"{u['fps']:.2f} | {b['fps']:.2f} | {'' if p is None else p} | "
+                  f"{1e3 * u['update_seconds'] / n:.1f} | {1e3 * b['update_seconds'] / n:.1f} | "
+                  f"{1e3 * u['render_seconds'] / n:.1f} | {u['mrays_per_s']:.2f} | "
+                  f"{'yes' if run['images_identical'] else '**no**'} |")
+    w("")
+    if ratios:
+        faster = [(n, wd, uf / bf) for n, wd, uf, bf, _ in ratios if bf > 0]
+        vs_paper = [(n, wd, uf / p) for n, wd, uf, _, p in ratios if p]
+        w("Updates against full rebuilds: " + ", ".join(
+            f"{n} {wd}: {x:.2f}x" for n, wd, x in faster) + " the frames a second. "
+          "Against the paper's figures (its machine, its renderer; not a like-for-like "
+          "comparison): " + ", ".join(f"{n} {wd}: {x:.2f}x" for n, wd, x in vs_paper) + ".\n")
+    w("### Update cost per frame step, against a full pack\n")
+    w("Means over every frame step measured (Table 3's runs at every size, and `anim_bench "
+      "--steps-only` runs, which render nothing, for Rain up to 10^7 balls). Moved: "
+      "primitives whose corners changed. Blocks, leaves and volumes: those of the rebuilt "
+      "subtrees, against the file's (a full pack's) totals. Bytes written: what the update "
+      "appends (blocks, changed primitive chunks, the new directory and top tree) and its "
+      "header slot; the file grows by that much each frame until `oavm-update --compact`.\n")
+    w("| scene | triangles | frame steps | moved / step | blocks rebuilt of total | leaves "
+      "rebuilt of total | volumes after, rebuilt / total | update s | full pack s | pack / "
+      "update | bytes written / update | file as packed |")
+    w("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in table3 + steps:
+        for sc in r["scenes"]:
+            ups = [f for run in sc["runs"] for f in run["update"]["per_frame"]]
+            packs = [f for run in sc["runs"] for f in run["rebuild"]["per_frame"]]
+            st = sc["first_pack"]["pack"]["stats"]
+            leaves = st["empty_leaves"] + st["solid_leaves"]
+            def m(key):
+                return mean(f["update"][key] if f.get("update") else 0 for f in ups)
+            moved = mean((f["update"]["moved"] + f["update"]["inserted"] + f["update"]["removed"])
+                         if f.get("update") else 0 for f in ups)
+            upd = mean(f["update_seconds"] for f in ups)
+            pack = mean(f["update_seconds"] for f in packs)
+            w(f"| {sc['name']} | {sc['triangles']:,} | {len(ups)} | {moved:,.0f} | "
+              f"{m('blocks_rebuilt'):,.1f} of {m('blocks_before'):,.0f} | "
+              f"{m('leaves_after'):,.0f} of {leaves:,} | {m('volumes_after'):,.0f} / "
+              f"{st['volumes']:,} | {upd:.3f} | {pack:.3f} | {pack / upd:.2f}x | "
+              f"{mean(f['bytes_written'] for f in ups) / 1e6:.2f} MB | "
+              f"{sc['first_pack']['pack']['file_bytes'] / 1e6:.2f} MB |")
+    w("")
+    if steps:
+        w(f"Steps-only runs: {anim_machine(steps)}.\n")
+
+
 def main():
     args = sys.argv[1:]
     shadow_path = arg(args, "--shadow")
@@ -731,12 +845,16 @@ def main():
         stackless_section(w, stackless, stackless_lists, commit)
     if shadow:
         shadow_section(w, shadow, commit)
+    anim = [json.load(open(p)) for p in (arg(args, "--anim") or "").split(",") if p]
+    anim_steps = [json.load(open(p)) for p in (arg(args, "--anim-steps") or "").split(",") if p]
+    if anim or anim_steps:
+        anim_section(w, anim, anim_steps, commit, version)
     if kitchen_png:
         w("## The kitchen from its own viewpoint\n")
         w(f"![BART kitchen, rendered by oavm-trace from the scene's own viewpoint]({kitchen_png})\n")
         w("Made by tools/results.sh with `oavm-pack ../shared/scenes/bart/kitchen/kitchen.aff "
-          "kitchen.oavm` and `oavm-trace kitchen.oavm --view ../shared/scenes/bart/kitchen/kitchen.aff` "
-          "(oavm-trace's own point light and grey shading; BART's materials and lights are not read).\n")
+          "kitchen.oavm` and `oavm-trace kitchen.oavm --view ../shared/scenes/bart/kitchen/kitchen.aff "
+          "--shade` (Whitted ray tracing with the scene's materials and lights, depth 5).\n")
     print("\n".join(out))
 
 

@@ -3,13 +3,19 @@
 #
 #   tools/results.sh [--reps N] [--random N] ...   # extra flags go to every oavm-bench run
 #   tools/results.sh --shadow-only [--reps N] ...  # only the shadow-ray runs (below)
+#   tools/results.sh --anim-only                   # only the animation runs (Table 3, below)
 #
 # Runs `oavm-bench --json` over the seven scenes (all five structures, 1 and 2 threads), with
 # OAVM's leaves as lists (the paper's structure) and as clusters (the default), then
 # over the dragon's decimations for build-time scaling, the shadow-ray walks (standard, SATO,
 # multi-index tree) over four scenes, renders the kitchen from its own viewpoint, and writes the
 # page with tools/results.py. The JSON is kept in target/results/ (not in git; RESULTS_DIR=DIR
-# puts it elsewhere). About 40 minutes on a 2-core machine.
+# puts it elsewhere). About 40 minutes on a 2-core machine, the shadow rays 25 more, the
+# animations (Table 3, with 7 GB of Rain frames in RESULTS_DIR/rain) 40 more.
+#
+# --anim-only runs just the animation benchmark (tools/anim_bench.rs) into RESULTS_DIR/anim*.json
+# and writes docs/results.md again from the JSON already in RESULTS_DIR (so that a page measured
+# in parts at one commit is whole); extra flags are not passed to it.
 #
 # --shadow-only runs just the shadow-ray benchmark (flags given override its defaults, e.g.
 # `--width 128 --height 96 --frames 2 --reps 1` for a quick look) and writes RESULTS_DIR/shadow.json
@@ -19,9 +25,14 @@ cd "$(dirname "$0")/.."
 S=../shared/scenes
 OUT=${RESULTS_DIR:-target/results}
 SHADOW_ONLY=0
+ANIM_ONLY=0
 ARGS=()
 for a in "$@"; do
-  if [[ $a == --shadow-only ]]; then SHADOW_ONLY=1; else ARGS+=("$a"); fi
+  case $a in
+    --shadow-only) SHADOW_ONLY=1 ;;
+    --anim-only) ANIM_ONLY=1 ;;
+    *) ARGS+=("$a") ;;
+  esac
 done
 set -- ${ARGS[@]+"${ARGS[@]}"}
 mkdir -p "$OUT"
@@ -83,6 +94,52 @@ EOF
   mv "$OUT/shadow.json.tmp" "$OUT/shadow.json"
 }
 
+# Dynamic scenes: the OAVM paper's Table 3. Rain frames by tools/rain.rs (seed 1; kept in
+# $OUT/rain between runs: the same arguments write the same bytes), then anim_bench: the three
+# BART scenes and Rain at 10^5 balls over 10 frames at the paper's three sizes, Rain at 10^6 over
+# 3 frames, and the update cost alone (--steps-only) for Rain at 10^6 (3 steps) and 10^7 (2).
+anim_runs() {
+  cargo build --release --example anim_bench --example rain
+  local R=$OUT/rain n last
+  for n in 100000:10 1000000:3 10000000:2; do
+    last=${n#*:}; n=${n%:*}
+    [[ -f $R/$n/rain_$(printf %05d "$last").ply ]] ||
+      "$BIN/examples/rain" --balls "$n" --seed 1 --frames "0..=$last" --out "$R/$n" > /dev/null
+  done
+  local A=("$BIN/examples/anim_bench" --out "$OUT" --work "$OUT/anim_work")
+  "${A[@]}" --frames 10 --name anim kitchen="$S/bart/kitchen/kitchen.aff" \
+    robots="$S/bart/robot/Robot.aff" museum="$S/bart/museum/museum5.aff" \
+    "rain 10^5"="$R/100000" > /dev/null
+  "${A[@]}" --frames 3 --name anim_rain6 "rain 10^6"="$R/1000000" > /dev/null
+  "${A[@]}" --steps-only --frames 3 --name anim_steps6 "rain 10^6"="$R/1000000" > /dev/null
+  "${A[@]}" --steps-only --frames 2 --name anim_steps7 "rain 10^7"="$R/10000000" > /dev/null
+  rm -rf "$OUT/anim_work"
+}
+
+# The page, from every JSON in $OUT (a part not measured is left out).
+write_page() {
+  local opt=() f
+  [[ -f $OUT/shadow.json ]] && opt+=(--shadow "$OUT/shadow.json")
+  local anim=() steps=()
+  for f in anim anim_rain6; do [[ -f $OUT/$f.json ]] && anim+=("$OUT/$f.json"); done
+  for f in anim_steps6 anim_steps7; do [[ -f $OUT/$f.json ]] && steps+=("$OUT/$f.json"); done
+  ((${#anim[@]})) && opt+=(--anim "$(IFS=,; echo "${anim[*]}")")
+  ((${#steps[@]})) && opt+=(--anim-steps "$(IFS=,; echo "${steps[*]}")")
+  python3 tools/results.py "$OUT/bench.json" --clusters "$OUT/clusters.json" \
+    --scaling "$OUT/scaling.json" --stackless "$OUT/stackless.json" \
+    --stackless-lists "$OUT/stackless_lists.json" ${opt[@]+"${opt[@]}"} \
+    --kitchen-png kitchen.png --commit "$commit" \
+    --command "tools/results.sh $*" > docs/results.md.tmp
+  mv docs/results.md.tmp docs/results.md
+  echo "wrote docs/results.md"
+}
+
+if ((ANIM_ONLY)); then
+  anim_runs
+  write_page --anim-only
+  exit 0
+fi
+
 if ((SHADOW_ONLY)); then
   cargo build --release --bin oavm-bench
   shadow_runs "$@"
@@ -132,14 +189,8 @@ mv "$OUT/stackless_lists.json.tmp" "$OUT/stackless_lists.json"
 shadow_runs "$@"
 
 "$BIN/oavm-pack" "$S/bart/kitchen/kitchen.aff" "$OUT/kitchen.oavm" > /dev/null
-"$BIN/oavm-trace" "$OUT/kitchen.oavm" --view "$S/bart/kitchen/kitchen.aff" -o docs/kitchen.png
+"$BIN/oavm-trace" "$OUT/kitchen.oavm" --view "$S/bart/kitchen/kitchen.aff" --shade -o docs/kitchen.png
 
-SHADOW=()
-[[ -f $OUT/shadow.json ]] && SHADOW=(--shadow "$OUT/shadow.json")
-python3 tools/results.py "$OUT/bench.json" --clusters "$OUT/clusters.json" \
-  --scaling "$OUT/scaling.json" --stackless "$OUT/stackless.json" \
-  --stackless-lists "$OUT/stackless_lists.json" ${SHADOW[@]+"${SHADOW[@]}"} \
-  --kitchen-png kitchen.png --commit "$commit" \
-  --command "tools/results.sh $*" > docs/results.md.tmp
-mv docs/results.md.tmp docs/results.md
-echo "wrote docs/results.md and docs/kitchen.png"
+anim_runs
+write_page "$@"
+echo "and docs/kitchen.png"

@@ -362,6 +362,10 @@ struct Top {
     nodes: Vec<TopNode>,
     /// (level, code) -> index in `nodes`.
     at: HashMap<(u32, u64), usize>,
+    /// An internal node's first child's index in `nodes` (its eight children follow it), as
+    /// read: `descend`'s walk, which runs once or twice per changed triangle, needs no hash
+    /// lookups (on Rain, every ball moving, they were most of the update's time).
+    first_child: Vec<u32>,
     /// Each link's (level, code), by (block, root).
     roots: HashMap<(u32, u32), (u32, u64)>,
     /// Each link's bounds, by (block, root).
@@ -378,18 +382,25 @@ fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
     let mut top = Top {
         nodes: Vec::new(),
         at: HashMap::new(),
+        first_child: Vec::new(),
         roots: HashMap::new(),
         bounds: HashMap::new(),
     };
     let mut codes = vec![0u64];
     for (l, e) in levels.iter().enumerate() {
         let mut next = Vec::with_capacity(e.internal_count as usize * 8);
+        // Nodes go in level by level, each level in Morton order: the next level starts after
+        // this one, and an internal node's children are the next eight codes of it.
+        let next_start = top.nodes.len() + codes.len();
         for (i, &code) in codes.iter().enumerate() {
+            let mut first_child = u32::MAX;
             let rec = map
                 .node(l as u32, i as u64)
                 .map_err(|e| invalid(path, format!("top tree: {e}")))?;
             let kind = match rec.kind() {
                 Some(NodeKind::Internal) => {
+                    first_child = u32::try_from(next_start + next.len())
+                        .map_err(|_| invalid(path, "top tree: too many nodes"))?;
                     next.extend((0..8).map(|o| code << 3 | o));
                     TopKind::Internal
                 }
@@ -411,6 +422,7 @@ fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
                 _ => return Err(invalid(path, format!("top tree: bad node at level {l}"))),
             };
             top.at.insert((l as u32, code), top.nodes.len());
+            top.first_child.push(first_child);
             top.nodes.push(TopNode {
                 level: l as u32,
                 code,
@@ -424,17 +436,21 @@ fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
 
 /// Where a triangle reaches the top tree: the blocks it overlaps, and the links and empty
 /// leaves (by node index) it overlaps.
-fn descend(top: &Top, t: &LatticeTri, out: &mut Vec<usize>) {
-    let mut stack = vec![(0u32, 0u64)];
-    while let Some((level, code)) = stack.pop() {
-        let Some(&i) = top.at.get(&(level, code)) else {
-            continue;
-        };
-        if level > 0 && !overlaps_cell(t, code, level) {
+fn descend(top: &Top, t: &LatticeTri, stack: &mut Vec<usize>, out: &mut Vec<usize>) {
+    stack.clear();
+    if !top.nodes.is_empty() {
+        stack.push(0);
+    }
+    while let Some(i) = stack.pop() {
+        let node = &top.nodes[i];
+        if node.level > 0 && !overlaps_cell(t, node.code, node.level) {
             continue;
         }
-        match top.nodes[i].kind {
-            TopKind::Internal => stack.extend((0..8).map(|o| (level + 1, code << 3 | o))),
+        match node.kind {
+            TopKind::Internal => {
+                let first = top.first_child[i] as usize;
+                stack.extend(first..(first + 8).min(top.nodes.len()));
+            }
             _ => out.push(i),
         }
     }
@@ -574,10 +590,11 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
             let mut nodes = Vec::new();
             let mut news = Vec::new();
             let mut buf = Vec::new();
+            let mut stack = Vec::new();
             for c in cs {
                 if holds_triangle(&c.old) {
                     buf.clear();
-                    descend(&top, &lattice.map(&c.old.v), &mut buf);
+                    descend(&top, &lattice.map(&c.old.v), &mut stack, &mut buf);
                     nodes.extend(
                         buf.iter()
                             .filter(|&&i| matches!(top.nodes[i].kind, TopKind::Link { .. })),
@@ -585,7 +602,7 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
                 }
                 if holds_triangle(&c.new) {
                     buf.clear();
-                    descend(&top, &lattice.map(&c.new.v), &mut buf);
+                    descend(&top, &lattice.map(&c.new.v), &mut stack, &mut buf);
                     let rec = TriRecord {
                         v: c.new.v,
                         prim: c.prim,
