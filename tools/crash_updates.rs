@@ -11,11 +11,20 @@
 //! meshes with the same primitive ids). For each, the first frame is packed `--updatable` (with
 //! the root cube fitted to both frames); both frames are packed fresh for their answers (closest
 //! hits' `t` bits and primitives, and any-hit answers, to random and primary rays). An
-//! uninterrupted update is timed; then each of N kills (spread over the scenes) copies the
-//! packed file, opens a reader on it, starts `oavm-update` on it, waits a random time (every
-//! other kill between 0 and 1.5 times the update's duration, the others in its last 40 %, where
-//! it writes: so kills land in every phase, reading the mesh, rebuilding, appending blocks, the
-//! syncs, the header), sends SIGKILL, and checks the file and the reader. Every tenth kill is followed by an update run to completion on the killed
+//! uninterrupted update is run three times (its median time and the bytes it appends are what
+//! the kills aim at); then each of N kills (spread over the scenes) copies the packed file,
+//! opens a reader on it, starts `oavm-update` on it, and sends SIGKILL at one of three kinds of
+//! moment, in turn, so that every phase of an update is hit, whatever the machine's load:
+//!
+//! - **time**: a random time between 0 and 1.5 times the update's median (reading the mesh,
+//!   finding the changes, rebuilding, or after it ended);
+//! - **append**: when the file has grown by a random fraction of what the update appends
+//!   (the file's length is polled): amid the blocks, the primitive chunks and the sections;
+//! - **commit**: once the file has its final length, after a random 0-3 ms: the first sync,
+//!   the header's write into the other slot, the second sync, or the exit;
+//!
+//! then checks the file and the reader. Every tenth kill is followed by an update run to
+//! completion on the killed
 //! file, which must answer as the new frame: a crash leaves a file that later updates work on.
 
 use std::path::{Path, PathBuf};
@@ -116,7 +125,13 @@ struct Outcome {
     scene: String,
     triangles: u64,
     update_seconds: f64,
+    /// Bytes an uninterrupted update appends (the file's growth).
+    update_bytes: u64,
     kills: u64,
+    /// Kills by kind of moment (time, append, commit), and of those the ones that found the
+    /// update still running.
+    kills_by_moment: [u64; 3],
+    running_at_kill_by_moment: [u64; 3],
     /// Kills after which the file answered as the previous frame, or as the new one.
     previous: u64,
     new: u64,
@@ -169,11 +184,14 @@ fn run() -> Result<bool> {
     } else {
         for o in &outcomes {
             println!(
-                "{}: {} triangles, update {:.3} s; {} kills: {} previous frame, {} new frame ({} had finished), {} with trailing bytes, {} resumed; {} failures",
+                "{}: {} triangles, update {:.3} s appending {} bytes; {} kills (time/append/commit: {:?}, update still running at {:?}): {} previous frame, {} new frame ({} had finished), {} with trailing bytes, {} resumed; {} failures",
                 o.scene,
                 o.triangles,
                 o.update_seconds,
+                o.update_bytes,
                 o.kills,
+                o.kills_by_moment,
+                o.running_at_kill_by_moment,
                 o.previous,
                 o.new,
                 o.finished_before_kill,
@@ -232,49 +250,82 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
     }
     drop((a, b));
 
-    // An uninterrupted update, timed.
+    // An uninterrupted update, three times: its median time and the bytes it appends.
     let work = dir.join("work.oavm");
-    std::fs::copy(&base, &work)?;
-    let t0 = Instant::now();
-    let st = Command::new(bin)
-        .arg(&work)
-        .args(&spec.update_args)
-        .stdout(Stdio::null())
-        .status()?;
-    out.update_seconds = t0.elapsed().as_secs_f64();
-    if !st.success() || digest(&Scene::open(&work)?, &rays)? != want_b {
-        return Err(format!(
-            "{}: an uninterrupted update failed or answered wrongly",
-            spec.name
-        )
-        .into());
+    let base_len = std::fs::metadata(&base)?.len();
+    let mut times = Vec::new();
+    for _ in 0..3 {
+        std::fs::copy(&base, &work)?;
+        let t0 = Instant::now();
+        let st = Command::new(bin)
+            .arg(&work)
+            .args(&spec.update_args)
+            .stdout(Stdio::null())
+            .status()?;
+        times.push(t0.elapsed().as_secs_f64());
+        if !st.success() || digest(&Scene::open(&work)?, &rays)? != want_b {
+            return Err(format!(
+                "{}: an uninterrupted update failed or answered wrongly",
+                spec.name
+            )
+            .into());
+        }
     }
+    times.sort_by(f64::total_cmp);
+    out.update_seconds = times[1];
+    let final_len = std::fs::metadata(&work)?.len();
+    out.update_bytes = final_len.saturating_sub(base_len);
 
     let started = Instant::now();
     for k in 0..kills {
         std::fs::copy(&base, &work)?;
         // A reader of the previous generation, open across the update.
         let reader = Scene::open(&work)?;
+        let moment = (k % 3) as usize;
+        let (frac, pause) = (rng.unit(), rng.unit());
+        let t0 = Instant::now();
         let mut child = Command::new(bin)
             .arg(&work)
             .args(&spec.update_args)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()?;
-        // Half the kills anywhere in the update's run, half in its last 40 % (where it writes:
-        // the mesh is read and the subtrees built before anything is written).
-        let at = if k % 2 == 0 {
-            rng.unit() * 1.5
-        } else {
-            0.6 + 0.4 * rng.unit()
-        };
-        let wait = Duration::from_secs_f64(at * out.update_seconds);
-        std::thread::sleep(wait);
+        let len = || std::fs::metadata(&work).map_or(0, |m| m.len());
+        match moment {
+            0 => std::thread::sleep(Duration::from_secs_f64(frac * 1.5 * out.update_seconds)),
+            _ => {
+                let target = match moment {
+                    1 => base_len + ((frac * out.update_bytes as f64) as u64).max(1),
+                    _ => final_len,
+                };
+                // Poll the length until the target or the update's end (a minute at most: an
+                // update that hangs is a failure below, not a hang of this tool).
+                while len() < target
+                    && child.try_wait()?.is_none()
+                    && t0.elapsed() < Duration::from_secs(60)
+                {
+                    std::thread::sleep(Duration::from_micros(50));
+                }
+                if moment == 2 {
+                    std::thread::sleep(Duration::from_secs_f64(pause * 0.003));
+                }
+            }
+        }
+        let wait = t0.elapsed();
+        let running = child.try_wait()?.is_none();
         let finished = matches!(child.try_wait()?, Some(s) if s.success());
         let _ = child.kill();
         child.wait()?;
+        out.kills_by_moment[moment] += 1;
+        out.running_at_kill_by_moment[moment] += u64::from(running);
         out.kills += 1;
-        let mut fail = |what: String| out.failures.push(format!("kill {k} at {wait:?}: {what}"));
+        let kinds = ["time", "append", "commit"];
+        let mut fail = |what: String| {
+            out.failures.push(format!(
+                "kill {k} ({}) at {wait:?}: {what}",
+                kinds[moment]
+            ))
+        };
         match Scene::open(&work) {
             Err(e) => fail(format!("does not open: {e}")),
             Ok(s) => {
