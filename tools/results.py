@@ -636,12 +636,13 @@ def paper_fps(name, width):
 
 
 def anim_machine(reports):
-    """The machine and commit line of `anim_bench` runs (one per report)."""
+    """The machine line of `anim_bench` runs (one per report). The commit is the page's:
+    tools/results.sh runs anim_bench at it (anim_bench's own `dirty` flag also counts
+    docs/kitchen.png, which results.sh has just rendered)."""
     out = []
     for r in reports:
         m = r["machine"]
-        out.append(f"commit `{m['commit']}`{' (uncommitted changes)' if m['dirty'] else ''}, "
-                   f"{m['cpu']}, {m['cores']} cores, load average {m['load_average'][0]:.1f} "
+        out.append(f"{m['cpu']}, {m['cores']} cores, load average {m['load_average'][0]:.1f} "
                    f"at the start and {m['load_average'][1]:.1f} at the end, {r['seconds']:.0f} s")
     return "; ".join(dict.fromkeys(out))
 
@@ -694,13 +695,16 @@ def anim_section(w, table3, steps, commit, version):
     if ratios:
         faster = [(n, wd, uf / bf) for n, wd, uf, bf, _ in ratios if bf > 0]
         vs_paper = [(n, wd, uf / p) for n, wd, uf, _, p in ratios if p]
-        w("Updates against full rebuilds: " + ", ".join(
-            f"{n} {wd}: {x:.2f}x" for n, wd, x in faster) + " the frames a second. "
+        w("Frames a second by updates over frames a second by full rebuilds: " + ", ".join(
+            f"{n} {wd}: {x:.2f}x" for n, wd, x in faster) + ". "
           "Against the paper's figures (its machine, its renderer; not a like-for-like "
           "comparison): " + ", ".join(f"{n} {wd}: {x:.2f}x" for n, wd, x in vs_paper) + ".\n")
     w("### Update cost per frame step, against a full pack\n")
     w("Means over every frame step measured (Table 3's runs at every size, and `anim_bench "
-      "--steps-only` runs, which render nothing, for Rain up to 10^7 balls). Moved: "
+      "--steps-only` runs, which render nothing, for Rain at 10^6 balls). Rain at 10^7 balls (80 M "
+      "triangles) is not measured: the benchmark packs and updates in memory, and its first pack "
+      "alone reached 23.4 GB of RSS on this 24 GiB machine (commit 4191294) before it was stopped; "
+      "it needs the streaming pack and an update within a memory budget. Moved: "
       "primitives whose corners changed. Blocks, leaves and volumes: those of the rebuilt "
       "subtrees, against the file's (a full pack's) totals. Bytes written: what the update "
       "appends (blocks, changed primitive chunks, the new directory and top tree) and its "
@@ -711,9 +715,10 @@ def anim_section(w, table3, steps, commit, version):
     w("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in table3 + steps:
         for sc in r["scenes"]:
+            label = sc["name"] + (" (steps only)" if r.get("steps_only") else "")
             ups = [f for run in sc["runs"] for f in run["update"]["per_frame"]]
             packs = [f for run in sc["runs"] for f in run["rebuild"]["per_frame"]]
-            st = sc["first_pack"]["pack"]["stats"]
+            st = sc["first_pack"]["pack"]  # its build stats are flattened into it
             leaves = st["empty_leaves"] + st["solid_leaves"]
             def m(key):
                 return mean(f["update"][key] if f.get("update") else 0 for f in ups)
@@ -721,7 +726,7 @@ def anim_section(w, table3, steps, commit, version):
                          if f.get("update") else 0 for f in ups)
             upd = mean(f["update_seconds"] for f in ups)
             pack = mean(f["update_seconds"] for f in packs)
-            w(f"| {sc['name']} | {sc['triangles']:,} | {len(ups)} | {moved:,.0f} | "
+            w(f"| {label} | {sc['triangles']:,} | {len(ups)} | {moved:,.0f} | "
               f"{m('blocks_rebuilt'):,.1f} of {m('blocks_before'):,.0f} | "
               f"{m('leaves_after'):,.0f} of {leaves:,} | {m('volumes_after'):,.0f} / "
               f"{st['volumes']:,} | {upd:.3f} | {pack:.3f} | {pack / upd:.2f}x | "
