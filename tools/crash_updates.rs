@@ -321,10 +321,8 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
         out.kills += 1;
         let kinds = ["time", "append", "commit"];
         let mut fail = |what: String| {
-            out.failures.push(format!(
-                "kill {k} ({}) at {wait:?}: {what}",
-                kinds[moment]
-            ))
+            out.failures
+                .push(format!("kill {k} ({}) at {wait:?}: {what}", kinds[moment]))
         };
         match Scene::open(&work) {
             Err(e) => fail(format!("does not open: {e}")),
