@@ -808,7 +808,7 @@ def anim_section(w, table3, steps, commit, version):
     w("Means over every frame step measured (Table 3's runs at every size, and `anim_bench "
       "--steps-only` runs, which render nothing, for Rain at 10^6 balls). Rain at 10^7 balls (80 M "
       "triangles) is not measured: the benchmark packs and updates in memory, and its first pack "
-      "alone reached 23.4 GB of RSS on this 24 GiB machine (commit 4191294) before it was stopped; "
+      "alone reached 23.4 GB of RSS on this 24 GiB machine (commit 8d7485e) before it was stopped; "
       "it needs the streaming pack and an update within a memory budget. Moved: "
       "primitives whose corners changed. Blocks, leaves and volumes: those of the rebuilt "
       "subtrees, against the file's (a full pack's) totals. Bytes written: what the update "

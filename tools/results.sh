@@ -99,7 +99,7 @@ EOF
 # BART scenes and Rain at 10^5 balls over 10 frames at the paper's three sizes, Rain at 10^6 over
 # 3 frames, and the update cost alone (--steps-only) for Rain at 10^6 (3 steps). Rain at 10^7
 # (80 M triangles) is not run: anim_bench packs and updates in memory, and its first pack alone
-# reached 23.4 GB of RSS on this 24 GiB machine (commit 4191294), so it needs the streaming pack
+# reached 23.4 GB of RSS on this 24 GiB machine (commit 8d7485e), so it needs the streaming pack
 # and an update within a memory budget first.
 anim_runs() {
   cargo build --release --example anim_bench --example rain
