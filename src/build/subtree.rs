@@ -11,7 +11,8 @@ use super::layout::layout_from;
 use super::merge;
 use super::stats::TreeCounts;
 use super::subdivide::{
-    self, BuildLevel, BuildNode, Lattice, LatticeTri, SubdivideParams, overlaps_cell,
+    self, BuildLevel, BuildNode, Lattice, LatticeTri, SubdivideParams, box_misses_cell,
+    overlaps_cell,
 };
 use crate::error::Error;
 use crate::physical::format::TriRecord;
@@ -83,7 +84,10 @@ pub(crate) fn build_subtrees(
         let mut levels: Vec<BuildLevel> = Vec::new();
         for &code in codes {
             let mine: Vec<u32> = (0..tris.len() as u32)
-                .filter(|&i| overlaps_cell(&tris[i as usize], code, level))
+                .filter(|&i| {
+                    let t = &tris[i as usize];
+                    !box_misses_cell(t, code, level) && overlaps_cell(t, code, level)
+                })
                 .collect();
             let sub: Vec<LatticeTri> = mine.iter().map(|&i| tris[i as usize]).collect();
             let built = subdivide::subdivide_from(&sub, level, code, params, &|_, _| {});

@@ -366,6 +366,10 @@ struct Top {
     /// read: `descend`'s walk, which runs once or twice per changed triangle, needs no hash
     /// lookups (on Rain, every ball moving, they were most of the update's time).
     first_child: Vec<u32>,
+    /// Each node's cell widened by the cell margin (spec §6), low and high corners in lattice
+    /// units, as read: `descend` rejects a child whose cell the triangle's box misses with six
+    /// comparisons, before the exact triangle-box test.
+    cells: Vec<([f64; 3], [f64; 3])>,
     /// Each link's (level, code), by (block, root).
     roots: HashMap<(u32, u32), (u32, u64)>,
     /// Each link's bounds, by (block, root).
@@ -383,6 +387,7 @@ fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
         nodes: Vec::new(),
         at: HashMap::new(),
         first_child: Vec::new(),
+        cells: Vec::new(),
         roots: HashMap::new(),
         bounds: HashMap::new(),
     };
@@ -423,6 +428,7 @@ fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
             };
             top.at.insert((l as u32, code), top.nodes.len());
             top.first_child.push(first_child);
+            top.cells.push(widened_cell(code, l as u32));
             top.nodes.push(TopNode {
                 level: l as u32,
                 code,
@@ -434,6 +440,16 @@ fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
     Ok(top)
 }
 
+/// The cell of `code` at `level` widened by the cell margin, as [`overlaps_cell`] tests it.
+fn widened_cell(code: u64, level: u32) -> ([f64; 3], [f64; 3]) {
+    let s = crate::mapping::morton::cell_size(level) as f64;
+    let o = crate::mapping::morton::cell_origin(code, level);
+    (
+        std::array::from_fn(|k| o[k] as f64 - CELL_MARGIN),
+        std::array::from_fn(|k| o[k] as f64 + s + CELL_MARGIN),
+    )
+}
+
 /// Where a triangle reaches the top tree: the blocks it overlaps, and the links and empty
 /// leaves (by node index) it overlaps.
 fn descend(top: &Top, t: &LatticeTri, stack: &mut Vec<usize>, out: &mut Vec<usize>) {
@@ -443,7 +459,13 @@ fn descend(top: &Top, t: &LatticeTri, stack: &mut Vec<usize>, out: &mut Vec<usiz
     }
     while let Some(i) = stack.pop() {
         let node = &top.nodes[i];
-        if node.level > 0 && !overlaps_cell(t, node.code, node.level) {
+        if node.level > 0 && {
+            // Lattice coordinates are below 2^21: a gap wider than 1e-6 is no rounding, and
+            // overlaps_cell's box-axis test would separate them too.
+            let (lo, hi) = &top.cells[i];
+            (0..3).any(|k| t.lo[k] > hi[k] + 1e-6 || t.hi[k] < lo[k] - 1e-6)
+                || !overlaps_cell(t, node.code, node.level)
+        } {
             continue;
         }
         match node.kind {
