@@ -127,6 +127,31 @@ def _real_array(name: str, a: Any) -> np.ndarray:
     return arr
 
 
+def _mesh_arrays(mesh: Any) -> "tuple[np.ndarray, np.ndarray]":
+    """A ``(vertices, faces)`` pair checked and converted as the native code takes it: float32
+    ``(V, 3)`` and uint32 ``(F, 3)``, C-contiguous (face indices must be whole numbers in
+    0..2^32-2; the native side checks them against V)."""
+    v = _real_array("vertices", mesh[0])
+    f = _real_array("faces", mesh[1])
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"vertices: expected shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"faces: expected shape (F, 3) (triangles), got {f.shape}")
+    if f.dtype.kind == "f":
+        if f.size and not np.array_equal(f, np.round(f)):
+            raise ValueError("faces: the indices are not whole numbers")
+    if f.size:
+        lo, hi = f.min(), f.max()
+        if lo < 0:
+            face = int(np.argwhere(f < 0)[0][0])
+            raise MeshError(f"arrays: face {face} holds the negative vertex index {int(f[face].min())}")
+        if hi > 0xFFFFFFFE:
+            raise MeshError(f"arrays: vertex index {int(hi)} does not fit in 32 bits")
+    v32 = _float32_c(v)
+    f32 = np.require(f, dtype=np.uint32, requirements=["C_CONTIGUOUS", "ALIGNED"])
+    return v32, f32
+
+
 def _float32_c(arr: np.ndarray) -> np.ndarray:
     """C-contiguous, aligned, native-order float32: ``arr`` itself when it already is."""
     with np.errstate(over="ignore"):  # beyond the float32 range: inf, which the library refuses
@@ -370,16 +395,7 @@ def update(
     if time is not None:
         raise ValueError("time poses an AFF scene file, not a mesh given as arrays")
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
-        v = _real_array("vertices", mesh[0])
-        f = _real_array("faces", mesh[1])
-        if v.ndim != 2 or v.shape[1] != 3:
-            raise ValueError(f"vertices: expected shape (V, 3), got {v.shape}")
-        if f.ndim != 2 or f.shape[1] != 3:
-            raise ValueError(f"faces: expected shape (F, 3) (triangles), got {f.shape}")
-        if f.size and (f.min() < 0 or f.max() > 0xFFFFFFFE):
-            raise MeshError("arrays: a vertex index is negative or does not fit in 32 bits")
-        v32 = _float32_c(v)
-        f32 = np.require(f, dtype=np.uint32, requirements=["C_CONTIGUOUS", "ALIGNED"])
+        v32, f32 = _mesh_arrays(mesh)
         return json.loads(_native.update_arrays(p, v32, f32, **opts))
     raise ValueError(f"mesh: expected a path or a (vertices, faces) pair of arrays, got {type(mesh).__name__}")
 
@@ -451,24 +467,7 @@ def pack(
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         if mem_budget is not None:
             raise ValueError("mem_budget streams a binary PLY file; a mesh given as arrays is packed in memory")
-        v = _real_array("vertices", mesh[0])
-        f = _real_array("faces", mesh[1])
-        if v.ndim != 2 or v.shape[1] != 3:
-            raise ValueError(f"vertices: expected shape (V, 3), got {v.shape}")
-        if f.ndim != 2 or f.shape[1] != 3:
-            raise ValueError(f"faces: expected shape (F, 3) (triangles), got {f.shape}")
-        if f.dtype.kind == "f":
-            if f.size and not np.array_equal(f, np.round(f)):
-                raise ValueError("faces: the indices are not whole numbers")
-        if f.size:
-            lo, hi = f.min(), f.max()
-            if lo < 0:
-                face = int(np.argwhere(f < 0)[0][0])
-                raise MeshError(f"arrays: face {face} holds the negative vertex index {int(f[face].min())}")
-            if hi > 0xFFFFFFFE:
-                raise MeshError(f"arrays: vertex index {int(hi)} does not fit in 32 bits")
-        v32 = _float32_c(v)
-        f32 = np.require(f, dtype=np.uint32, requirements=["C_CONTIGUOUS", "ALIGNED"])
+        v32, f32 = _mesh_arrays(mesh)
         return json.loads(_native.pack_arrays(v32, f32, out, **opts))
     raise ValueError(
         f"mesh: expected a path or a (vertices, faces) pair of arrays, got {type(mesh).__name__}"

@@ -66,6 +66,24 @@ def test_update_refuses_files_without_the_table(tmp_path):
         oavm.pack((v, f), path, updatable=True, bounds=((0, 0), (1, 1)), progress=False)
 
 
+def test_update_checks_arrays_as_pack_does(tmp_path):
+    """Faces given as floats must be whole numbers, and indices non-negative, for an update as
+    for a pack (an update once cast 0.5 to 0), and the file is left as it was."""
+    v, f = _grid(4)
+    path = tmp_path / "grid.oavm"
+    oavm.pack((v, f), path, updatable=True, progress=False)
+    before = path.read_bytes()
+    half = f.astype(np.float64)
+    half[0, 0] = 0.5
+    with pytest.raises(ValueError, match="whole numbers"):
+        oavm.update(path, (v, half))
+    negative = f.astype(np.int64)
+    negative[1, 2] = -1
+    with pytest.raises(oavm.MeshError, match="face 1 holds the negative vertex index -1"):
+        oavm.update(path, (v, negative))
+    assert path.read_bytes() == before
+
+
 def test_update_from_a_bart_scene(tmp_path, shared):
     scene = shared / "scenes/bart/kitchen/kitchen.aff"
     path = tmp_path / "k.oavm"
