@@ -2006,12 +2006,8 @@ fn updatable(name: &str, compress: bool) -> Fixture {
     let opts = oavm::build::PackOptions {
         build: BuildOptions::default(),
         blocks: blocks_16k(compress),
-        time: None,
-        mem_budget: None,
-        ropes: false,
-        occluders: false,
         updatable: true,
-        bounds: None,
+        ..oavm::build::PackOptions::default()
     };
     oavm::build::pack_mesh(
         dragon().clone(),

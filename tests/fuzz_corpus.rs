@@ -249,12 +249,8 @@ fn checksum_fixup_keeps_files_sound() {
             block_size: 4096,
             compress: None,
         },
-        time: None,
-        mem_budget: None,
-        ropes: false,
-        occluders: false,
         updatable: true,
-        bounds: None,
+        ..oavm::build::PackOptions::default()
     };
     oavm::build::pack_mesh(mesh.clone(), "cornell", &packed, &opts, &oavm::build::Quiet)
         .expect("pack --updatable");

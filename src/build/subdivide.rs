@@ -73,22 +73,28 @@ pub(crate) fn overlaps_cell(t: &LatticeTri, code: u64, level: u32) -> bool {
     inside || triangle_overlaps_box(&t.v, c, half)
 }
 
-/// Whether `t`'s bounding box misses the widened cell of `code` at `level` by more than
-/// rounding could account for: then [`overlaps_cell`] is false too (its box-axis test separates
-/// them), and the exact test can be skipped. Conservative: `false` says nothing. A walk that
-/// tests the eight children of a node, of which a small triangle overlaps one or two, rejects
-/// the rest with six comparisons instead of the triangle-box test.
-#[inline]
-pub(crate) fn box_misses_cell(t: &LatticeTri, code: u64, level: u32) -> bool {
-    // Lattice coordinates are below 2^21 (and the margin 1e-6 far above f64's rounding there,
-    // about 5e-10), so a gap larger than it is a real gap.
-    const SLACK: f64 = 1e-6;
+/// The cell of `code` at `level` widened by the cell margin (spec §6), low and high corners
+/// in lattice units: the box [`overlaps_cell`] tests against.
+pub(crate) fn widened_cell(code: u64, level: u32) -> ([f64; 3], [f64; 3]) {
     let s = crate::mapping::morton::cell_size(level) as f64;
     let o = crate::mapping::morton::cell_origin(code, level);
-    (0..3).any(|k| {
-        let (lo, hi) = (o[k] as f64 - CELL_MARGIN, o[k] as f64 + s + CELL_MARGIN);
-        t.lo[k] > hi + SLACK || t.hi[k] < lo - SLACK
-    })
+    (
+        std::array::from_fn(|k| o[k] as f64 - CELL_MARGIN),
+        std::array::from_fn(|k| o[k] as f64 + s + CELL_MARGIN),
+    )
+}
+
+/// Whether `t`'s bounding box misses `cell` (a [`widened_cell`]) by more than rounding could
+/// account for: then [`overlaps_cell`] is false too (its box-axis test separates them), and
+/// the exact test can be skipped. Conservative: `false` says nothing. A walk that tests the
+/// eight children of a node, of which a small triangle overlaps one or two, rejects the rest
+/// with six comparisons instead of the triangle-box test.
+#[inline]
+pub(crate) fn box_misses(t: &LatticeTri, (lo, hi): &([f64; 3], [f64; 3])) -> bool {
+    // Lattice coordinates are below 2^21 (and the slack far above f64's rounding there, about
+    // 5e-10), so a gap larger than it is a real gap.
+    const SLACK: f64 = 1e-6;
+    (0..3).any(|k| t.lo[k] > hi[k] + SLACK || t.hi[k] < lo[k] - SLACK)
 }
 
 /// A node of the tree being built.

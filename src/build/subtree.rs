@@ -11,8 +11,8 @@ use super::layout::layout_from;
 use super::merge;
 use super::stats::TreeCounts;
 use super::subdivide::{
-    self, BuildLevel, BuildNode, Lattice, LatticeTri, SubdivideParams, box_misses_cell,
-    overlaps_cell,
+    self, BuildLevel, BuildNode, Lattice, LatticeTri, SubdivideParams, box_misses, overlaps_cell,
+    widened_cell,
 };
 use crate::error::Error;
 use crate::physical::format::TriRecord;
@@ -83,10 +83,11 @@ pub(crate) fn build_subtrees(
         // internal nodes, root after root, have their children in the same order below).
         let mut levels: Vec<BuildLevel> = Vec::new();
         for &code in codes {
+            let cell = widened_cell(code, level);
             let mine: Vec<u32> = (0..tris.len() as u32)
                 .filter(|&i| {
                     let t = &tris[i as usize];
-                    !box_misses_cell(t, code, level) && overlaps_cell(t, code, level)
+                    !box_misses(t, &cell) && overlaps_cell(t, code, level)
                 })
                 .collect();
             let sub: Vec<LatticeTri> = mine.iter().map(|&i| tris[i as usize]).collect();

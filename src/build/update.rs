@@ -39,7 +39,9 @@ use serde::Serialize;
 
 use super::blocks::{BlockParts, ClusterGeometry, TopKind, TopNode, assemble_top};
 use super::merge::{self, Merged};
-use super::subdivide::{BuildLevel, BuildNode, Lattice, LatticeTri, overlaps_cell};
+use super::subdivide::{
+    BuildLevel, BuildNode, Lattice, LatticeTri, box_misses, overlaps_cell, widened_cell,
+};
 use super::subtree::{Subtree, build_subtrees};
 use super::{BuildOptions, LeafKind, is_degenerate};
 use crate::error::Error;
@@ -440,16 +442,6 @@ fn read_top(file: &OavmFile<MappedFile>, path: &Path) -> Result<Top, Error> {
     Ok(top)
 }
 
-/// The cell of `code` at `level` widened by the cell margin, as [`overlaps_cell`] tests it.
-fn widened_cell(code: u64, level: u32) -> ([f64; 3], [f64; 3]) {
-    let s = crate::mapping::morton::cell_size(level) as f64;
-    let o = crate::mapping::morton::cell_origin(code, level);
-    (
-        std::array::from_fn(|k| o[k] as f64 - CELL_MARGIN),
-        std::array::from_fn(|k| o[k] as f64 + s + CELL_MARGIN),
-    )
-}
-
 /// Where a triangle reaches the top tree: the blocks it overlaps, and the links and empty
 /// leaves (by node index) it overlaps.
 fn descend(top: &Top, t: &LatticeTri, stack: &mut Vec<usize>, out: &mut Vec<usize>) {
@@ -459,13 +451,9 @@ fn descend(top: &Top, t: &LatticeTri, stack: &mut Vec<usize>, out: &mut Vec<usiz
     }
     while let Some(i) = stack.pop() {
         let node = &top.nodes[i];
-        if node.level > 0 && {
-            // Lattice coordinates are below 2^21: a gap wider than 1e-6 is no rounding, and
-            // overlaps_cell's box-axis test would separate them too.
-            let (lo, hi) = &top.cells[i];
-            (0..3).any(|k| t.lo[k] > hi[k] + 1e-6 || t.hi[k] < lo[k] - 1e-6)
-                || !overlaps_cell(t, node.code, node.level)
-        } {
+        if node.level > 0
+            && (box_misses(t, &top.cells[i]) || !overlaps_cell(t, node.code, node.level))
+        {
             continue;
         }
         match node.kind {
