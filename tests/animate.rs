@@ -244,6 +244,41 @@ fn rain_frames_animate_as_rebuilds() {
     }
     // With a file made by `pack_first` of the same range, the rebuild uses its root cube.
     assert_eq!(by_rebuild.bounds, Some(first.bounds));
+    for f in &by_rebuild.per_frame {
+        assert!(f.pack.as_ref().unwrap().streaming.is_none());
+    }
+
+    // Frames too large for memory are packed streaming from their files (as `oavm-pack`
+    // decides; here a memory budget asks for it): the same images, and the first pack and
+    // every rebuild streamed, without reading the frame into memory first.
+    let budget = PackOptions {
+        mem_budget: Some(16 << 20),
+        ..PackOptions::default()
+    };
+    let streamed_file = dir.path().join("streamed.oavm");
+    let first_streamed = anim.pack_first(&streamed_file, &budget).unwrap();
+    assert!(first_streamed.pack.streaming.is_some());
+    assert_eq!(first_streamed.pack.stats.input_triangles, triangles);
+    let dir_s = dir.path().join("s");
+    let mut streamed_opts = opts(Mode::Rebuild, &dir_s, CameraChoice::View);
+    streamed_opts.pack = PackOptions {
+        bounds: Some(first.bounds),
+        ..budget
+    };
+    let by_streaming = run_animation(
+        &anim,
+        &dir.path().join("streamed_rebuilt.oavm"),
+        &streamed_opts,
+    );
+    same_images(&by_update, &by_streaming, &dir_u, &dir_s);
+    for f in &by_streaming.per_frame {
+        assert!(
+            f.pack.as_ref().unwrap().streaming.is_some(),
+            "frame {}",
+            f.frame
+        );
+        assert_eq!(f.triangles, triangles);
+    }
 }
 
 fn err_text(r: Result<impl std::fmt::Debug, Error>) -> String {

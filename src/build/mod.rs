@@ -45,7 +45,7 @@ pub use cluster::{
     ClusterBuild, ClusterBuilder, ClusterError, ClusterShape, ClusterTri, build_cluster,
     check_cluster, triangle_box,
 };
-pub use pack::{PackOptions, PackReport, StreamingReport, pack, pack_mesh};
+pub use pack::{PackOptions, PackReport, StreamingReport, pack, pack_mesh, streaming_budget};
 pub use prepare::{check_scale, is_degenerate};
 pub use stats::{BuildStats, PointerCounts};
 use stats::{PhaseSeconds, TreeCounts};

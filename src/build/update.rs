@@ -332,7 +332,10 @@ impl Updater {
                 (!same && p < n).then_some((p as u32, new))
             })
             .collect();
-        self.edits.extend(changed);
+        // Built from the sorted list in one go (full nodes): inserted one by one, in
+        // ascending order, a B-tree's nodes stay half full, which doubles what a scene where
+        // everything moves holds (80 million records on Rain at 10^7 balls).
+        self.edits = changed.into_iter().collect();
         self.diff_seconds += t0.elapsed().as_secs_f64();
         Ok(self.edits.len() as u64 + old.saturating_sub(n))
     }
@@ -524,7 +527,7 @@ fn leaf_counts(unit: UnitRef<'_>) -> (u64, u64) {
     (empty, solid)
 }
 
-fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
+fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     let t0 = Instant::now();
     let path = u.path.clone();
     let file = &u.file;
@@ -538,12 +541,13 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         ..UpdateReport::default()
     };
 
-    // 1. The changes, old and new, and where they may be.
+    // 1. The changes, old and new, and where they may be. The edits are consumed: from here
+    // on the changes (in increasing primitive order) are what says what a primitive becomes.
     let old_count = header.input_triangles;
-    let mut changes: Vec<Change> = u
-        .edits
-        .iter()
-        .map(|(&prim, &new)| Change {
+    let edits = std::mem::take(&mut u.edits);
+    let mut changes: Vec<Change> = edits
+        .into_iter()
+        .map(|(prim, new)| Change {
             prim,
             old: u.stored(prim as u64).unwrap_or(PrimRecord::ABSENT),
             new,
@@ -557,6 +561,7 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
             new: PrimRecord::ABSENT,
         });
     }
+    debug_assert!(changes.windows(2).all(|w| w[0].prim < w[1].prim));
     let lattice = Lattice::of_root(header.root_min, header.root_size);
     let top_size = LATTICE_SIZE as f64;
     for c in &changes {
@@ -915,8 +920,8 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         let lo = c * PRIM_CHUNK;
         let hi = (lo + PRIM_CHUNK).min(new_count);
         let records: Vec<PrimRecord> = (lo..hi)
-            .map(|p| match u.edits.get(&(p as u32)) {
-                Some(r) => *r,
+            .map(|p| match changed_to(&changes, p) {
+                Some(r) => r,
                 None => u.stored(p).unwrap_or(PrimRecord::ABSENT),
             })
             .collect();
@@ -956,6 +961,16 @@ fn commit(u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     Ok(report)
 }
 
+/// What primitive `prim` becomes, if the update changes it (`changes` is in increasing
+/// primitive order).
+fn changed_to(changes: &[Change], prim: u64) -> Option<PrimRecord> {
+    let prim = u32::try_from(prim).ok()?;
+    changes
+        .binary_search_by_key(&prim, |c| c.prim)
+        .ok()
+        .map(|i| changes[i].new)
+}
+
 /// The bounds of every stored triangle after the update: the previous bounds widened by the
 /// new triangles when no triangle that left touched them, else a pass over the whole table.
 fn mesh_bounds(u: &Updater, header: &Header, changes: &[Change]) -> ([f32; 3], [f32; 3]) {
@@ -986,8 +1001,8 @@ fn mesh_bounds(u: &Updater, header: &Header, changes: &[Change]) -> ([f32; 3], [
         (0..u.count)
             .into_par_iter()
             .filter_map(|p| {
-                let r = match u.edits.get(&(p as u32)) {
-                    Some(r) => *r,
+                let r = match changed_to(changes, p) {
+                    Some(r) => r,
                     None => u.stored(p)?,
                 };
                 holds_triangle(&r).then_some(r)

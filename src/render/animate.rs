@@ -36,7 +36,10 @@
 //!   the bounds of every frame of the range ([`Animation::bounds`]).
 //! - [`Mode::Rebuild`]: each frame is packed whole into the file ([`pack_mesh`]) with the
 //!   options [`Animation::pack_first`] uses (updatable, the same root cube), replacing it; the
-//!   full rebuild per frame that the paper compares updates with.
+//!   full rebuild per frame that the paper compares updates with. A frame file too large to
+//!   build in memory, or any when the pack options give a memory budget, is packed streaming
+//!   from its path, as `oavm-pack` would ([`Animation::streamed`]; its pack time then
+//!   includes reading the file).
 //!
 //! Both modes give the same images, byte for byte: a ray's answer depends only on the
 //! triangles, not on the tree that finds them (`tests/animate.rs` holds this).
@@ -60,7 +63,7 @@ use super::look::{Look, PointLight};
 use super::whitted::{DEFAULT_MAX_DEPTH, MAX_DEPTH_LIMIT, ShadedOptions, ShadedStats};
 use super::{check_size, render_shaded, write_png};
 use crate::build::update::{UpdateOptions, UpdateReport, Updater};
-use crate::build::{PackOptions, PackReport, Quiet, pack_mesh};
+use crate::build::{PackOptions, PackReport, Quiet, pack, pack_mesh, streaming_budget};
 use crate::error::Error;
 use crate::logical::{Order, Scene, SceneOptions};
 use crate::mesh::aff::AffView;
@@ -235,10 +238,17 @@ impl Animation {
 
     /// Frame `frame`'s geometry and look.
     pub fn frame(&self, frame: u64) -> Result<Frame, Error> {
+        self.pose(frame, true)
+    }
+
+    /// Frame `frame`, its mesh file read when `mesh` (else its `mesh` is empty: the file is
+    /// packed from its path, [`Animation::streamed`]).
+    fn pose(&self, frame: u64, mesh: bool) -> Result<Frame, Error> {
         let mut view = load_aff(&self.view, self.time(frame))?;
         let mesh = match &self.meshes {
             None => std::mem::take(&mut view.mesh),
-            Some(pattern) => load(&frame_mesh_path(pattern, frame))?,
+            Some(pattern) if mesh => load(&frame_mesh_path(pattern, frame))?,
+            Some(_) => Mesh::default(),
         };
         Ok(Frame {
             frame,
@@ -297,11 +307,12 @@ impl Animation {
         let opts = self.pack_options(pack)?;
         let bounds_seconds = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let frame = self.frame(self.frames.start)?;
+        let start = self.frames.start;
+        let frame = self.pose(start, self.streamed(start, &opts).is_none())?;
         let pose_seconds = t.elapsed().as_secs_f64();
-        let name = self.frame_name(self.frames.start);
-        let report = pack_mesh(frame.mesh, &name, file, &opts, &Quiet)
-            .map_err(|e| at_frame(self.frames.start, e))?;
+        let report = self
+            .pack_frame(start, frame.mesh, file, &opts)
+            .map_err(|e| at_frame(start, e))?;
         Ok(FirstPack {
             frame: self.frames.start,
             bounds: opts.bounds.unwrap_or_default(),
@@ -309,6 +320,38 @@ impl Animation {
             pose_seconds,
             pack: report,
         })
+    }
+
+    /// Frame `frame`'s mesh file and its triangle count, when a pack of it with `opts`
+    /// streams: a binary PLY, and `opts.mem_budget` is given or its triangles would take more
+    /// than the memory available to build in memory (as `oavm-pack` decides,
+    /// [`streaming_budget`]). Such a frame is packed from its path ([`crate::build::pack`])
+    /// without being read into memory first, and its pack time includes reading the file (the
+    /// streaming pack's passes over it).
+    pub fn streamed(&self, frame: u64, opts: &PackOptions) -> Option<(PathBuf, u64)> {
+        let path = frame_mesh_path(self.meshes.as_ref()?, frame);
+        let faces = crate::mesh::stream::PlyStream::open(&path)
+            .ok()?
+            .face_count();
+        if opts.mem_budget.is_none() {
+            streaming_budget(faces, crate::os::available_memory()?)?;
+        }
+        Some((path, faces))
+    }
+
+    /// Packs frame `frame` into `file` with `opts`: from its path where it streams
+    /// ([`Animation::streamed`]), else from `mesh`, its triangles read before.
+    fn pack_frame(
+        &self,
+        frame: u64,
+        mesh: Mesh,
+        file: &Path,
+        opts: &PackOptions,
+    ) -> Result<PackReport, Error> {
+        match self.streamed(frame, opts) {
+            Some((path, _)) => pack(&path, file, opts, &Quiet),
+            None => pack_mesh(mesh, &self.frame_name(frame), file, opts, &Quiet),
+        }
     }
 
     /// What names frame `frame`'s geometry in reports.
@@ -612,8 +655,10 @@ fn one_frame(
         Some(p) => Some(Output::create(p, &[file, &anim.view])?),
         None => None,
     };
+    // A frame packed streaming is not read into memory first (the pack reads it).
     let t = Instant::now();
-    let frame = anim.frame(f)?;
+    let streamed = pack.and_then(|p| anim.streamed(f, p));
+    let frame = anim.pose(f, streamed.is_none())?;
     let pose_seconds = t.elapsed().as_secs_f64();
     let v = pick_camera(&frame.view, &anim.view, opts.camera)?;
     let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
@@ -627,7 +672,10 @@ fn one_frame(
             colour: [1.0; 3],
         }];
     }
-    let triangles = frame.mesh.triangles.len() as u64;
+    let triangles = match &streamed {
+        Some((_, faces)) => *faces,
+        None => frame.mesh.triangles.len() as u64,
+    };
 
     let t = Instant::now();
     let (changed, update, packed) = match pack {
@@ -642,8 +690,7 @@ fn one_frame(
             (changed, update, None)
         }
         Some(p) => {
-            let name = anim.frame_name(f);
-            let r = pack_mesh(frame.mesh, &name, file, p, &Quiet)?;
+            let r = anim.pack_frame(f, frame.mesh, file, p)?;
             (triangles, None, Some(r))
         }
     };
