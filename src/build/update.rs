@@ -346,9 +346,11 @@ impl Updater {
     }
 }
 
-/// What a run of changes reaches: the top-tree nodes their old triangles overlap, and each new
-/// triangle with every node it overlaps.
-type Reached = (Vec<usize>, Vec<(usize, TriRecord)>);
+/// What a run of changes reaches: the links their old triangles overlap (each once), and each
+/// new triangle, by its index in the change list, with every node it overlaps: (node, change)
+/// pairs of 8 bytes, not the triangle itself, since on Rain at 10^7 balls every one of 80
+/// million triangles moves.
+type Reached = (Vec<u32>, Vec<(u32, u32)>);
 
 /// A changed primitive: before and after ([`PrimRecord::ABSENT`]: none).
 #[derive(Clone, Copy)]
@@ -476,7 +478,9 @@ struct Job {
     block: Option<u32>,
     level: u32,
     codes: Vec<u64>,
-    records: Vec<TriRecord>,
+    /// The top-tree nodes replaced (the roots, or the empty leaf), whose changed triangles
+    /// the job takes.
+    nodes: Vec<usize>,
 }
 
 /// The leaves of the blocks an update removes.
@@ -545,15 +549,19 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     // on the changes (in increasing primitive order) are what says what a primitive becomes.
     let old_count = header.input_triangles;
     let edits = std::mem::take(&mut u.edits);
-    let mut changes: Vec<Change> = edits
-        .into_iter()
-        .map(|(prim, new)| Change {
-            prim,
-            old: u.stored(prim as u64).unwrap_or(PrimRecord::ABSENT),
-            new,
-        })
-        .filter(|c| !c.old.same_bits(&c.new))
-        .collect();
+    // Sized once: grown by doubling, the list of 80 million changes would reserve 10 GB.
+    let mut changes: Vec<Change> =
+        Vec::with_capacity(edits.len() + old_count.saturating_sub(u.count) as usize);
+    changes.extend(
+        edits
+            .into_iter()
+            .map(|(prim, new)| Change {
+                prim,
+                old: u.stored(prim as u64).unwrap_or(PrimRecord::ABSENT),
+                new,
+            })
+            .filter(|c| !c.old.same_bits(&c.new)),
+    );
     for prim in u.count..old_count {
         changes.push(Change {
             prim: prim as u32,
@@ -598,57 +606,77 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     };
 
     // 2. Where the changes reach: blocks to rebuild (old or new triangle overlaps a root), and
-    // the new triangles by link or empty leaf.
+    // the new triangles by link or empty leaf, as (node, change) pairs sorted by node.
+    if changes.len() > u32::MAX as usize || top.nodes.len() > u32::MAX as usize {
+        return Err(invalid(
+            &path,
+            "too many changes or top-tree nodes for one update",
+        ));
+    }
+    const RUN: usize = 1024;
     let reached: Vec<Reached> = changes
-        .par_chunks(1024)
-        .map(|cs| {
-            let mut nodes = Vec::new();
+        .par_chunks(RUN)
+        .enumerate()
+        .map(|(run, cs)| {
+            let mut links = Vec::new();
             let mut news = Vec::new();
             let mut buf = Vec::new();
             let mut stack = Vec::new();
-            for c in cs {
+            for (k, c) in cs.iter().enumerate() {
                 if holds_triangle(&c.old) {
                     buf.clear();
                     descend(&top, &lattice.map(&c.old.v), &mut stack, &mut buf);
-                    nodes.extend(
+                    links.extend(
                         buf.iter()
-                            .filter(|&&i| matches!(top.nodes[i].kind, TopKind::Link { .. })),
+                            .filter(|&&i| matches!(top.nodes[i].kind, TopKind::Link { .. }))
+                            .map(|&i| i as u32),
                     );
                 }
                 if holds_triangle(&c.new) {
                     buf.clear();
                     descend(&top, &lattice.map(&c.new.v), &mut stack, &mut buf);
-                    let rec = TriRecord {
-                        v: c.new.v,
-                        prim: c.prim,
-                    };
-                    news.extend(buf.iter().map(|&i| (i, rec)));
+                    let at = (run * RUN + k) as u32;
+                    news.extend(buf.iter().map(|&i| (i as u32, at)));
                 }
             }
-            (nodes, news)
+            links.sort_unstable();
+            links.dedup();
+            (links, news)
         })
         .collect();
     let mut blocks: HashSet<u32> = HashSet::new();
-    let mut filled: HashSet<usize> = HashSet::new();
-    let mut new_at: HashMap<usize, Vec<TriRecord>> = HashMap::new();
-    for (nodes, news) in reached {
-        for i in nodes {
-            if let TopKind::Link { block, .. } = top.nodes[i].kind {
+    let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(reached.iter().map(|r| r.1.len()).sum());
+    for (links, news) in reached {
+        for i in links {
+            if let TopKind::Link { block, .. } = top.nodes[i as usize].kind {
                 blocks.insert(block);
             }
         }
-        for (i, rec) in news {
-            match top.nodes[i].kind {
-                TopKind::Link { block, .. } => {
-                    blocks.insert(block);
-                }
-                _ => {
-                    filled.insert(i);
-                }
+        pairs.extend(news);
+    }
+    pairs.par_sort_unstable();
+    let mut filled: Vec<usize> = Vec::new();
+    for w in pairs.chunk_by(|a, b| a.0 == b.0) {
+        let i = w[0].0 as usize;
+        match top.nodes[i].kind {
+            TopKind::Link { block, .. } => {
+                blocks.insert(block);
             }
-            new_at.entry(i).or_default().push(rec);
+            _ => filled.push(i),
         }
     }
+    // The changed triangles that reach top-tree node `i`.
+    let reaching = |i: usize| {
+        let lo = pairs.partition_point(|p| (p.0 as usize) < i);
+        let hi = pairs.partition_point(|p| (p.0 as usize) <= i);
+        pairs[lo..hi].iter().map(|&(_, c)| {
+            let c = &changes[c as usize];
+            TriRecord {
+                v: c.new.v,
+                prim: c.prim,
+            }
+        })
+    };
     let mut blocks: Vec<u32> = blocks.into_iter().collect();
     blocks.sort_unstable();
     report.diff_seconds += t0.elapsed().as_secs_f64();
@@ -682,20 +710,18 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
                 format!("block {b}: roots at different levels"),
             ));
         }
-        let mut records = Vec::new();
-        for &(level, code) in &roots {
-            let i = top.at[&(level, code)];
-            replaced.insert(i);
-            records.extend(new_at.remove(&i).into_iter().flatten());
-        }
+        let nodes: Vec<usize> = roots.iter().map(|r| top.at[r]).collect();
+        replaced.extend(&nodes);
         report.subtrees_rebuilt += roots.len() as u64;
         jobs.push(Job {
             block: Some(b),
             level,
             codes: roots.iter().map(|r| r.1).collect(),
-            records,
+            nodes,
         });
     }
+    // In node order (the order of the sorted pairs), so that block ids are handed out the same
+    // way on every run.
     for &i in &filled {
         replaced.insert(i);
         let n = top.nodes[i];
@@ -703,10 +729,9 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
             block: None,
             level: n.level,
             codes: vec![n.code],
-            records: new_at.remove(&i).unwrap_or_default(),
+            nodes: vec![i],
         });
     }
-    drop(new_at);
     report.empty_leaves_filled = filled.len() as u64;
     report.subtrees_rebuilt += filled.len() as u64;
     let build = BuildOptions {
@@ -801,8 +826,10 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         let batch: Vec<Job> = jobs.drain(..batch_size.min(jobs.len())).collect();
         let built: Vec<(Subtree, u64, u64)> = batch
             .into_par_iter()
-            .map(|mut j| {
+            .map(|j| {
                 let (mut empty, mut solid) = (0, 0);
+                let mut records: Vec<TriRecord> =
+                    j.nodes.iter().flat_map(|&i| reaching(i)).collect();
                 if let Some(b) = j.block {
                     let e = &directory[b as usize];
                     let raw = reader
@@ -812,13 +839,12 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
                         .map_err(|w| invalid(&path, format!("block {b}: {w}")))?;
                     let (tris, le, ls) = block_triangles(&view);
                     (empty, solid) = (le, ls);
-                    j.records
-                        .extend(tris.into_iter().filter(|t| !is_changed(t.prim)));
+                    records.extend(tris.into_iter().filter(|t| !is_changed(t.prim)));
                 }
-                j.records.sort_unstable_by_key(|r| r.prim);
-                j.records.dedup_by_key(|r| r.prim);
+                records.sort_unstable_by_key(|r| r.prim);
+                records.dedup_by_key(|r| r.prim);
                 let s = build_subtrees(
-                    &j.records,
+                    &records,
                     j.level,
                     &j.codes,
                     &lattice,
