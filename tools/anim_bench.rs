@@ -62,6 +62,12 @@ struct Args {
     /// Where the .oavm files go (default: OUT/work).
     #[arg(long)]
     work: Option<PathBuf>,
+    /// Pack every frame (the first and each full rebuild) streaming within this much memory
+    /// (e.g. 8G; frames that are binary PLY files only), as `oavm-pack --mem-budget`. Without
+    /// it a frame is streamed only when building it in memory would not fit in the memory
+    /// available at that moment (`oavm-pack`'s rule), which can differ from frame to frame.
+    #[arg(long, value_parser = cli::parse_bytes)]
+    mem_budget: Option<u64>,
     /// Name of the outputs: OUT/NAME.json, OUT/NAME.md.
     #[arg(long, default_value = "anim_bench")]
     name: String,
@@ -261,6 +267,7 @@ fn run(args: &Args) -> Result<(), Error> {
                 true => Some(animation(s, s.first..s.first + 1)?.bounds()?),
                 false => None,
             },
+            mem_budget: args.mem_budget,
             ..PackOptions::default()
         };
         let first = whole.pack_first(&packed, &pack)?;
@@ -276,6 +283,7 @@ fn run(args: &Args) -> Result<(), Error> {
                 camera: CameraChoice::Auto,
                 pack: PackOptions {
                     bounds: Some(first.bounds),
+                    mem_budget: args.mem_budget,
                     ..PackOptions::default()
                 },
                 ..AnimateOptions::default()

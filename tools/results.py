@@ -806,12 +806,12 @@ def anim_section(w, table3, steps, commit, version):
           "comparison): " + ", ".join(f"{n} {wd}: {x:.2f}x" for n, wd, x in vs_paper) + ".\n")
     w("### Update cost per frame step, against a full pack\n")
     w("Means over every frame step measured (Table 3's runs at every size, and `anim_bench "
-      "--steps-only` runs, which render nothing, for Rain at 10^6 and 10^7 balls). A frame whose "
-      "triangles would take more than the memory available to build in memory (Rain at 10^7: "
-      "80 M triangles, 1.8 GB of PLY) is packed streaming from its file, as `oavm-pack` decides "
-      "on this machine; such a pack's time (marked †) includes reading the PLY, which the "
-      "update's does not (it is given the frame's mesh), so the note under the table also "
-      "compares the update with its read of the frame added. Moved: "
+      "--steps-only` runs, which render nothing, for Rain at 10^6 and 10^7 balls). Rain at 10^7 "
+      "(80 M triangles, 1.8 GB of PLY a frame) is packed streaming from its files "
+      "(`anim_bench --mem-budget`, as `oavm-pack --mem-budget`): such a pack's time (marked †) "
+      "includes reading the PLY, which the update's does not (it is given the frame's mesh), "
+      "so the note under the table also compares the update with its read of the frame added. "
+      "Moved: "
       "primitives whose corners changed. Blocks, leaves and volumes: those of the rebuilt "
       "subtrees, against the file's (a full pack's) totals. Bytes written: what the update "
       "appends (blocks, changed primitive chunks, the new directory and top tree) and its "
