@@ -945,12 +945,7 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     for &c in &touched {
         let lo = c * PRIM_CHUNK;
         let hi = (lo + PRIM_CHUNK).min(new_count);
-        let records: Vec<PrimRecord> = (lo..hi)
-            .map(|p| match changed_to(&changes, p) {
-                Some(r) => r,
-                None => u.stored(p).unwrap_or(PrimRecord::ABSENT),
-            })
-            .collect();
+        let records = records_after(&u, &changes, lo..hi);
         w.write_prim_chunk(c as usize, &records).map_err(io)?;
     }
     w.truncate_prim_chunks(new_count.div_ceil(PRIM_CHUNK) as usize);
@@ -987,14 +982,20 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     Ok(report)
 }
 
-/// What primitive `prim` becomes, if the update changes it (`changes` is in increasing
-/// primitive order).
-fn changed_to(changes: &[Change], prim: u64) -> Option<PrimRecord> {
-    let prim = u32::try_from(prim).ok()?;
-    changes
-        .binary_search_by_key(&prim, |c| c.prim)
-        .ok()
-        .map(|i| changes[i].new)
+/// The records of primitives `prims` after the update: the changed ones' new records (found
+/// once, then walked in step, `changes` being in increasing primitive order), the others' as
+/// stored ([`PrimRecord::ABSENT`] where none is).
+fn records_after(u: &Updater, changes: &[Change], prims: std::ops::Range<u64>) -> Vec<PrimRecord> {
+    let mut next = changes.partition_point(|c| (c.prim as u64) < prims.start);
+    prims
+        .map(|p| match changes.get(next) {
+            Some(c) if c.prim as u64 == p => {
+                next += 1;
+                c.new
+            }
+            _ => u.stored(p).unwrap_or(PrimRecord::ABSENT),
+        })
+        .collect()
 }
 
 /// The bounds of every stored triangle after the update: the previous bounds widened by the
@@ -1024,15 +1025,13 @@ fn mesh_bounds(u: &Updater, header: &Header, changes: &[Change]) -> ([f32; 3], [
             .filter(|c| holds_triangle(&c.new))
             .fold((header.mesh_min, header.mesh_max), |b, c| grow(b, &c.new.v))
     } else {
-        (0..u.count)
+        (0..u.count.div_ceil(PRIM_CHUNK))
             .into_par_iter()
-            .filter_map(|p| {
-                let r = match changed_to(changes, p) {
-                    Some(r) => r,
-                    None => u.stored(p)?,
-                };
-                holds_triangle(&r).then_some(r)
+            .flat_map_iter(|c| {
+                let lo = c * PRIM_CHUNK;
+                records_after(u, changes, lo..(lo + PRIM_CHUNK).min(u.count))
             })
+            .filter(holds_triangle)
             .fold(|| empty, |b, r| grow(b, &r.v))
             .reduce(
                 || empty,

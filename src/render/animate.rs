@@ -308,10 +308,17 @@ impl Animation {
         let bounds_seconds = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let start = self.frames.start;
-        let frame = self.pose(start, self.streamed(start, &opts).is_none())?;
+        let streamed = self.streamed(start, &opts);
+        let frame = self.pose(start, streamed.is_none())?;
         let pose_seconds = t.elapsed().as_secs_f64();
         let report = self
-            .pack_frame(start, frame.mesh, file, &opts)
+            .pack_frame(
+                start,
+                streamed.as_ref().map(|s| s.0.as_path()),
+                frame.mesh,
+                file,
+                &opts,
+            )
             .map_err(|e| at_frame(start, e))?;
         Ok(FirstPack {
             frame: self.frames.start,
@@ -339,17 +346,19 @@ impl Animation {
         Some((path, faces))
     }
 
-    /// Packs frame `frame` into `file` with `opts`: from its path where it streams
-    /// ([`Animation::streamed`]), else from `mesh`, its triangles read before.
+    /// Packs frame `frame` into `file` with `opts`: from `streamed`, its file, where
+    /// [`Animation::streamed`] said so (then `mesh` was not read), else from `mesh`. The
+    /// caller decides once: asked again, the memory available may say otherwise.
     fn pack_frame(
         &self,
         frame: u64,
+        streamed: Option<&Path>,
         mesh: Mesh,
         file: &Path,
         opts: &PackOptions,
     ) -> Result<PackReport, Error> {
-        match self.streamed(frame, opts) {
-            Some((path, _)) => pack(&path, file, opts, &Quiet),
+        match streamed {
+            Some(path) => pack(path, file, opts, &Quiet),
             None => pack_mesh(mesh, &self.frame_name(frame), file, opts, &Quiet),
         }
     }
@@ -690,7 +699,8 @@ fn one_frame(
             (changed, update, None)
         }
         Some(p) => {
-            let r = anim.pack_frame(f, frame.mesh, file, p)?;
+            let path = streamed.as_ref().map(|s| s.0.as_path());
+            let r = anim.pack_frame(f, path, frame.mesh, file, p)?;
             (triangles, None, Some(r))
         }
     };
