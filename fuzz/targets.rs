@@ -99,8 +99,8 @@ pub const PACK_MAX_TRIANGLES: usize = 512;
 /// the traversal skipped, a false hit, closest and any hit disagreeing. Meshes of more than
 /// [`PACK_MAX_TRIANGLES`] are not built.
 pub fn pack(data: &[u8]) {
-    use oavm::build::encode_with;
     use oavm::geom::reference;
+    use oavm::pack::encode_with;
     use oavm::physical::BlockOptions;
     let Ok(mesh) = oavm::mesh::parse_ply(data, "fuzz.ply") else {
         return;
@@ -118,9 +118,9 @@ pub fn pack(data: &[u8]) {
         leaf_size: 1 << ((h >> 4) % 4),
         merge: h >> 6 & 1 == 0,
         leaf: if h >> 8 & 1 == 0 {
-            oavm::build::LeafKind::Cluster
+            oavm::pack::LeafKind::Cluster
         } else {
-            oavm::build::LeafKind::List
+            oavm::pack::LeafKind::List
         },
     };
     let blocks = BlockOptions {
@@ -128,7 +128,7 @@ pub fn pack(data: &[u8]) {
         compress: (h >> 7 & 1 == 0).then_some(1),
     };
     pool().install(|| {
-        let Ok((parts, _)) = oavm::build::build(&mesh, &opts, &oavm::build::Quiet) else {
+        let Ok((parts, _)) = oavm::pack::build(&mesh, &opts, &oavm::pack::Quiet) else {
             return;
         };
         let Ok(file) = encode_with(&parts, &blocks) else {

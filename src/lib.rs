@@ -16,7 +16,6 @@
 #[allow(unsafe_code)]
 pub mod os;
 
-pub mod build;
 pub mod compare;
 pub mod error;
 pub mod geom;
@@ -24,12 +23,13 @@ pub mod logical;
 pub mod mapping;
 pub mod mesh;
 pub mod output;
+pub mod pack;
 pub mod physical;
 pub mod rays;
 pub mod render;
 
-pub use build::{BuildOptions, BuildStats};
 pub use error::{Error, FormatError};
 pub use geom::{Hit, HitAttributes, Ray};
 pub use logical::{Counters, Scene};
 pub use mesh::Mesh;
+pub use pack::{BuildOptions, BuildStats};

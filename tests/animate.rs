@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Parser;
 use common::{bin, run, shared_scene};
-use oavm::build::{PackOptions, Quiet};
+use oavm::pack::{PackOptions, Quiet};
 use oavm::rays::Camera;
 use oavm::render::animate::{
     AnimateOptions, Animation, AnimationReport, CameraChoice, Mode, animate, frame_image_name,
@@ -329,7 +329,7 @@ fn bad_ranges_and_files_are_refused() {
     let anim = Animation::new(&kitchen, 400..402).unwrap();
     let file = dir.path().join("plain.oavm");
     let frame = anim.frame(400).unwrap();
-    oavm::build::pack_mesh(
+    oavm::pack::pack_mesh(
         frame.mesh,
         "kitchen",
         &file,

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 /// The stack, bottom first: a module may import those before it.
 const STACK: [&str; 12] = [
-    "os", "error", "output", "geom", "rays", "mesh", "physical", "mapping", "build", "logical",
+    "os", "error", "output", "geom", "rays", "mesh", "physical", "mapping", "pack", "logical",
     "render", "compare",
 ];
 
@@ -325,8 +325,8 @@ fn the_checker_catches_upward_imports_in_every_form() {
             "use crate::{error::Error, mapping::TreeMap};",
         ),
         file("geom/ray", "fn f() { let _ = crate::mesh::load(p); }"),
-        file("physical/block", "use super::super::build::blocks;"),
-        file("physical", "use super::build::x;"),
+        file("physical/block", "use super::super::pack::blocks;"),
+        file("physical", "use super::pack::x;"),
         file(
             "mapping/rank",
             "use crate::{\n    physical::format,\n    logical::Order,\n};",
@@ -344,7 +344,7 @@ fn the_checker_catches_upward_imports_in_every_form() {
             "physical/file",
             "// use crate::logical::Scene;\nlet s = \"crate::logical\";",
         ),
-        file("physical/file", "/* crate::build */ use super::format::*;"),
+        file("physical/file", "/* crate::pack */ use super::format::*;"),
         file("build/blocks", "use super::super::physical::format;"),
         file("physical/block", "use super::file::OavmFile;"),
     ];

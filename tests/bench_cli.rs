@@ -10,10 +10,10 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-use oavm::build::LeafKind;
 use oavm::compare::bench::{self, BenchScene};
 use oavm::compare::{self, OavmAccel, Triangles};
 use oavm::geom::reference;
+use oavm::pack::LeafKind;
 use oavm::rays::{self, Bounds};
 use oavm::{BuildOptions, Hit, Mesh, Ray};
 use rayon::prelude::*;

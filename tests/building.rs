@@ -10,7 +10,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use common::*;
-use oavm::build::{self, PackOptions, Quiet};
+use oavm::pack::{self, PackOptions, Quiet};
 use oavm::physical::BlockOptions;
 use oavm::rays::{self, Bounds, Camera};
 use oavm::{Hit, Scene};
@@ -30,13 +30,13 @@ fn pack_streaming(
     out: &Path,
     blocks: BlockOptions,
     budget: u64,
-) -> Result<build::PackReport, oavm::Error> {
+) -> Result<pack::PackReport, oavm::Error> {
     let opts = PackOptions {
         blocks,
         mem_budget: Some(budget),
         ..PackOptions::default()
     };
-    build::pack(ply, out, &opts, &Quiet)
+    pack::pack(ply, out, &opts, &Quiet)
 }
 
 fn ray_sets(mesh: &oavm::mesh::Mesh) -> Vec<oavm::Ray> {
@@ -72,7 +72,7 @@ fn a_tiny_budget_gives_the_same_answers_as_the_in_memory_pack() {
     let ply = dir.path().join("bunny.ply");
     write_binary_ply(&mesh, &ply);
     let in_memory = dir.path().join("memory.oavm");
-    build::pack(&ply, &in_memory, &PackOptions::default(), &Quiet).unwrap();
+    pack::pack(&ply, &in_memory, &PackOptions::default(), &Quiet).unwrap();
     let rays = ray_sets(&mesh);
     let expected = answers(&in_memory, &rays);
 

@@ -159,7 +159,7 @@ fn octree_counts_equal_oavms_on_the_bunny() {
             ..BuildOptions::default()
         },
     ] {
-        let (_, s) = oavm::build::build(&mesh, &opts, &oavm::build::Quiet).expect("OAVM build");
+        let (_, s) = oavm::pack::build(&mesh, &opts, &oavm::pack::Quiet).expect("OAVM build");
         let octree = ClassicOctree::build(&t, &opts);
         assert_eq!(octree.stats().nodes, s.nodes, "{opts:?}");
         assert_eq!(

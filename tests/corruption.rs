@@ -66,9 +66,9 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::{Mutex, Once, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 
-use oavm::build::LeafKind;
-use oavm::build::{TreeParts, encode_with};
 use oavm::logical::{BlockReads, SceneOptions, Walk};
+use oavm::pack::LeafKind;
+use oavm::pack::{TreeParts, encode_with};
 use oavm::physical::AlignedBytes;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::{
@@ -963,7 +963,7 @@ struct Expect {
     /// The file before occluders were added, whose answers the file must give (§8.5), and
     /// what `add_occluders` reported.
     without_occluders: Option<Vec<u8>>,
-    occluder_report: Option<oavm::build::occluders::OccluderReport>,
+    occluder_report: Option<oavm::pack::occluders::OccluderReport>,
     /// The file as its previous generation was (a generation after the first).
     previous: Option<Vec<u8>>,
     /// Blocks to detail besides the first, the largest and the last.
@@ -1010,7 +1010,7 @@ impl Fixture {
         ropes: bool,
         occluders: bool,
     ) -> Fixture {
-        let (parts, _) = oavm::build::build(mesh, &opts, &oavm::build::Quiet).expect("build");
+        let (parts, _) = oavm::pack::build(mesh, &opts, &oavm::pack::Quiet).expect("build");
         let mut bytes = encode_with(&parts, &blocks)
             .expect("encode")
             .as_ref()
@@ -1020,9 +1020,9 @@ impl Fixture {
         let mut occluder_report = None;
         if occluders {
             let plain = open(&bytes).expect("the file without occluders opens");
-            let (with, size, report) = oavm::build::occluders::add_occluders(
+            let (with, size, report) = oavm::pack::occluders::add_occluders(
                 plain.file(),
-                &oavm::build::occluders::ShadowParams::default(),
+                &oavm::pack::occluders::ShadowParams::default(),
                 Vec::new(),
             )
             .expect("add occluders");
@@ -1041,7 +1041,7 @@ impl Fixture {
         if ropes {
             let plain = open(&bytes).expect("the file without ropes opens");
             let (roped, size, _) =
-                oavm::build::ropes::add_ropes(plain.file(), Vec::new()).expect("add ropes");
+                oavm::pack::ropes::add_ropes(plain.file(), Vec::new()).expect("add ropes");
             assert_eq!(
                 size,
                 roped.len() as u64,
@@ -2003,20 +2003,14 @@ fn updatable_zstd_file() -> &'static Fixture {
 fn updatable(name: &str, compress: bool) -> Fixture {
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join("updatable.oavm");
-    let opts = oavm::build::PackOptions {
+    let opts = oavm::pack::PackOptions {
         build: BuildOptions::default(),
         blocks: blocks_16k(compress),
         updatable: true,
-        ..oavm::build::PackOptions::default()
+        ..oavm::pack::PackOptions::default()
     };
-    oavm::build::pack_mesh(
-        dragon().clone(),
-        "dragon",
-        &path,
-        &opts,
-        &oavm::build::Quiet,
-    )
-    .expect("pack --updatable");
+    oavm::pack::pack_mesh(dragon().clone(), "dragon", &path, &opts, &oavm::pack::Quiet)
+        .expect("pack --updatable");
     let bytes = std::fs::read(&path).expect("read");
     let expect = Expect {
         compressed: compress,
@@ -2096,7 +2090,7 @@ fn updated_file() -> &'static Fixture {
 /// Updates a copy of `before`'s file (see [`updated_file`]): the mesh it then holds (a removed
 /// primitive keeps its old triangle there), the file's bytes, and the edits.
 fn update_of(before: &Fixture) -> (Mesh, Vec<u8>, UpdateEdits) {
-    use oavm::build::update::{UpdateOptions, Updater};
+    use oavm::pack::update::{UpdateOptions, Updater};
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join("updated.oavm");
     std::fs::write(&path, &before.bytes).expect("write");
@@ -3375,7 +3369,7 @@ fn encode_v1(parts: &TreeParts) -> Vec<u8> {
 #[test]
 fn version_1_files_fail_at_open_and_say_to_repack() {
     let (parts, _) =
-        oavm::build::build(&dragon_part(600), &leaf4(), &oavm::build::Quiet).expect("build");
+        oavm::pack::build(&dragon_part(600), &leaf4(), &oavm::pack::Quiet).expect("build");
     let v1 = encode_v1(&parts);
     assert_version_error(&open_error(&v1, "a version-1 file"), 1, "a version-1 file");
     // Truncated: the version is still what is reported (checked before the file size).

@@ -199,8 +199,8 @@ fn oavm_corpora_reach_the_current_format() {
 /// last items of the data region, and with the primitive chunks after them).
 #[test]
 fn checksum_fixup_keeps_files_sound() {
-    use oavm::build::encode_with;
-    use oavm::build::update::{UpdateOptions, Updater};
+    use oavm::pack::encode_with;
+    use oavm::pack::update::{UpdateOptions, Updater};
     use oavm::physical::{AlignedBytes, BlockOptions};
     use oavm::{BuildOptions, Hit, Scene};
     use targets::layout::*;
@@ -213,7 +213,7 @@ fn checksum_fixup_keeps_files_sound() {
         leaf_size: 1,
         ..BuildOptions::default()
     };
-    let (parts, _) = oavm::build::build(&mesh, &build, &oavm::build::Quiet).expect("build");
+    let (parts, _) = oavm::pack::build(&mesh, &build, &oavm::pack::Quiet).expect("build");
     let answers = |file: &[u8]| {
         let scene = Scene::from_bytes(AlignedBytes::from_slice(file), "test.oavm").expect("open");
         let report = scene.verify().expect("verify");
@@ -243,16 +243,16 @@ fn checksum_fixup_keeps_files_sound() {
     };
     let dir = tempfile::tempdir().expect("temporary directory");
     let packed = dir.path().join("updatable.oavm");
-    let opts = oavm::build::PackOptions {
+    let opts = oavm::pack::PackOptions {
         build,
         blocks: BlockOptions {
             block_size: 4096,
             compress: None,
         },
         updatable: true,
-        ..oavm::build::PackOptions::default()
+        ..oavm::pack::PackOptions::default()
     };
-    oavm::build::pack_mesh(mesh.clone(), "cornell", &packed, &opts, &oavm::build::Quiet)
+    oavm::pack::pack_mesh(mesh.clone(), "cornell", &packed, &opts, &oavm::pack::Quiet)
         .expect("pack --updatable");
     let updatable = std::fs::read(&packed).expect("read");
     let mut u = Updater::open(&packed).expect("open for an update");

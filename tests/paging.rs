@@ -17,8 +17,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
-use oavm::build::encode_with;
 use oavm::logical::{BlockReads, FrameOptions, Order, SceneOptions};
+use oavm::pack::encode_with;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::CODEC_RAW;
 use oavm::physical::{AlignedBytes, BlockView};
@@ -43,7 +43,7 @@ fn packed(compress: Option<i32>) -> &'static AlignedBytes {
     static ZSTD: OnceLock<AlignedBytes> = OnceLock::new();
     let cell = if compress.is_some() { &ZSTD } else { &RAW };
     cell.get_or_init(|| {
-        let (parts, _) = oavm::build::build(bunny(), &BuildOptions::default(), &oavm::build::Quiet)
+        let (parts, _) = oavm::pack::build(bunny(), &BuildOptions::default(), &oavm::pack::Quiet)
             .expect("build");
         let bytes = encode_with(
             &parts,

@@ -29,8 +29,8 @@ fn aff(text: &str) -> AffScene {
 /// The packed bytes of `mesh`.
 fn pack(mesh: &Mesh) -> AlignedBytes {
     let (parts, _) =
-        oavm::build::build(mesh, &BuildOptions::default(), &oavm::build::Quiet).expect("build");
-    oavm::build::encode(&parts).expect("encode")
+        oavm::pack::build(mesh, &BuildOptions::default(), &oavm::pack::Quiet).expect("build");
+    oavm::pack::encode(&parts).expect("encode")
 }
 
 /// The camera of a scene's `v` block.

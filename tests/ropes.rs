@@ -7,9 +7,9 @@
 mod common;
 
 use common::{bin, compare_with_reference, load_shared, run, shared_scene};
-use oavm::build::{BuildOptions, LeafKind};
 use oavm::geom::Hit;
 use oavm::logical::{SceneOptions, Walk};
+use oavm::pack::{BuildOptions, LeafKind};
 use oavm::physical::format::{
     Header, KIND_INTERNAL, NodeRecord, ROPE_TOP, RopeRecord, SectionEntry, SectionKind,
 };
@@ -22,10 +22,10 @@ fn files(mesh: &Mesh, leaf: LeafKind) -> (AlignedBytes, AlignedBytes) {
     let mut opts = BuildOptions::with_leaf(leaf);
     // A mesh of a few dozen triangles (the Cornell box) would be one leaf: no faces to cross.
     opts.leaf_size = opts.leaf_size.min(mesh.triangles.len() as u32 / 8).max(1);
-    let (parts, _) = oavm::build::build(mesh, &opts, &oavm::build::Quiet).expect("build");
-    let plain = oavm::build::encode(&parts).expect("encode");
+    let (parts, _) = oavm::pack::build(mesh, &opts, &oavm::pack::Quiet).expect("build");
+    let plain = oavm::pack::encode(&parts).expect("encode");
     let file = OavmFile::open(AlignedBytes::from_slice(plain.as_ref())).expect("open");
-    let (roped, _, report) = oavm::build::ropes::add_ropes(&file, Vec::new()).expect("ropes");
+    let (roped, _, report) = oavm::pack::ropes::add_ropes(&file, Vec::new()).expect("ropes");
     assert!(report.ropes > 0 && report.ropes == 6 * report.roped_nodes);
     (plain, AlignedBytes::from_slice(&roped))
 }

@@ -413,20 +413,18 @@ fn occluders_in_the_file_answer_alike_and_verify() {
         .flat_map(|f| f.rays.iter().copied())
         .collect();
     let params = ShadowParams::default();
-    let lists = BuildOptions::with_leaf(oavm::build::LeafKind::List);
-    let (parts, _) = oavm::build::build(&scene.mesh, &lists, &oavm::build::Quiet).expect("build");
-    let file =
-        oavm::physical::OavmFile::open(oavm::build::encode(&parts).expect("encode")).unwrap();
-    let e = oavm::build::occluders::add_occluders(&file, &params, Vec::new()).unwrap_err();
+    let lists = BuildOptions::with_leaf(oavm::pack::LeafKind::List);
+    let (parts, _) = oavm::pack::build(&scene.mesh, &lists, &oavm::pack::Quiet).expect("build");
+    let file = oavm::physical::OavmFile::open(oavm::pack::encode(&parts).expect("encode")).unwrap();
+    let e = oavm::pack::occluders::add_occluders(&file, &params, Vec::new()).unwrap_err();
     assert!(e.to_string().contains("clusters"), "{e}");
-    for leaf in [oavm::build::LeafKind::Cluster] {
+    for leaf in [oavm::pack::LeafKind::Cluster] {
         let opts = BuildOptions::with_leaf(leaf);
-        let (parts, _) =
-            oavm::build::build(&scene.mesh, &opts, &oavm::build::Quiet).expect("build");
-        let plain = oavm::build::encode(&parts).expect("encode");
+        let (parts, _) = oavm::pack::build(&scene.mesh, &opts, &oavm::pack::Quiet).expect("build");
+        let plain = oavm::pack::encode(&parts).expect("encode");
         let file = oavm::physical::OavmFile::open(plain).expect("open");
         let (bytes, _, report) =
-            oavm::build::occluders::add_occluders(&file, &ShadowParams::default(), Vec::new())
+            oavm::pack::occluders::add_occluders(&file, &ShadowParams::default(), Vec::new())
                 .expect("occluders");
         assert!(
             report.occluders > 0 && report.occluder_nodes > 0,

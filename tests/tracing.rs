@@ -33,8 +33,8 @@ mod common;
 mod peers;
 
 use common::*;
-use oavm::build::LeafKind;
 use oavm::geom::reference;
+use oavm::pack::LeafKind;
 use oavm::physical::AlignedBytes;
 use oavm::rays::{Camera, default_light, random_rays, shadow_rays};
 use oavm::{BuildOptions, Hit, Mesh, Ray, Scene};
@@ -486,7 +486,7 @@ fn duplicate_and_degenerate_triangles() {
         .extend([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.4, 0.4, 0.4]]); // collinear
     m.triangles.push([base, base + 1, base + 2]);
     check(&m, &small_leaves(), 300, "duplicates and degenerate");
-    let (_, stats) = oavm::build::build(&m, &small_leaves(), &oavm::build::Quiet).unwrap();
+    let (_, stats) = oavm::pack::build(&m, &small_leaves(), &oavm::pack::Quiet).unwrap();
     assert_eq!(stats.degenerate_triangles, 2);
     // Ten copies of one big quad: subdivision must stop (no separation), not explode.
     let mut q = Mesh {
@@ -502,14 +502,14 @@ fn duplicate_and_degenerate_triangles() {
         q.triangles.push([0, 1, 2]);
         q.triangles.push([0, 2, 3]);
     }
-    let (_, stats) = oavm::build::build(
+    let (_, stats) = oavm::pack::build(
         &q,
         &BuildOptions {
             leaf_size: 1,
             max_depth: 21,
             ..BuildOptions::default()
         },
-        &oavm::build::Quiet,
+        &oavm::pack::Quiet,
     )
     .unwrap();
     assert!(
@@ -748,7 +748,7 @@ fn meshes_at_any_scale_trace_right_or_are_refused() {
     }
     for s in [1e-30, 1e-20, 1e-12, 1e13, 1e20, 1e30] {
         let m = scaled_bunny(s);
-        let e = oavm::build::build(&m, &BuildOptions::default(), &oavm::build::Quiet)
+        let e = oavm::pack::build(&m, &BuildOptions::default(), &oavm::pack::Quiet)
             .err()
             .unwrap_or_else(|| panic!("the bunny x {s:e} was packed"))
             .to_string();

@@ -1,4 +1,4 @@
-//! Local updates written as generations (format-spec §2.1, §8.6; `oavm::build::update`):
+//! Local updates written as generations (format-spec §2.1, §8.6; `oavm::pack::update`):
 //!
 //! - after any sequence of updates, a file answers every ray set exactly as a fresh pack of the
 //!   same triangles (closest hit `t` and primitive bit for bit, any hit), passes verify, and
@@ -15,8 +15,8 @@ mod common;
 use std::path::Path;
 
 use common::{compare_with_reference, shared_scene};
-use oavm::build::update::{UpdateOptions, UpdateReport, Updater};
-use oavm::build::{PackOptions, Quiet};
+use oavm::pack::update::{UpdateOptions, UpdateReport, Updater};
+use oavm::pack::{PackOptions, Quiet};
 use oavm::rays::{self, Bounds, Camera};
 use oavm::{Hit, Mesh, Ray, Scene};
 use tempfile::TempDir;
@@ -52,7 +52,7 @@ fn pack_mesh(mesh: &Mesh, out: &Path, updatable: bool) {
         updatable,
         ..PackOptions::default()
     };
-    oavm::build::pack_mesh(mesh.clone(), "test mesh", out, &opts, &Quiet).unwrap();
+    oavm::pack::pack_mesh(mesh.clone(), "test mesh", out, &opts, &Quiet).unwrap();
 }
 
 fn verify(path: &Path) {
@@ -189,7 +189,7 @@ fn edits_by_primitive_id_answer_as_fresh_packs() {
         },
         ..PackOptions::default()
     };
-    oavm::build::pack_mesh(mesh.clone(), "quads", &file, &opts, &Quiet).unwrap();
+    oavm::pack::pack_mesh(mesh.clone(), "quads", &file, &opts, &Quiet).unwrap();
     let mut current: Vec<Option<[[f32; 3]; 3]>> = (0..mesh.triangles.len())
         .map(|i| Some(mesh.triangle(i)))
         .collect();
@@ -290,7 +290,7 @@ fn readers_keep_their_generation() {
         )),
         ..PackOptions::default()
     };
-    oavm::build::pack_mesh(mesh.clone(), "bunny", &file, &opts, &Quiet).unwrap();
+    oavm::pack::pack_mesh(mesh.clone(), "bunny", &file, &opts, &Quiet).unwrap();
     let first = Scene::open(&file).unwrap();
     let rays = ray_sets(&first, &bounds);
     let before = answers(&first, &rays);
@@ -515,7 +515,7 @@ fn streamed_updatable_files_update() {
         mem_budget: Some(4 << 20),
         ..PackOptions::default()
     };
-    let r = oavm::build::pack(&ply, &streamed, &opts, &Quiet).unwrap();
+    let r = oavm::pack::pack(&ply, &streamed, &opts, &Quiet).unwrap();
     assert!(
         r.streaming.is_some_and(|s| s.chunks > 1),
         "not streamed in chunks"
@@ -525,7 +525,7 @@ fn streamed_updatable_files_update() {
         mem_budget: None,
         ..opts
     };
-    oavm::build::pack(&ply, &in_memory, &opts, &Quiet).unwrap();
+    oavm::pack::pack(&ply, &in_memory, &opts, &Quiet).unwrap();
     let table = |p: &Path| {
         let s = Scene::open(p).unwrap();
         let f = s.file();

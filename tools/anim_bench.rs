@@ -28,7 +28,7 @@ use std::time::Instant;
 
 use clap::Parser;
 use oavm::Error;
-use oavm::build::PackOptions;
+use oavm::pack::PackOptions;
 use oavm::render::animate::{
     AnimateOptions, Animation, AnimationReport, CameraChoice, FirstPack, Mode, animate,
 };

@@ -42,8 +42,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{Parser, ValueEnum};
-use oavm::build::LeafKind;
 use oavm::compare::bench::RaySet;
+use oavm::pack::LeafKind;
 use oavm::physical::AlignedBytes;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
 use oavm::{BuildOptions, Counters, Hit, Ray, Scene};
@@ -461,10 +461,10 @@ fn build_scene(spec: &SceneSpec, config: &Config) -> Result<Built, String> {
 
     let t = Instant::now();
     let (bytes, stats) = {
-        let (parts, stats) = oavm::build::build(&mesh, &config.opts, &oavm::build::Quiet)
+        let (parts, stats) = oavm::pack::build(&mesh, &config.opts, &oavm::pack::Quiet)
             .map_err(|e| format!("{}: OAVM build: {e}", spec.name))?;
         let bytes =
-            oavm::build::encode(&parts).map_err(|e| format!("{}: OAVM encode: {e}", spec.name))?;
+            oavm::pack::encode(&parts).map_err(|e| format!("{}: OAVM encode: {e}", spec.name))?;
         (bytes, stats)
     };
     let mut build_s = vec![("oavm", seconds_since(t))];

@@ -628,8 +628,8 @@ fn check_scene(config: &Config, name: &str, path: &Path) -> Result<SceneReport, 
 
     let t = Instant::now();
     let (parts, stats) =
-        oavm::build::build(&mesh, &config.opts, &oavm::build::Quiet).map_err(|e| e.to_string())?;
-    let bytes = oavm::build::encode(&parts).expect("encode");
+        oavm::pack::build(&mesh, &config.opts, &oavm::pack::Quiet).map_err(|e| e.to_string())?;
+    let bytes = oavm::pack::encode(&parts).expect("encode");
     let scene = Scene::from_bytes(bytes, format!("{name}.oavm")).map_err(|e| e.to_string())?;
     let oavm_build = t.elapsed().as_secs_f64();
     let t = Instant::now();

@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use oavm::build::{PackOptions, Quiet};
+use oavm::pack::{PackOptions, Quiet};
 use oavm::rays::{self, Bounds, Camera};
 use oavm::{Hit, Mesh, Ray, Scene};
 
@@ -223,10 +223,10 @@ fn scene(spec: &Spec, kills: u64, bin: &Path, dir: &Path, rng: &mut Rng) -> Resu
         bounds: Some((bb.min, bb.max)),
         ..PackOptions::default()
     };
-    oavm::build::pack_mesh(a.clone(), "frame 0", &base, &opts, &Quiet)?;
+    oavm::pack::pack_mesh(a.clone(), "frame 0", &base, &opts, &Quiet)?;
     let fresh = |m: &Mesh, name: &str| -> Result<PathBuf> {
         let p = dir.join(name);
-        oavm::build::pack_mesh(m.clone(), name, &p, &PackOptions::default(), &Quiet)?;
+        oavm::pack::pack_mesh(m.clone(), name, &p, &PackOptions::default(), &Quiet)?;
         Ok(p)
     };
     let (fa, fb) = (fresh(&a, "a.oavm")?, fresh(&b, "b.oavm")?);

@@ -1,6 +1,6 @@
 //! Where `oavm-pack`'s time goes, phase by phase, timed in one process so that the phases after
-//! parsing can be repeated: parsing, the tree (`build::build`: preparing, subdividing, merging,
-//! laying out) and encoding in memory (`build::encode`: splitting into blocks, which builds
+//! parsing can be repeated: parsing, the tree (`pack::build`: preparing, subdividing, merging,
+//! laying out) and encoding in memory (`pack::encode`: splitting into blocks, which builds
 //! every cluster, and encoding the blocks). Each phase runs `--runs` times; the best and the
 //! median run are printed. Short runs, the best counts: on a machine shared with builds and
 //! benchmarks, some run goes uninterrupted.
@@ -11,7 +11,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use oavm::build::{BuildOptions, LeafKind, Quiet, build, encode};
+use oavm::pack::{BuildOptions, LeafKind, Quiet, build, encode};
 
 fn main() {
     let mut args = std::env::args().skip(1);

@@ -83,8 +83,8 @@ fn run() -> Result<()> {
     } else {
         let mesh = oavm::mesh::load(&mesh_path)?;
         let b = Bounds::of_points(mesh.positions.iter().copied());
-        let (parts, _) = oavm::build::build(&mesh, &BuildOptions::default(), &oavm::build::Quiet)?;
-        let scene = Scene::from_bytes(oavm::build::encode(&parts)?, "memory")?;
+        let (parts, _) = oavm::pack::build(&mesh, &BuildOptions::default(), &oavm::pack::Quiet)?;
+        let scene = Scene::from_bytes(oavm::pack::encode(&parts)?, "memory")?;
         let (random, primary, hits) = sets(&scene, &b, n, seed, w, h)?;
         (b, random, primary, hits)
     };

@@ -6,15 +6,15 @@
 //!
 //! For the KD-tree: the tree's build, then each rope walk's ropes built on a fresh tree
 //! (`KdTree::with_traversal`), timed apart, with the bytes and pointers they add. For OAVM: the
-//! file built in memory (clusters and leaf lists), then `build::ropes::add_ropes` over it: the
+//! file built in memory (clusters and leaf lists), then `pack::ropes::add_ropes` over it: the
 //! time finding the ropes, the whole pass (decode, find, encode), the ropes and bytes added, and
 //! bytes per triangle before and after. One run each: these are costs, not speeds.
 
 use std::time::Instant;
 
-use oavm::build::{BuildOptions, LeafKind};
 use oavm::compare::kdtree::{KdTraversal, KdTree};
 use oavm::compare::{Accelerator, Triangles};
+use oavm::pack::{BuildOptions, LeafKind};
 use oavm::physical::OavmFile;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -57,11 +57,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for leaf in [LeafKind::Cluster, LeafKind::List] {
         let opts = BuildOptions::with_leaf(leaf);
         let start = Instant::now();
-        let (parts, stats) = oavm::build::build(&mesh, &opts, &oavm::build::Quiet)?;
-        let bytes = oavm::build::encode(&parts)?;
+        let (parts, stats) = oavm::pack::build(&mesh, &opts, &oavm::pack::Quiet)?;
+        let bytes = oavm::pack::encode(&parts)?;
         let build_s = start.elapsed().as_secs_f64();
         let file = OavmFile::open(bytes)?;
-        let (_, _, r) = oavm::build::ropes::add_ropes(&file, Vec::new())?;
+        let (_, _, r) = oavm::pack::ropes::add_ropes(&file, Vec::new())?;
         println!(
             "oavm {leaf:?}: build {build_s:.3} s, ropes {:.3} s finding, {:.3} s the pass; \
              {} -> {} bytes (+{:.1} %), {} -> {} pointers (+{} ropes), {:.1} -> {:.1} \

@@ -16,10 +16,10 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
-use oavm::build::update::{UpdateOptions, Updater};
-use oavm::build::{BuildOptions, LeafKind, PackOptions, PackReport};
 use oavm::logical::{BlockReads, IO_THREADS_PER_CORE, Order, SceneOptions, Walk};
 use oavm::mesh::Mesh;
+use oavm::pack::update::{UpdateOptions, Updater};
+use oavm::pack::{BuildOptions, LeafKind, PackOptions, PackReport};
 use oavm::physical::BlockOptions;
 use oavm::physical::DEFAULT_BLOCK_SIZE;
 use oavm::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_MERGED, VERSION};
@@ -451,7 +451,7 @@ fn pack_options(
     };
     let opts = PackOptions {
         build: BuildOptions {
-            max_depth: max_depth.unwrap_or(oavm::build::DEFAULT_MAX_DEPTH),
+            max_depth: max_depth.unwrap_or(oavm::pack::DEFAULT_MAX_DEPTH),
             leaf_size: leaf_size.unwrap_or(leaf.default_leaf_size()),
             leaf,
             merge: true,
@@ -476,12 +476,12 @@ fn run_pack(
     py: Python<'_>,
     progress: bool,
     threads: Option<usize>,
-    pack: impl FnOnce(&dyn oavm::build::Progress) -> Result<PackReport, Error> + Send,
+    pack: impl FnOnce(&dyn oavm::pack::Progress) -> Result<PackReport, Error> + Send,
 ) -> PyResult<String> {
     let pool = pool(threads.unwrap_or_else(cores).max(1))?;
     let report = py
         .detach(|| {
-            let bar = oavm::build::bar::Progress::new(progress && std::io::stderr().is_terminal());
+            let bar = oavm::pack::bar::Progress::new(progress && std::io::stderr().is_terminal());
             let r = pool.install(|| pack(&bar));
             bar.finish();
             r
@@ -517,7 +517,7 @@ fn pack_file(
         leaf, leaf_size, max_depth, compress, mem_budget, block_size, ropes, updatable, bounds,
     )?;
     run_pack(py, progress, threads, |bar| {
-        oavm::build::pack(&mesh, &out, &opts, bar)
+        oavm::pack::pack(&mesh, &out, &opts, bar)
     })
 }
 
@@ -551,7 +551,7 @@ fn pack_arrays(
     run_pack(py, progress, threads, |bar| {
         // The options were checked above: what is invalid now is the mesh (an index out of
         // range, a non-finite corner, no triangles), reported as for a mesh file.
-        oavm::build::pack_mesh(mesh, &name, &out, &opts, bar).map_err(|e| match e {
+        oavm::pack::pack_mesh(mesh, &name, &out, &opts, bar).map_err(|e| match e {
             Error::Invalid(what) => {
                 Error::Mesh(oavm::error::MeshError::Arrays(format!("{name}: {what}")))
             }
@@ -675,7 +675,7 @@ fn update_arrays(
 #[pyfunction]
 fn compact(py: Python<'_>, path: PathBuf) -> PyResult<String> {
     let report = py
-        .detach(|| oavm::build::update::compact(&path, &path))
+        .detach(|| oavm::pack::update::compact(&path, &path))
         .map_err(to_py)?;
     serde_json::to_string(&report)
         .map_err(|e| OavmError::new_err(format!("cannot write the report: {e}")))

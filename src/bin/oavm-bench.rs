@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use clap::Parser;
-use oavm::build::{self, BuildOptions};
+use oavm::pack::{self, BuildOptions};
 mod cli;
 
 use cli::{LeafArg, main_with};
@@ -53,7 +53,7 @@ struct Args {
     #[arg(long)]
     leaf_size: Option<u32>,
     /// OAVM's and the classic octree's maximum depth D.
-    #[arg(long, default_value_t = build::DEFAULT_MAX_DEPTH)]
+    #[arg(long, default_value_t = pack::DEFAULT_MAX_DEPTH)]
     max_depth: u32,
     /// Batch mode: trace this RAYS file through the one --structure given.
     #[arg(long, value_name = "RAYS")]

@@ -8,7 +8,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use cli::LeafArg;
-use oavm::build::{self, BuildOptions, PackOptions, PackReport};
+use oavm::pack::{self, BuildOptions, PackOptions, PackReport};
 use oavm::physical::BlockOptions;
 
 /// Packs a triangle mesh (PLY, OBJ, or a BART AFF scene posed at one time) into an .oavm file: a
@@ -23,7 +23,7 @@ struct Args {
     /// symlink to its target; never a directory, device or FIFO, nor the input.
     out: PathBuf,
     /// Deepest level of the octree (the root is level 0); at most 21.
-    #[arg(long, default_value_t = build::DEFAULT_MAX_DEPTH)]
+    #[arg(long, default_value_t = pack::DEFAULT_MAX_DEPTH)]
     max_depth: u32,
     /// What a solid leaf holds: `cluster`, a wide BVH over SIMD groups of triangles (the
     /// fastest), or `list`, a list of triangle references (the OAVM paper's structure).
@@ -115,7 +115,7 @@ fn main() -> ExitCode {
         };
         let progress = cli::Progress::new(std::io::stderr().is_terminal());
         let report = cli::with_threads(args.threads, || {
-            build::pack(&args.mesh, &args.out, &opts, &progress)
+            pack::pack(&args.mesh, &args.out, &opts, &progress)
         })?;
         progress.finish();
         if args.json {

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use oavm::build::update::{CompactReport, UpdateOptions, UpdateReport, Updater, compact};
+use oavm::pack::update::{CompactReport, UpdateOptions, UpdateReport, Updater, compact};
 
 /// Updates an .oavm file packed with `oavm-pack --updatable` to the triangles of MESH (the same
 /// primitive-id space: triangle i of the mesh is primitive i; a BART scene posed at --time),

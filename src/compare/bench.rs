@@ -16,11 +16,11 @@ use serde::Serialize;
 use super::{
     Accelerator, KD_VARIANTS, OAVM_VARIANTS, OavmAccel, STRUCTURES, StructureStats, Triangles,
 };
-use crate::build::BuildOptions;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
 use crate::logical::Counters;
 use crate::mesh::Mesh;
+use crate::pack::BuildOptions;
 use crate::rays::{self, Bounds, Camera};
 
 /// A set fails when more than this fraction of its rays (0.01 %) disagree with OAVM.

@@ -35,11 +35,11 @@ pub use oavm::OavmAccel;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::build::{BuildOptions, is_degenerate};
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
 use crate::logical::Counters;
 use crate::mesh::Mesh;
+use crate::pack::{BuildOptions, is_degenerate};
 
 /// Size of a built structure. What a "node" and a "pointer" are for each structure is written in
 /// its module documentation, matched to the paper's Table 2 where possible.

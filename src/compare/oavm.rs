@@ -1,11 +1,11 @@
 //! OAVM itself behind the comparison's interface: the bytes a file holds, made in memory.
 
 use super::{Accelerator, StructureStats};
-use crate::build::BuildOptions;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
 use crate::logical::{Counters, Scene, SceneOptions, Walk};
 use crate::mesh::Mesh;
+use crate::pack::BuildOptions;
 use crate::physical::format::SectionKind;
 use crate::physical::{AlignedBytes, OavmFile};
 
@@ -24,12 +24,12 @@ impl OavmAccel {
     /// the build, their six pointers per leaf and link in the pointers).
     pub fn build_walk(mesh: &Mesh, opts: &BuildOptions, walk: Walk) -> Result<OavmAccel, Error> {
         let t = std::time::Instant::now();
-        let (parts, s) = crate::build::build(mesh, opts, &crate::build::Quiet)?;
-        let mut bytes = crate::build::encode(&parts)?;
+        let (parts, s) = crate::pack::build(mesh, opts, &crate::pack::Quiet)?;
+        let mut bytes = crate::pack::encode(&parts)?;
         let mut pointers = s.pointers.total;
         if walk == Walk::Ropes {
             let plain = OavmFile::open(bytes).map_err(|e| Error::format("memory", e))?;
-            let (roped, _, report) = crate::build::ropes::add_ropes(&plain, Vec::new())?;
+            let (roped, _, report) = crate::pack::ropes::add_ropes(&plain, Vec::new())?;
             bytes = AlignedBytes::from_slice(&roped);
             pointers += report.ropes;
         }
@@ -80,7 +80,7 @@ impl OavmAccel {
     /// seconds and the bytes added.
     pub fn with_ropes(&self) -> Result<(OavmAccel, f64, u64), Error> {
         let t = std::time::Instant::now();
-        let (roped, _, report) = crate::build::ropes::add_ropes(self.scene.file(), Vec::new())?;
+        let (roped, _, report) = crate::pack::ropes::add_ropes(self.scene.file(), Vec::new())?;
         let seconds = t.elapsed().as_secs_f64();
         let added = (roped.len() as u64).saturating_sub(self.scene.file().bytes().len() as u64);
         let scene = Scene::from_bytes_with(
@@ -105,10 +105,10 @@ impl OavmAccel {
     /// pass reported.
     pub fn with_occluders(
         &self,
-        params: &crate::build::occluders::ShadowParams,
-    ) -> Result<(OavmAccel, crate::build::occluders::OccluderReport), Error> {
+        params: &crate::pack::occluders::ShadowParams,
+    ) -> Result<(OavmAccel, crate::pack::occluders::OccluderReport), Error> {
         let (bytes, _, report) =
-            crate::build::occluders::add_occluders(self.scene.file(), params, Vec::new())?;
+            crate::pack::occluders::add_occluders(self.scene.file(), params, Vec::new())?;
         let scene = Scene::from_bytes_with(
             AlignedBytes::from_slice(&bytes),
             "memory",

@@ -29,11 +29,11 @@ use serde::Serialize;
 use super::bench::{BenchScene, ByOcclusion};
 use super::kdtree::{Adjacency, KdTree, Precompute, PrimitiveIndex, SatoOrder, ShadowParams};
 use super::{Accelerator, OavmAccel, Triangles};
-use crate::build::BuildOptions;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
 use crate::logical::Counters;
 use crate::logical::Walk;
+use crate::pack::BuildOptions;
 use crate::rays::{Bounds, Camera, Light, ShadowFrame, orbit};
 
 /// The variants `--shadow-variant` knows, in the order they are reported.

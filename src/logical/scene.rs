@@ -15,11 +15,11 @@ use super::stream::{Job, Stream, StreamOptions, Streamed, every_hit};
 use super::top_bounds::{LatticeBox, top_bounds};
 use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree};
 use super::verify::VerifyReport;
-use crate::build::Progress;
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, HitAttributes, Ray};
 use crate::mapping::{Corruption, LevelInfos, TreeMap};
 use crate::os::MappedFile;
+use crate::pack::Progress;
 use crate::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_ROPES, SectionKind};
 use crate::physical::{BlockReader, OavmFile};
 

@@ -54,8 +54,8 @@ use std::sync::{Condvar, Mutex, MutexGuard};
 use super::held::Held;
 use super::pager::PageCounters;
 use super::trace::{Best, Counters, Entry, HitInfo, RayCtx, TraceError, Tree};
-use crate::build::Progress;
 use crate::geom::Ray;
+use crate::pack::Progress;
 use crate::rays::shadow_ray;
 use std::time::Instant;
 

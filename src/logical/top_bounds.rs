@@ -108,10 +108,10 @@ fn visit(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::build::{BuildOptions, Quiet, build, encode};
     use crate::geom::{Hit, Ray, reference};
     use crate::logical::{Counters, Scene};
     use crate::mesh::Mesh;
+    use crate::pack::{BuildOptions, Quiet, build, encode};
     use crate::physical::format::{LATTICE_SIZE, SectionKind};
     use crate::rays::{Bounds, SplitMix64, random_rays};
 

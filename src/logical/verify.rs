@@ -10,11 +10,11 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::build::ClusterGeometry;
-use crate::build::check_cluster;
 use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
 use crate::mapping::morton::{self, cell_origin, cell_size};
 use crate::mapping::{LevelInfos, TreeMap};
+use crate::pack::ClusterGeometry;
+use crate::pack::check_cluster;
 use crate::physical::format::*;
 use crate::physical::verify::{
     Defects, check_block_padding, check_block_placement, check_prim_chunks, check_sections,
@@ -294,7 +294,7 @@ fn check_table_complete(
             let stored = seen.get(prim as usize / 64).is_some_and(|w| {
                 w.load(std::sync::atomic::Ordering::Relaxed) >> (prim % 64) & 1 != 0
             });
-            let should = !r.is_absent() && !crate::build::is_degenerate(&r.v);
+            let should = !r.is_absent() && !crate::pack::is_degenerate(&r.v);
             if stored != should {
                 if should {
                     missing += 1;

@@ -1,5 +1,5 @@
 //! Animations: frames `A..B` of a moving scene, each brought into one `.oavm` file by a local
-//! update ([`crate::build::update`], the OAVM paper's §3) or, to compare, by a full pack, then
+//! update ([`crate::pack::update`], the OAVM paper's §3) or, to compare, by a full pack, then
 //! ray traced in Whitted's way ([`super::render_shaded`]) and written as numbered PNGs. What
 //! `oavm-trace --frames` runs, and what the paper's Table 3 measures (frames a second, split
 //! into the update and the render).
@@ -62,13 +62,13 @@ use serde::Serialize;
 use super::look::{Look, PointLight};
 use super::whitted::{DEFAULT_MAX_DEPTH, MAX_DEPTH_LIMIT, ShadedOptions, ShadedStats};
 use super::{check_size, render_shaded, write_png};
-use crate::build::update::{UpdateOptions, UpdateReport, Updater};
-use crate::build::{PackOptions, PackReport, Quiet, pack, pack_mesh, streaming_budget};
 use crate::error::Error;
 use crate::logical::{Order, Scene, SceneOptions};
 use crate::mesh::aff::AffView;
 use crate::mesh::{AffScene, Mesh, load, load_aff};
 use crate::output::Output;
+use crate::pack::update::{UpdateOptions, UpdateReport, Updater};
+use crate::pack::{PackOptions, PackReport, Quiet, pack, pack_mesh, streaming_budget};
 use crate::rays::Camera;
 
 /// Digits of a frame number in file names (`frame_00012.png`, Rain's `rain_00012.ply`).
@@ -332,7 +332,7 @@ impl Animation {
     /// Frame `frame`'s mesh file and its triangle count, when a pack of it with `opts`
     /// streams: a binary PLY, and `opts.mem_budget` is given or its triangles would take more
     /// than the memory available to build in memory (as `oavm-pack` decides,
-    /// [`streaming_budget`]). Such a frame is packed from its path ([`crate::build::pack`])
+    /// [`streaming_budget`]). Such a frame is packed from its path ([`crate::pack::pack`])
     /// without being read into memory first, and its pack time includes reading the file (the
     /// streaming pack's passes over it).
     pub fn streamed(&self, frame: u64, opts: &PackOptions) -> Option<(PathBuf, u64)> {

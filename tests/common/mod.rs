@@ -51,8 +51,8 @@ pub fn corners(mesh: &Mesh) -> Vec<[[f32; 3]; 3]> {
 
 /// Builds `mesh` and opens the result from memory; the file must verify.
 pub fn build_scene(mesh: &Mesh, opts: &BuildOptions) -> Scene<AlignedBytes> {
-    let (parts, _) = oavm::build::build(mesh, opts, &oavm::build::Quiet).expect("build");
-    let bytes = oavm::build::encode(&parts).expect("encode");
+    let (parts, _) = oavm::pack::build(mesh, opts, &oavm::pack::Quiet).expect("build");
+    let bytes = oavm::pack::encode(&parts).expect("encode");
     let scene = Scene::from_bytes(bytes, "test.oavm").expect("open");
     let report = scene.verify().expect("verify");
     assert!(report.is_ok(), "verify: {:?}", report.defects);

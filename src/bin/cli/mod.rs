@@ -1,6 +1,6 @@
 //! What the binaries share: running `main` with errors printed once with their whole chain, the
 //! progress bar, the thread pool, argument groups and value parsers. Only the binaries use
-//! clap; the library parses no arguments, and draws only through `oavm::build::bar` (feature
+//! clap; the library parses no arguments, and draws only through `oavm::pack::bar` (feature
 //! `progress`), which the binaries and the Python bindings share.
 
 // Each binary includes this module and uses part of it.
@@ -48,7 +48,7 @@ pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
 
 /// The progress bar of the library's phases, shared with the Python bindings.
 #[allow(unused_imports)]
-pub use oavm::build::bar::Progress;
+pub use oavm::pack::bar::Progress;
 
 /// Runs `f` on a rayon pool of `threads` threads (0: one per core).
 pub fn with_threads<T: Send>(
@@ -261,7 +261,7 @@ mod tests {
     }
 }
 
-/// `--leaf`: what a solid leaf holds (`oavm::build::LeafKind`).
+/// `--leaf`: what a solid leaf holds (`oavm::pack::LeafKind`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum LeafArg {
     Cluster,
@@ -269,10 +269,10 @@ pub enum LeafArg {
 }
 
 impl LeafArg {
-    pub fn kind(self) -> oavm::build::LeafKind {
+    pub fn kind(self) -> oavm::pack::LeafKind {
         match self {
-            LeafArg::Cluster => oavm::build::LeafKind::Cluster,
-            LeafArg::List => oavm::build::LeafKind::List,
+            LeafArg::Cluster => oavm::pack::LeafKind::Cluster,
+            LeafArg::List => oavm::pack::LeafKind::List,
         }
     }
 }

@@ -53,7 +53,7 @@ use crate::logical::Counters;
 pub const REMEMBER: usize = 32;
 
 /// The knobs of the multi-index tree (module docs), shared with OAVM's occluders.
-pub use crate::build::occluders::ShadowParams;
+pub use crate::pack::occluders::ShadowParams;
 
 type Cell = [[f32; 3]; 2];
 

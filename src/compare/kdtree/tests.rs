@@ -445,9 +445,9 @@ fn split_stack_walk_past_its_register_takes_the_stack_walk() {
 /// build, so that the two primitive indices are chosen alike.
 #[test]
 fn occluders_share_the_sah_constants() {
-    assert_eq!(crate::build::occluders::ISECT_COST, super::ISECT_COST);
+    assert_eq!(crate::pack::occluders::ISECT_COST, super::ISECT_COST);
     assert_eq!(
-        crate::build::occluders::TRAVERSAL_COST,
+        crate::pack::occluders::TRAVERSAL_COST,
         super::TRAVERSAL_COST
     );
 }

@@ -3,8 +3,8 @@
 //! **Build.** The same tree as OAVM's, so that the comparison isolates what OAVM adds (merged
 //! empty volumes, pointer-free Morton layout, neighbour stepping): the same root cube
 //! ([`crate::physical::format::root_cube`] of the triangles' bounds), the same mapping of the triangles
-//! into the `2^21` lattice (in f64, as `prepare` in [`crate::build`] does), and the same
-//! subdivision ([`crate::build::subdivide::subdivide`], with OAVM's `K` and `D` from
+//! into the `2^21` lattice (in f64, as `prepare` in [`crate::pack`] does), and the same
+//! subdivision ([`crate::pack::subdivide::subdivide`], with OAVM's `K` and `D` from
 //! [`BuildOptions`]): a node is split while it holds more than `K` triangles, a triangle goes to
 //! every child it overlaps by the exact triangle–box test, with the cell grown by
 //! [`CELL_MARGIN`]. No merging. The levels are then stored as a pointer octree: every internal
@@ -17,12 +17,12 @@ use rayon::prelude::*;
 
 use super::ClassicOctree;
 use super::node::Node;
-use crate::build::BuildOptions;
-use crate::build::subdivide::{self, BuildNode, LatticeTri, SubdivideParams};
 use crate::compare::aabb::Aabb;
 use crate::compare::leaf::Soup;
 use crate::compare::{StructureStats, Triangles};
 use crate::mapping::morton::LATTICE_SIZE;
+use crate::pack::BuildOptions;
+use crate::pack::subdivide::{self, BuildNode, LatticeTri, SubdivideParams};
 
 impl ClassicOctree {
     /// Builds the octree over `tris` with OAVM's subdivision parameters from `opts` (see the

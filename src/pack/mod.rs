@@ -19,10 +19,10 @@ mod cluster;
 mod layout;
 mod merge;
 pub mod occluders;
-mod pack;
 mod prepare;
 pub mod prims;
 pub mod ropes;
+mod run;
 mod spill;
 mod stats;
 mod streaming;
@@ -45,8 +45,8 @@ pub use cluster::{
     ClusterBuild, ClusterBuilder, ClusterError, ClusterShape, ClusterTri, build_cluster,
     check_cluster, triangle_box,
 };
-pub use pack::{PackOptions, PackReport, StreamingReport, pack, pack_mesh, streaming_budget};
 pub use prepare::{check_scale, is_degenerate};
+pub use run::{PackOptions, PackReport, StreamingReport, pack, pack_mesh, streaming_budget};
 pub use stats::{BuildStats, PointerCounts};
 use stats::{PhaseSeconds, TreeCounts};
 pub use streaming::{BYTES_PER_CHUNK_TRIANGLE, HISTOGRAM_LEVEL};

@@ -25,8 +25,8 @@
 //! overlap; that is harmless, since a ray only ever clips the box of the leaf it is in and every
 //! box is entirely empty. `format-spec.md` §5 states the same rule.
 
-use crate::build::subdivide::{BuildLevel, BuildNode};
 use crate::mapping::morton::{cell_origin, cell_size};
+use crate::pack::subdivide::{BuildLevel, BuildNode};
 use crate::physical::format::{VolumeRecord, VolumeShape};
 
 /// An empty leaf's merged volume: its box, and its shape relative to the leaf.

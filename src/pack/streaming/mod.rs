@@ -52,7 +52,7 @@ mod plan;
 use std::path::Path;
 use std::time::Instant;
 
-use super::pack::{PackOptions, PackReport, StreamingReport};
+use super::run::{PackOptions, PackReport, StreamingReport};
 use super::stats::{PhaseSeconds, TreeCounts};
 use super::subdivide::Lattice;
 use super::{BuildStats, Progress, is_degenerate};

@@ -6,7 +6,7 @@
 use rayon::prelude::*;
 
 use super::super::blocks::{ClusterGeometry, TopKind, assemble_top};
-use super::super::pack::PackOptions;
+use super::super::run::PackOptions;
 use super::super::spill::SpillBuckets;
 use super::super::stats::TreeCounts;
 use super::super::subdivide::Lattice;
