@@ -25,6 +25,7 @@ pub mod mesh;
 pub mod output;
 pub mod pack;
 pub mod physical;
+pub mod progress;
 pub mod rays;
 pub mod render;
 

@@ -808,3 +808,56 @@ fn sibenik_clusters_and_lists_find_the_same_closest_hits() {
     let shadow = shadow_rays(&primary, &closest(&clusters, &primary), default_light(&b));
     assert_eq!(any(&clusters, &shadow), any(&lists, &shadow));
 }
+
+/// A slab of 5,000 small random triangles, 1 long in x and 0.1 in y and z: the root cube is the
+/// slab's x extent on every axis, so the boxes of the top tree's nodes (the union of the link
+/// bounds below them, derived at open) are thin in y and z. The traversal that culls by them
+/// must cull some internal node of the top tree and still find every hit that an f64 brute force
+/// finds; and the file verifies (every link's bounds hold its block's triangles).
+#[test]
+fn top_tree_boxes_cull_rays_and_lose_no_hit() {
+    let mut rng = oavm::rays::SplitMix64::new(7);
+    let mut r = || rng.next_f64() as f32;
+    let mut mesh = Mesh::default();
+    for i in 0..5_000u32 {
+        let c = [r(), 0.45 + 0.1 * r(), 0.45 + 0.1 * r()];
+        for _ in 0..3 {
+            let s = [0.2, 0.02, 0.02];
+            mesh.positions
+                .push(std::array::from_fn(|k| c[k] + s[k] * (r() - 0.5)));
+        }
+        mesh.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
+    }
+    let opts = BuildOptions {
+        leaf_size: 8,
+        ..BuildOptions::default()
+    };
+    let (parts, _) = oavm::pack::build(&mesh, &opts, &oavm::pack::Quiet).unwrap();
+    let scene = Scene::from_bytes(oavm::pack::encode(&parts).unwrap(), "memory").unwrap();
+    assert!(scene.verify().unwrap().defects.is_empty());
+    let tree = scene.tree();
+    assert!(
+        tree.map().level_count() > 2,
+        "the top tree must have internal nodes to test"
+    );
+    let bounds = oavm::rays::Bounds::of_points(mesh.positions.iter().copied());
+    let rays: Vec<Ray> = random_rays(&bounds, 8_000, 3);
+    let tris = mesh.corners();
+    let diag = bounds.diagonal();
+    let mut c = oavm::Counters::default();
+    let mut hits = 0;
+    for ray in &rays {
+        let got = tree.intersect(ray, &mut c).unwrap();
+        let got = got.map_or(Hit::MISS, |g| Hit {
+            t: g.t,
+            prim: g.prim,
+        });
+        let want = reference::closest(&tris, ray);
+        hits += want.is_hit() as usize;
+        if !reference::grazes(&tris, ray) {
+            assert!(want.agrees(&got, diag), "{ray:?}: {want:?} against {got:?}");
+        }
+    }
+    assert!(hits > 80, "{hits} hits");
+    assert!(c.top_nodes_culled > 0, "{c:?}");
+}

@@ -481,7 +481,7 @@ fn run_pack(
     let pool = pool(threads.unwrap_or_else(cores).max(1))?;
     let report = py
         .detach(|| {
-            let bar = oavm::pack::bar::Progress::new(progress && std::io::stderr().is_terminal());
+            let bar = oavm::progress::Bar::new(progress && std::io::stderr().is_terminal());
             let r = pool.install(|| pack(&bar));
             bar.finish();
             r

@@ -113,7 +113,7 @@ fn main() -> ExitCode {
             updatable: args.updatable,
             bounds: args.bounds,
         };
-        let progress = cli::Progress::new(std::io::stderr().is_terminal());
+        let progress = oavm::progress::Bar::new(std::io::stderr().is_terminal());
         let report = cli::with_threads(args.threads, || {
             pack::pack(&args.mesh, &args.out, &opts, &progress)
         })?;

@@ -330,7 +330,7 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
     )?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
     // Streamed batches draw their rays done and blocks read (on a terminal, after a second).
-    let bar = std::sync::Arc::new(cli::Progress::new(std::io::IsTerminal::is_terminal(
+    let bar = std::sync::Arc::new(oavm::progress::Bar::new(std::io::IsTerminal::is_terminal(
         &std::io::stderr(),
     )));
     scene.set_progress(Some(bar.clone()));

@@ -36,10 +36,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::Error;
+use crate::geom::triangle::is_degenerate;
 use crate::geom::{Hit, Ray};
 use crate::logical::Counters;
 use crate::mesh::Mesh;
-use crate::pack::{BuildOptions, is_degenerate};
+use crate::pack::BuildOptions;
 
 /// Size of a built structure. What a "node" and a "pointer" are for each structure is written in
 /// its module documentation, matched to the paper's Table 2 where possible.

@@ -19,9 +19,9 @@ use crate::error::{Error, FormatError};
 use crate::geom::{Hit, HitAttributes, Ray};
 use crate::mapping::{Corruption, LevelInfos, TreeMap};
 use crate::os::MappedFile;
-use crate::pack::Progress;
 use crate::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_ROPES, SectionKind};
 use crate::physical::{BlockReader, OavmFile};
+use crate::progress::Progress;
 
 /// How an opened file is traced.
 #[derive(Clone, Copy, Debug)]

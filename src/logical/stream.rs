@@ -55,7 +55,7 @@ use super::held::Held;
 use super::pager::PageCounters;
 use super::trace::{Best, Counters, Entry, HitInfo, RayCtx, TraceError, Tree};
 use crate::geom::Ray;
-use crate::pack::Progress;
+use crate::progress::Progress;
 use crate::rays::shadow_ray;
 use std::time::Instant;
 

@@ -11,10 +11,10 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
+use crate::mapping::ClusterGeometry;
 use crate::mapping::morton::{self, cell_origin, cell_size};
 use crate::mapping::{LevelInfos, TreeMap};
-use crate::pack::ClusterGeometry;
-use crate::pack::check_cluster;
+use crate::physical::check_cluster;
 use crate::physical::format::*;
 use crate::physical::verify::{
     Defects, check_block_padding, check_block_placement, check_prim_chunks, check_sections,
@@ -294,7 +294,7 @@ fn check_table_complete(
             let stored = seen.get(prim as usize / 64).is_some_and(|w| {
                 w.load(std::sync::atomic::Ordering::Relaxed) >> (prim % 64) & 1 != 0
             });
-            let should = !r.is_absent() && !crate::pack::is_degenerate(&r.v);
+            let should = !r.is_absent() && !crate::geom::triangle::is_degenerate(&r.v);
             if stored != should {
                 if should {
                     missing += 1;
@@ -1021,7 +1021,8 @@ fn bounds_defect(
     let m = CELL_MARGIN;
     let lo: [f64; 3] = std::array::from_fn(|k| cell_lo[k] as f64 - m);
     let hi: [f64; 3] = std::array::from_fn(|k| (cell_lo[k] + size) as f64 + m);
-    let s16 = size as f64 / 16.0;
+    // The stored box, widened by the margin as the tracer widens it.
+    let (slo, shi) = bounds.lattice_box(cell_lo, size, m);
     for &t in leaf {
         let tri = tris.get(t as usize)?;
         let v: [[f64; 3]; 3] = std::array::from_fn(|i| {
@@ -1039,11 +1040,8 @@ fn bounds_defect(
             continue;
         };
         for k in 0..3 {
-            // The stored box, widened by the margin as the tracer widens it.
-            let slo = cell_lo[k] as f64 + bounds.lo[k] as f64 * s16 - m;
-            let shi = cell_lo[k] as f64 + (bounds.hi[k] as f64 + 1.0) * s16 + m;
             // Allow the rounding of recomputing the clip (far below the margin).
-            if a[k] < slo - 1e-6 || b[k] > shi + 1e-6 {
+            if a[k] < slo[k] - 1e-6 || b[k] > shi[k] + 1e-6 {
                 return Some(format!(
                     "tight bounds {bounds:?} do not contain triangle {t}"
                 ));

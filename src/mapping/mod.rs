@@ -28,3 +28,29 @@ mod tree_map;
 
 pub use rank::{rank, rank_words};
 pub use tree_map::{Corruption, LevelInfos, TreeMap};
+
+use crate::physical::format::CELL_MARGIN;
+use morton::LATTICE_SIZE;
+
+/// Where the lattice lies in world units: what turning solid leaves into clusters needs (each
+/// cluster's boxes are clipped to its leaf's widened cell, spec §7.1).
+#[derive(Clone, Copy, Debug)]
+pub struct ClusterGeometry {
+    pub root_min: [f64; 3],
+    pub root_size: f64,
+}
+
+impl ClusterGeometry {
+    /// The cell of the node of absolute level `level` and Morton code `code`, widened by
+    /// [`CELL_MARGIN`] lattice units, in world units.
+    pub fn widened_cell(&self, level: u32, code: u64) -> ([f64; 3], [f64; 3]) {
+        let size = morton::cell_size(level) as f64;
+        let lo = morton::cell_origin(code, level);
+        let unit = self.root_size / LATTICE_SIZE as f64;
+        let world = |k: usize, lattice: f64| self.root_min[k] + lattice * unit;
+        (
+            std::array::from_fn(|k| world(k, lo[k] as f64 - CELL_MARGIN)),
+            std::array::from_fn(|k| world(k, lo[k] as f64 + size + CELL_MARGIN)),
+        )
+    }
+}

@@ -30,7 +30,7 @@ use rayon::prelude::*;
 
 use super::cluster::{ClusterBuilder, ClusterTri};
 use crate::error::Error;
-use crate::mapping::{rank, rank_words};
+use crate::mapping::{ClusterGeometry, rank, rank_words};
 use crate::physical::format::*;
 use crate::physical::writer::{UnitParts, UnitRef};
 
@@ -279,29 +279,6 @@ pub fn partition(
         })
         .collect::<Result<Vec<_>, Error>>()?;
     Ok(Split { top, blocks })
-}
-
-/// Where the lattice lies in world units: what turning solid leaves into clusters needs (each
-/// cluster's boxes are clipped to its leaf's widened cell, spec §7.1).
-#[derive(Clone, Copy, Debug)]
-pub struct ClusterGeometry {
-    pub root_min: [f64; 3],
-    pub root_size: f64,
-}
-
-impl ClusterGeometry {
-    /// The cell of the node of absolute level `level` and Morton code `code`, widened by
-    /// [`CELL_MARGIN`] lattice units, in world units.
-    pub fn widened_cell(&self, level: u32, code: u64) -> ([f64; 3], [f64; 3]) {
-        let size = crate::mapping::morton::cell_size(level) as f64;
-        let lo = crate::mapping::morton::cell_origin(code, level);
-        let unit = self.root_size / LATTICE_SIZE as f64;
-        let world = |k: usize, lattice: f64| self.root_min[k] + lattice * unit;
-        (
-            std::array::from_fn(|k| world(k, lo[k] as f64 - CELL_MARGIN)),
-            std::array::from_fn(|k| world(k, lo[k] as f64 + size + CELL_MARGIN)),
-        )
-    }
 }
 
 /// The records of the subtrees rooted at nodes `group` of local level `l0` (absolute level

@@ -10,10 +10,9 @@
 //! chunk by chunk, for meshes larger than memory; [`pack`] is what `oavm-pack` runs.
 //!
 //! Format 4: [`build_cluster`] builds the compact wide BVH of one solid leaf (a cluster) and
-//! [`check_cluster`] re-derives from its records that it is well-formed and complete.
+//! [`crate::physical::check_cluster`] re-derives from its records that it is well-formed and
+//! complete.
 
-#[cfg(feature = "progress")]
-pub mod bar;
 pub(crate) mod blocks;
 mod cluster;
 mod layout;
@@ -40,12 +39,11 @@ use crate::error::Error;
 use crate::mesh::Mesh;
 use crate::physical::format::MAX_LEVEL;
 use crate::physical::format::{FLAG_CLUSTERS, FLAG_MERGED, Header};
-pub use blocks::ClusterGeometry;
+pub use crate::progress::{Progress, Quiet};
 pub use cluster::{
-    ClusterBuild, ClusterBuilder, ClusterError, ClusterShape, ClusterTri, build_cluster,
-    check_cluster, triangle_box,
+    ClusterBuild, ClusterBuilder, ClusterError, ClusterTri, build_cluster, triangle_box,
 };
-pub use prepare::{check_scale, is_degenerate};
+pub use prepare::check_scale;
 pub use run::{PackOptions, PackReport, StreamingReport, pack, pack_mesh, streaming_budget};
 pub use stats::{BuildStats, PointerCounts};
 use stats::{PhaseSeconds, TreeCounts};
@@ -132,21 +130,6 @@ impl BuildOptions {
         Ok(())
     }
 }
-
-/// What the builder reports while it works: a phase with its amount of work (bytes of the
-/// input, or items) if known, then how much of it is done. The binaries draw it as a progress
-/// bar; the library never draws.
-pub trait Progress: Sync {
-    fn phase(&self, _name: &str, _total: Option<u64>, _bytes: bool) {}
-    fn at(&self, _done: u64) {}
-    /// A note on the phase (what else it has done: blocks read, say).
-    fn note(&self, _text: &str) {}
-}
-
-/// No progress reporting.
-pub struct Quiet;
-
-impl Progress for Quiet {}
 
 /// The header fields the builder knows (spec §2); the writer sets the rest
 /// ([`crate::physical::writer::FileWriter::finish`]).

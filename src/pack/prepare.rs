@@ -5,6 +5,7 @@ use rayon::prelude::*;
 
 use super::subdivide::LatticeTri;
 use crate::error::Error;
+use crate::geom::triangle::is_degenerate;
 use crate::mesh::Mesh;
 use crate::physical::format::{LATTICE_SIZE, MAX_ROOT_SIZE, MIN_ROOT_SIZE, TriRecord, root_cube};
 
@@ -105,20 +106,6 @@ pub(super) fn prepare_within(
         mesh_min: lo,
         mesh_max: hi,
     })
-}
-
-/// A triangle whose edges' cross product is exactly zero in f64 (coincident or collinear
-/// corners): it has no area and no ray can hit it (`RAYS.md`: degenerate triangles keep their
-/// ids but are never hit), so it is not stored.
-pub fn is_degenerate(v: &[[f32; 3]; 3]) -> bool {
-    let e1: [f64; 3] = std::array::from_fn(|k| v[1][k] as f64 - v[0][k] as f64);
-    let e2: [f64; 3] = std::array::from_fn(|k| v[2][k] as f64 - v[0][k] as f64);
-    let c = [
-        e1[1] * e2[2] - e1[2] * e2[1],
-        e1[2] * e2[0] - e1[0] * e2[2],
-        e1[0] * e2[1] - e1[1] * e2[0],
-    ];
-    c == [0.0; 3]
 }
 
 /// Refuses a mesh whose extent (its root cube's edge) the f32 triangle test cannot trace

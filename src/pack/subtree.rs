@@ -6,7 +6,7 @@
 use rayon::prelude::*;
 
 use super::BuildOptions;
-use super::blocks::{ClusterGeometry, Split, partition};
+use super::blocks::{Split, partition};
 use super::layout::layout_from;
 use super::merge;
 use super::stats::TreeCounts;
@@ -15,6 +15,7 @@ use super::subdivide::{
     widened_cell,
 };
 use crate::error::Error;
+use crate::mapping::ClusterGeometry;
 use crate::physical::format::TriRecord;
 
 /// A subtree built and split into blocks.

@@ -37,14 +37,16 @@ use bytemuck::Zeroable;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::blocks::{BlockParts, ClusterGeometry, TopKind, TopNode, assemble_top};
+use super::blocks::{BlockParts, TopKind, TopNode, assemble_top};
 use super::merge::{self, Merged};
 use super::subdivide::{
     BuildLevel, BuildNode, Lattice, LatticeTri, box_misses, overlaps_cell, widened_cell,
 };
 use super::subtree::{Subtree, build_subtrees};
-use super::{BuildOptions, LeafKind, is_degenerate};
+use super::{BuildOptions, LeafKind};
 use crate::error::Error;
+use crate::geom::triangle::is_degenerate;
+use crate::mapping::ClusterGeometry;
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::mesh::Mesh;
 use crate::os::MappedFile;

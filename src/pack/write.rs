@@ -4,8 +4,9 @@
 
 use rayon::prelude::*;
 
-use super::blocks::{self, BlockParts, ClusterGeometry};
+use super::blocks::{self, BlockParts};
 use crate::error::Error;
+use crate::mapping::ClusterGeometry;
 use crate::output::Output;
 use crate::physical::AlignedBytes;
 use crate::physical::format::{FLAG_CLUSTERS, Header, PrimRecord};

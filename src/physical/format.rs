@@ -388,12 +388,36 @@ impl LeafBounds {
             | q(self.hi[2], 20)
     }
 
-    fn unpack(bits: u32) -> LeafBounds {
+    /// The bounds packed in `bits` (the low bits of [`NodeRecord::solid_bits`]), unvalidated:
+    /// any bits give sixteenths from 0 to 15, so a box inside the cell and its margin. The one
+    /// decoder of these bits, for the tracer's walks and for `verify`.
+    #[inline(always)]
+    pub fn unpack(bits: u32) -> LeafBounds {
         let q = |shift: u32| ((bits >> shift) & 15) as u8;
         LeafBounds {
             lo: [q(0), q(4), q(8)],
             hi: [q(12), q(16), q(20)],
         }
+    }
+
+    /// The box in lattice units of these bounds in the cell `[cell_lo, cell_lo + size)`,
+    /// widened by `margin` on every side: per axis `cell_lo + lo * size / 16 - margin` to
+    /// `cell_lo + (hi + 1) * size / 16 + margin`, in f64 (exact for lattice cells and the
+    /// format's margin).
+    #[inline(always)]
+    pub fn lattice_box(self, cell_lo: [u32; 3], size: u32, margin: f64) -> ([f64; 3], [f64; 3]) {
+        let s16 = size as f64 / 16.0;
+        (
+            std::array::from_fn(|a| cell_lo[a] as f64 + self.lo[a] as f64 * s16 - margin),
+            std::array::from_fn(|a| cell_lo[a] as f64 + (self.hi[a] as f64 + 1.0) * s16 + margin),
+        )
+    }
+
+    /// The edges of the box in lattice units (unwidened) in a cell of edge `size`.
+    #[inline(always)]
+    pub fn extent(self, size: u32) -> [f64; 3] {
+        let s16 = size as f64 / 16.0;
+        std::array::from_fn(|a| (self.hi[a] as f64 + 1.0 - self.lo[a] as f64) * s16)
     }
 
     pub fn is_valid(self) -> bool {

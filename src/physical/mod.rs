@@ -3,13 +3,15 @@
 //! file with `O(1)` checks and casting its sections in place ([`OavmFile`]), reading a block
 //! the one way the pager and `verify` both use ([`BlockReader`], [`BlockView`]), the link
 //! bounds beside the top tree's links ([`bounds`]), the byte-level part of verification
-//! ([`verify`]) and writing a file ([`writer`]).
+//! ([`verify`]; [`check_cluster`], which re-derives from a cluster's records alone that it is
+//! well-formed and holds what it must) and writing a file ([`writer`]).
 //!
 //! It imports nothing above it: no Morton codes, no tree walks (those are the mapping and
 //! logical layers', which read the records this layer casts).
 
 mod block;
 pub(crate) mod bounds;
+mod cluster_check;
 mod file;
 pub mod format;
 mod inspect;
@@ -17,6 +19,9 @@ pub(crate) mod verify;
 pub(crate) mod writer;
 
 pub use block::{BlockError, BlockReader, BlockView, ReadBlock};
+#[cfg(test)]
+pub(crate) use cluster_check::check_with_depth;
+pub use cluster_check::{ClusterShape, check_cluster};
 pub use file::{AlignedBytes, OavmFile, SlotState, generation_intact};
 pub use inspect::{
     DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel, inspect,

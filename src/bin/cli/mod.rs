@@ -46,10 +46,6 @@ pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
     print_text(&(text + "\n"))
 }
 
-/// The progress bar of the library's phases, shared with the Python bindings.
-#[allow(unused_imports)]
-pub use oavm::pack::bar::Progress;
-
 /// Runs `f` on a rayon pool of `threads` threads (0: one per core).
 pub fn with_threads<T: Send>(
     threads: usize,

@@ -441,7 +441,7 @@ fn split_stack_walk_past_its_register_takes_the_stack_walk() {
     }
 }
 
-/// OAVM's occluders (`build::occluders`) estimate costs with the SAH constants of this tree's
+/// OAVM's occluders (`pack::occluders`) estimate costs with the SAH constants of this tree's
 /// build, so that the two primitive indices are chosen alike.
 #[test]
 fn occluders_share_the_sah_constants() {

@@ -66,7 +66,7 @@ impl ClassicOctree {
             b.grow_point(p);
         }
         let (lo, hi) = (b.lo, b.hi);
-        // The root cube and lattice mapping of `build::prepare`, expression for expression.
+        // The root cube and lattice mapping of `pack::prepare`, expression for expression.
         let (root_min, root_size) = crate::physical::format::root_cube(lo, hi);
         let scale = LATTICE_SIZE as f64 / root_size;
         tree.root_min = root_min;

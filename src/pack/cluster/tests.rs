@@ -16,10 +16,11 @@ use std::path::PathBuf;
 
 use bytemuck::Zeroable;
 
-use super::check::check_with_depth;
 use super::*;
 use crate::geom::Ray;
 use crate::geom::reference::meet;
+use crate::geom::tribox::corner_bounds;
+use crate::physical::{check_cluster, check_with_depth};
 
 /// A small deterministic generator (xorshift64).
 struct Rng(u64);
@@ -56,7 +57,7 @@ fn load_tris(rel: &str) -> Vec<ClusterTri> {
             v: mesh.triangle(i),
             prim: i as u32,
         })
-        .filter(|t| !crate::pack::is_degenerate(&t.v))
+        .filter(|t| !crate::geom::triangle::is_degenerate(&t.v))
         .collect()
 }
 
@@ -383,7 +384,7 @@ fn every_hit_inside_the_clip_box_is_reachable_big_triangles() {
         );
         let v: [[f32; 3]; 3] =
             std::array::from_fn(|_| std::array::from_fn(|k| c[k] + rng.f(-reach, reach) as f32));
-        if !crate::pack::is_degenerate(&v) {
+        if !crate::geom::triangle::is_degenerate(&v) {
             tris.push(ClusterTri { v, prim: i });
         }
     }
@@ -584,7 +585,7 @@ fn far_from_the_origin_and_flat() {
                 prim: i,
             }
         })
-        .filter(|t| !crate::pack::is_degenerate(&t.v))
+        .filter(|t| !crate::geom::triangle::is_degenerate(&t.v))
         .collect();
     build_and_check(&tiny, ([0.0; 3], [2e-30; 3]));
 }
@@ -691,7 +692,7 @@ fn a_hundred_thousand_triangles() {
                 std::array::from_fn(|_| std::array::from_fn(|k| c[k] + rng.f(-0.01, 0.01) as f32));
             ClusterTri { v, prim: i }
         })
-        .filter(|t| !crate::pack::is_degenerate(&t.v))
+        .filter(|t| !crate::geom::triangle::is_degenerate(&t.v))
         .collect();
     let b = build_cluster(&tris, clip, 0, 0).unwrap();
     let shape = check_cluster(&b.nodes, &b.groups, 0, clip).unwrap();
@@ -872,6 +873,7 @@ mod stats {
     use crate::mapping::morton::{cell_origin, cell_size};
     use crate::pack::prepare::prepare;
     use crate::pack::subdivide::{BuildNode, SubdivideParams, subdivide};
+    use crate::physical::check_cluster;
     use crate::physical::format::{CELL_MARGIN, LATTICE_SIZE};
 
     /// Per-cluster figures, summed.

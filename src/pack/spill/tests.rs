@@ -169,7 +169,7 @@ fn killed_process_leaves_nothing() {
     let out = std::process::Command::new(std::env::current_exe().unwrap())
         .args([
             "--exact",
-            "build::spill::tests::killed_process_leaves_nothing",
+            "pack::spill::tests::killed_process_leaves_nothing",
             "--nocapture",
         ])
         .env("OAVM_SPILL_CHILD", dir.path())

@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use super::super::blocks::{ClusterGeometry, TopKind, assemble_top};
+use super::super::blocks::{TopKind, assemble_top};
 use super::super::run::PackOptions;
 use super::super::spill::SpillBuckets;
 use super::super::stats::TreeCounts;
@@ -16,6 +16,7 @@ use super::super::{HeaderFields, LeafKind, Progress};
 use super::plan::Plan;
 use super::{Bounds, PrimSpill, Written};
 use crate::error::Error;
+use crate::mapping::ClusterGeometry;
 use crate::output::Output;
 use crate::physical::format::{PRIM_CHUNK, PrimRecord};
 use crate::physical::writer::{FileSink, FileWriter};

@@ -3,7 +3,7 @@
 //! definition of what a box must contain) and the records, so a test can corrupt a box or an
 //! index and see it fail, and `verify` can run it on a file's blocks.
 
-use super::triangle_box;
+use crate::geom::tribox::triangle_box;
 use crate::physical::format::{
     CLUSTER_EXP_RANGE, CLUSTER_WIDTH, ClusterNode, GROUP_CORNERS, GROUP_LANES, MAX_CLUSTER_DEPTH,
     TriGroup,
@@ -50,7 +50,7 @@ pub fn check_cluster(
 /// An empty-or-not box: the intersection of the slot boxes on a path.
 type Bounds = ([f32; 3], [f32; 3]);
 
-pub(super) fn check_with_depth(
+pub(crate) fn check_with_depth(
     nodes: &[ClusterNode],
     groups: &[TriGroup],
     root: u32,

@@ -12,15 +12,15 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 /// with the phase and the elapsed time, or a bar with a rate and the time left when the amount
 /// of work is known. It stays hidden for the first second, so quick runs print nothing, and
 /// never draws when stderr is not a terminal.
-pub struct Progress {
+pub struct Bar {
     bar: ProgressBar,
     done: Arc<AtomicBool>,
     /// The phase's name, which a note follows.
     name: std::sync::Mutex<String>,
 }
 
-impl Progress {
-    pub fn new(enabled: bool) -> Progress {
+impl Bar {
+    pub fn new(enabled: bool) -> Bar {
         let bar = ProgressBar::hidden();
         bar.set_style(spinner());
         let done = Arc::new(AtomicBool::new(false));
@@ -34,7 +34,7 @@ impl Progress {
                 }
             });
         }
-        Progress {
+        Bar {
             bar,
             done,
             name: std::sync::Mutex::new(String::new()),
@@ -52,7 +52,7 @@ fn spinner() -> ProgressStyle {
         .unwrap_or_else(|_| ProgressStyle::default_spinner())
 }
 
-impl super::Progress for Progress {
+impl super::Progress for Bar {
     fn phase(&self, name: &str, total: Option<u64>, bytes: bool) {
         let style = match (total, bytes) {
             (None, _) => spinner(),
@@ -87,7 +87,7 @@ impl super::Progress for Progress {
     }
 }
 
-impl Drop for Progress {
+impl Drop for Bar {
     fn drop(&mut self) {
         self.finish();
     }
