@@ -304,6 +304,20 @@ pub fn intersect_triangle(ray: &Ray, v: &[[f32; 3]; 3]) -> Option<f32> {
     RayShear::new(ray).intersect(v, ray.tmin, ray.tmax)
 }
 
+/// A triangle whose edges' cross product is exactly zero in f64 (coincident or collinear
+/// corners): it has no area and no ray can hit it (`RAYS.md`: degenerate triangles keep their
+/// ids but are never hit), so it is not stored.
+pub fn is_degenerate(v: &[[f32; 3]; 3]) -> bool {
+    let e1: [f64; 3] = std::array::from_fn(|k| v[1][k] as f64 - v[0][k] as f64);
+    let e2: [f64; 3] = std::array::from_fn(|k| v[2][k] as f64 - v[0][k] as f64);
+    let c = [
+        e1[1] * e2[2] - e1[2] * e2[1],
+        e1[2] * e2[0] - e1[0] * e2[2],
+        e1[0] * e2[1] - e1[1] * e2[0],
+    ];
+    c == [0.0; 3]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -443,18 +457,4 @@ mod tests {
         let r = Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, -1.0], 3.0, 1.0);
         assert_eq!(intersect_triangle(&r, &TRI), None);
     }
-}
-
-/// A triangle whose edges' cross product is exactly zero in f64 (coincident or collinear
-/// corners): it has no area and no ray can hit it (`RAYS.md`: degenerate triangles keep their
-/// ids but are never hit), so it is not stored.
-pub fn is_degenerate(v: &[[f32; 3]; 3]) -> bool {
-    let e1: [f64; 3] = std::array::from_fn(|k| v[1][k] as f64 - v[0][k] as f64);
-    let e2: [f64; 3] = std::array::from_fn(|k| v[2][k] as f64 - v[0][k] as f64);
-    let c = [
-        e1[1] * e2[2] - e1[2] * e2[1],
-        e1[2] * e2[0] - e1[0] * e2[2],
-        e1[0] * e2[1] - e1[1] * e2[0],
-    ];
-    c == [0.0; 3]
 }

@@ -165,6 +165,59 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+/// The box every box on the way to triangle `v` must contain, in f32: the bounds of the part of
+/// the triangle inside the closed box `clip`, rounded outward to f32 and cut to the triangle's
+/// own bounds. The part is found by Sutherland–Hodgman clipping in f64
+/// (`geom::tribox::clipped_bounds`). A
+/// triangle that only touches `clip` (clipping leaves nothing, or rounding leaves an empty box)
+/// gets its bounds cut to `clip`, possibly flat; `None` if even those miss `clip` (nothing of it
+/// is inside).
+///
+/// The builder and the cluster checker ([`crate::physical::check_cluster`]) both call this, so the checker sees exactly the builder's
+/// boxes; `clip` must be bit for bit the builder's.
+pub fn triangle_box(
+    v: &[[f32; 3]; 3],
+    clip: &([f64; 3], [f64; 3]),
+) -> Option<([f32; 3], [f32; 3])> {
+    let (tlo, thi) = corner_bounds(v);
+    let (lo, hi) = clip;
+    // Wholly inside: clipping would give the triangle's own bounds.
+    if (0..3).all(|k| tlo[k] as f64 >= lo[k] && thi[k] as f64 <= hi[k]) {
+        return Some((tlo, thi));
+    }
+    let w: [[f64; 3]; 3] = v.map(|p| p.map(f64::from));
+    if let Some((a, b)) = clipped_bounds(&w, *lo, *hi) {
+        let blo: [f32; 3] = std::array::from_fn(|k| down(a[k]).max(tlo[k]));
+        let bhi: [f32; 3] = std::array::from_fn(|k| up(b[k]).min(thi[k]));
+        if (0..3).all(|k| blo[k] <= bhi[k]) {
+            return Some((blo, bhi));
+        }
+    }
+    let blo: [f32; 3] = std::array::from_fn(|k| tlo[k].max(down(lo[k])));
+    let bhi: [f32; 3] = std::array::from_fn(|k| thi[k].min(up(hi[k])));
+    (0..3).all(|k| blo[k] <= bhi[k]).then_some((blo, bhi))
+}
+
+/// The bounds of a triangle's corners.
+pub(crate) fn corner_bounds(v: &[[f32; 3]; 3]) -> ([f32; 3], [f32; 3]) {
+    (
+        std::array::from_fn(|k| v[0][k].min(v[1][k]).min(v[2][k])),
+        std::array::from_fn(|k| v[0][k].max(v[1][k]).max(v[2][k])),
+    )
+}
+
+/// The largest f32 `<= x`.
+pub(crate) fn down(x: f64) -> f32 {
+    let f = x as f32;
+    if f as f64 > x { f.next_down() } else { f }
+}
+
+/// The smallest f32 `>= x`.
+pub(crate) fn up(x: f64) -> f32 {
+    let f = x as f32;
+    if (f as f64) < x { f.next_up() } else { f }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -309,57 +362,4 @@ mod tests {
             }
         }
     }
-}
-
-/// The box every box on the way to triangle `v` must contain, in f32: the bounds of the part of
-/// the triangle inside the closed box `clip`, rounded outward to f32 and cut to the triangle's
-/// own bounds. The part is found by Sutherland–Hodgman clipping in f64
-/// (`geom::tribox::clipped_bounds`). A
-/// triangle that only touches `clip` (clipping leaves nothing, or rounding leaves an empty box)
-/// gets its bounds cut to `clip`, possibly flat; `None` if even those miss `clip` (nothing of it
-/// is inside).
-///
-/// The builder and the cluster checker ([`crate::physical::check_cluster`]) both call this, so the checker sees exactly the builder's
-/// boxes; `clip` must be bit for bit the builder's.
-pub fn triangle_box(
-    v: &[[f32; 3]; 3],
-    clip: &([f64; 3], [f64; 3]),
-) -> Option<([f32; 3], [f32; 3])> {
-    let (tlo, thi) = corner_bounds(v);
-    let (lo, hi) = clip;
-    // Wholly inside: clipping would give the triangle's own bounds.
-    if (0..3).all(|k| tlo[k] as f64 >= lo[k] && thi[k] as f64 <= hi[k]) {
-        return Some((tlo, thi));
-    }
-    let w: [[f64; 3]; 3] = v.map(|p| p.map(f64::from));
-    if let Some((a, b)) = clipped_bounds(&w, *lo, *hi) {
-        let blo: [f32; 3] = std::array::from_fn(|k| down(a[k]).max(tlo[k]));
-        let bhi: [f32; 3] = std::array::from_fn(|k| up(b[k]).min(thi[k]));
-        if (0..3).all(|k| blo[k] <= bhi[k]) {
-            return Some((blo, bhi));
-        }
-    }
-    let blo: [f32; 3] = std::array::from_fn(|k| tlo[k].max(down(lo[k])));
-    let bhi: [f32; 3] = std::array::from_fn(|k| thi[k].min(up(hi[k])));
-    (0..3).all(|k| blo[k] <= bhi[k]).then_some((blo, bhi))
-}
-
-/// The bounds of a triangle's corners.
-pub(crate) fn corner_bounds(v: &[[f32; 3]; 3]) -> ([f32; 3], [f32; 3]) {
-    (
-        std::array::from_fn(|k| v[0][k].min(v[1][k]).min(v[2][k])),
-        std::array::from_fn(|k| v[0][k].max(v[1][k]).max(v[2][k])),
-    )
-}
-
-/// The largest f32 `<= x`.
-pub(crate) fn down(x: f64) -> f32 {
-    let f = x as f32;
-    if f as f64 > x { f.next_down() } else { f }
-}
-
-/// The smallest f32 `>= x`.
-pub(crate) fn up(x: f64) -> f32 {
-    let f = x as f32;
-    if (f as f64) < x { f.next_up() } else { f }
 }

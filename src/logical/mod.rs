@@ -23,7 +23,7 @@ pub use pager::{BlockSource, PageCounters};
 pub use report::{Answered, PageReport, SetReport};
 pub use scene::{
     BYTES_PER_RAY, BlockReads, FALLBACK_MEM_BUDGET, IO_THREADS_PER_CORE, Scene, SceneInfo,
-    SceneOptions, Walk, default_mem_budget, max_rays,
+    SceneOptions, default_mem_budget, max_rays,
 };
-pub use trace::{Counters, HitInfo, TraceError, Tree};
+pub use trace::{Counters, HitInfo, TraceError, Tree, Walk};
 pub use verify::VerifyReport;

@@ -13,7 +13,7 @@ use super::order::{Order, RayKeys};
 use super::pager::{BlockBytes, BlockSource, PageCounters, PageError, Pager, PagerOptions};
 use super::stream::{Job, Stream, StreamOptions, Streamed, every_hit};
 use super::top_bounds::{LatticeBox, top_bounds};
-use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree};
+use super::trace::{BlockFetch, Counters, Direct, HitInfo, TraceError, Tree, Walk};
 use super::verify::VerifyReport;
 use crate::error::{Error, FormatError};
 use crate::geom::{Hit, HitAttributes, Ray};
@@ -41,24 +41,6 @@ pub struct SceneOptions {
     pub block_reads: BlockReads,
     /// Which walk traces the rays (see [`Walk`]).
     pub walk: Walk,
-}
-
-/// Which walk traces a scene's rays. Every walk gives the same answers.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Walk {
-    /// The fastest for the file: [`Walk::TopDown`] for a file of clusters, else
-    /// [`Walk::Neighbours`].
-    #[default]
-    Auto,
-    /// Top-down, nearest child first with a stack, as a BVH is walked (files of clusters).
-    TopDown,
-    /// The OAVM paper's walk: leaf to leaf across merged volumes, each next leaf found from the
-    /// lowest common ancestor of its cell and the last one (the computed Morton neighbour).
-    Neighbours,
-    /// The same walk, each next leaf found from the node the rope of the exit face names
-    /// (format-spec §8.4; a file packed with `--ropes`).
-    Ropes,
 }
 
 /// How the pager reads blocks when the budget is smaller than the file's blocks.

@@ -1,0 +1,142 @@
+//! A solid leaf's cluster (spec §7.1): a wide BVH of 8-wide nodes with quantized child boxes
+//! over groups of up to eight triangles (§7.2), traversed nearest child first with a stack of
+//! its own. Both walks enter clusters the same way, so they find the same hits.
+
+use super::ray::{Best, RayCtx};
+use super::{Counters, Held, HitInfo};
+use crate::geom::wide_box::grown_exit;
+use crate::os::Simd8;
+use crate::physical::format::{CLUSTER_WIDTH, MAX_CLUSTER_DEPTH, TriGroup};
+
+/// Traverses the cluster whose root is node `root` of the held block (spec §7.1), updating the
+/// walk's closest hit (ties to the smallest primitive id); with `ANY`, stops at the first hit
+/// and returns true. Bounded whatever the bytes: a tree visits each node at most once, so a
+/// walk that visits more nodes than the block has, or goes deeper than
+/// [`MAX_CLUSTER_DEPTH`], is reading something that is not a tree.
+#[inline(always)]
+pub(super) fn trace_cluster<const ANY: bool, S: Simd8>(
+    isa: S,
+    r: &RayCtx,
+    w: &mut Best,
+    h: &Held<'_>,
+    root: u32,
+    k: &mut Counters,
+    stack: &mut Vec<(u32, f32, u8)>,
+) -> Result<bool, &'static str> {
+    stack.clear();
+    stack.push((root, r.tmin, 0));
+    let mut visits = 0usize;
+    while let Some((ni, tnear, depth)) = stack.pop() {
+        // The box test's entries are not lower bounds (they may exceed the exact entry by
+        // about 2^-21 of it): a child whose box lies flat in the plane of the closest hit so
+        // far may hold a closer one, so the entry is compared as the test compares it.
+        if tnear > grown_exit(w.t_best) {
+            continue;
+        }
+        let Some(n) = h.cluster_nodes.get(ni as usize) else {
+            return Err("cluster node index out of range");
+        };
+        visits += 1;
+        if visits > h.cluster_nodes.len() {
+            return Err("cluster nodes do not form a tree");
+        }
+        k.cluster_nodes_visited += 1;
+        let count = (n.child_count as usize).min(CLUSTER_WIDTH);
+        k.boxes_tested += count as u64;
+        let (mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
+        let inner = n.inner_count as u32;
+        // Leaves first, nearest-first is not needed for them: all are tested now.
+        let inner_bits = (1u32 << inner.min(8)) - 1;
+        let mut leaf_mask = mask & !inner_bits;
+        while leaf_mask != 0 {
+            let i = leaf_mask.trailing_zeros();
+            leaf_mask &= leaf_mask - 1;
+            let gi = n.group_base as u64 + (i - inner) as u64;
+            let Some(g) = h.groups.get(gi as usize) else {
+                return Err("triangle group index out of range");
+            };
+            if test_group::<ANY, S>(isa, r, w, g, k) {
+                return Ok(true);
+            }
+        }
+        if mask & inner_bits != 0 {
+            push_nearest_first(stack, mask & inner_bits, &near, n.node_base, depth)?;
+        }
+    }
+    Ok(false)
+}
+
+/// Tests the lanes of group `g`, keeping the closest hit (ties to the smallest primitive id);
+/// with `ANY`, true at the first hit.
+#[inline(always)]
+fn test_group<const ANY: bool, S: Simd8>(
+    isa: S,
+    r: &RayCtx,
+    w: &mut Best,
+    g: &TriGroup,
+    k: &mut Counters,
+) -> bool {
+    k.groups_tested += 1;
+    k.triangles_tested += g.count.min(8) as u64;
+    let (mut hits, ts) = r
+        .shear
+        .intersect_group_with(isa, g.view(), r.tmin, w.t_best);
+    while hits != 0 {
+        let l = hits.trailing_zeros() as usize;
+        hits &= hits - 1;
+        let (t, prim) = (ts[l], g.prim[l]);
+        if ANY {
+            w.best = Some(HitInfo {
+                t,
+                prim,
+                v: g.triangle(l),
+            });
+            return true;
+        }
+        let better = match &w.best {
+            None => true,
+            Some(b) => (t, prim) < (b.t, b.prim),
+        };
+        if better {
+            w.t_best = t;
+            w.best = Some(HitInfo {
+                t,
+                prim,
+                v: g.triangle(l),
+            });
+        }
+    }
+    false
+}
+
+/// Pushes the inner children in `mask` (entered at `near`) of a node at `depth` whose inner
+/// children start at node `base`, so that the nearest is popped first.
+#[inline(always)]
+fn push_nearest_first(
+    stack: &mut Vec<(u32, f32, u8)>,
+    mut mask: u32,
+    near: &[f32; CLUSTER_WIDTH],
+    base: u32,
+    depth: u8,
+) -> Result<(), &'static str> {
+    const STACK: usize = (CLUSTER_WIDTH - 1) * MAX_CLUSTER_DEPTH + 1;
+    if depth as usize + 1 >= MAX_CLUSTER_DEPTH {
+        return Err("cluster deeper than the format allows");
+    }
+    let mut kids: [(f32, u32); CLUSTER_WIDTH] = [(0.0, 0); CLUSTER_WIDTH];
+    let mut nk = 0;
+    while mask != 0 {
+        let i = mask.trailing_zeros();
+        mask &= mask - 1;
+        kids[nk] = (near[i as usize], base.wrapping_add(i));
+        nk += 1;
+    }
+    kids[..nk].sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    for &(t, c) in &kids[..nk] {
+        if stack.len() >= STACK {
+            return Err("cluster deeper than the format allows");
+        }
+        stack.push((c, t, depth + 1));
+    }
+    Ok(())
+}
