@@ -278,22 +278,23 @@ impl Tree<'_> {
             recs,
             half: morton::cell_size(level) / 2,
         };
-        let (hits, n) = self.children_met::<ANY, S>(isa, r, w, e, &kids);
+        let mut hits: [(f64, u8, f64); 8] = [(0.0, 0, 0.0); 8];
+        let n = self.children_met::<ANY, S>(isa, r, w, e, &kids, &mut hits);
         for &(t, o, _) in &hits[..n] {
-            let Some(child) = self.child_entry(r, w, k, e, &kids, o as usize, t)? else {
-                continue;
-            };
-            if stack.len() >= STACK {
-                return Err(e.bad("traversal deeper than the lattice"));
+            if let Some(child) = self.child_entry(r, w, k, e, &kids, o as usize, t)? {
+                if stack.len() >= STACK {
+                    return Err(e.bad("traversal deeper than the lattice"));
+                }
+                stack.push(child);
             }
-            stack.push(child);
         }
         Ok(())
     }
 
     /// The children whose widened cells the ray meets over `[tmin, t_stop]` and that are not
-    /// empty leaves, as `(entry t, octant, order key)`, in the order to push them: the key
-    /// (the entry `t`, or with SATO minus the child's surface area) descending.
+    /// empty leaves, as `(entry t, octant, order key)` in `hits`, in the order to push them: the
+    /// key (the entry `t`, or with SATO minus the child's surface area) descending. Returns
+    /// how many.
     #[inline(always)]
     fn children_met<const ANY: bool, S: Simd8>(
         &self,
@@ -302,7 +303,8 @@ impl Tree<'_> {
         w: &Best,
         e: &Entry,
         kids: &Children<'_>,
-    ) -> ([(f64, u8, f64); 8], usize) {
+        hits: &mut [(f64, u8, f64); 8],
+    ) -> usize {
         let (enter_at, leave_at) = child_planes(r, e.lo, kids.half, morton::cell_size(kids.level));
         // The eight children at once; then only those met are looked at.
         let (met, enters) = isa.cell_hits(&enter_at, &leave_at, r.tmin as f64, w.t_stop);
@@ -315,7 +317,6 @@ impl Tree<'_> {
                 kids.is_internal(o as usize) || kids.recs[o as usize].kind_bits() != KIND_EMPTY;
             mask |= (live as u32) << o;
         }
-        let mut hits: [(f64, u8, f64); 8] = [(0.0, 0, 0.0); 8];
         let mut n = 0usize;
         let sato = ANY && self.sato;
         while mask != 0 {
@@ -337,7 +338,7 @@ impl Tree<'_> {
                 j -= 1;
             }
         }
-        (hits, n)
+        n
     }
 
     /// The stack entry of child `o` (entered at `t`), or `None` if its box culls it: an
