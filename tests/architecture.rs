@@ -13,6 +13,22 @@ const STACK: [&str; 13] = [
     "logical", "render", "compare",
 ];
 
+/// The files of `logical`, bottom first: each may import those before it. The walks (`trace`)
+/// know neither the stream that parks them nor the scene that runs them.
+const LOGICAL: [&str; 11] = [
+    "held",
+    "top_bounds",
+    "pager",
+    "trace",
+    "stream",
+    "order",
+    "batch",
+    "report",
+    "verify",
+    "scene",
+    "frame",
+];
+
 /// The module that may hold `unsafe` code (`#![deny(unsafe_code)]` elsewhere).
 const UNSAFE_HOME: &str = "os";
 
@@ -121,6 +137,13 @@ fn code_only(text: &str) -> String {
 /// The top-level modules that code in module `path` (a module path under `src/`) names: through
 /// `crate::x`, `crate::{x, y::z}` and `super::` chains that reach the crate root.
 fn imports(path: &[String], code: &str) -> BTreeSet<String> {
+    imports_under(path, code, &[])
+}
+
+/// The children of module `under` that code in module `path` names: through `crate::` paths and
+/// `super::` chains that resolve to `under::x` (groups `{a, b::c}` expanded at any depth).
+/// Names inside `path`'s own child of `under` are not imports of another child.
+fn imports_under(path: &[String], code: &str, under: &[&str]) -> BTreeSet<String> {
     let mut found = BTreeSet::new();
     let tokens: Vec<&str> = code
         .split(|c: char| {
@@ -134,9 +157,8 @@ fn imports(path: &[String], code: &str) -> BTreeSet<String> {
     while i < joined.len() {
         let rest = &joined[i..];
         let at_word = i == 0 || !(bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'_');
-        if at_word && rest.starts_with("crate::") {
-            take_names(&rest["crate::".len()..], &mut found);
-            i += "crate::".len();
+        let (base, after): (Vec<String>, &str) = if at_word && rest.starts_with("crate::") {
+            (Vec::new(), &rest["crate::".len()..])
         } else if at_word && rest.starts_with("super::") {
             let mut n = 0;
             let mut r = rest;
@@ -144,51 +166,78 @@ fn imports(path: &[String], code: &str) -> BTreeSet<String> {
                 n += 1;
                 r = &r["super::".len()..];
             }
-            // `n` supers from a module `path.len()` deep reach the crate root when n >= depth.
-            if n >= path.len() {
-                take_names(r, &mut found);
-            }
-            i += "super::".len() * n;
+            // `n` supers from module `path` name its ancestor `path[..len - n]` (the root when
+            // n >= len).
+            (path[..path.len().saturating_sub(n)].to_vec(), r)
         } else {
             i += rest.chars().next().map_or(1, char::len_utf8);
+            continue;
+        };
+        i += rest.len() - after.len();
+        for tail in expand(after) {
+            let full: Vec<&str> = base
+                .iter()
+                .map(String::as_str)
+                .chain(tail.iter().map(String::as_str))
+                .collect();
+            if full.len() > under.len() && full[..under.len()] == *under {
+                found.insert(full[under.len()].to_string());
+            }
         }
+    }
+    // A module's own child of `under` is not an import of another.
+    if path.len() > under.len() && path[..under.len()].iter().zip(under).all(|(a, b)| a == b) {
+        found.remove(&path[under.len()]);
     }
     found
 }
 
-/// The first path segment(s) of `rest`: one name, or each of a `{a, b::c}` group.
-fn take_names(rest: &str, found: &mut BTreeSet<String>) {
+/// The paths a use-path beginning at `rest` names, its `{...}` groups expanded: `a::b::{c,
+/// d::e}` gives `[a, b, c]` and `[a, b, d, e]`; the last segment may be an item, not a module.
+fn expand(rest: &str) -> Vec<Vec<String>> {
     let ident = |s: &str| -> String {
         s.chars()
             .take_while(|c| c.is_alphanumeric() || *c == '_')
             .collect()
     };
-    if let Some(group) = rest.strip_prefix('{') {
-        let mut depth = 1;
-        let mut start = true;
-        let mut j = 0;
-        let g = group.as_bytes();
-        while j < g.len() && depth > 0 {
-            match g[j] {
-                b'{' => depth += 1,
-                b'}' => depth -= 1,
-                b',' if depth == 1 => start = true,
-                b' ' => {}
-                _ if start && depth == 1 => {
-                    let name = ident(&group[j..]);
-                    if !name.is_empty() {
-                        found.insert(name);
+    let mut prefix = Vec::new();
+    let mut r = rest.trim_start();
+    loop {
+        if let Some(group) = r.strip_prefix('{') {
+            // Split the group at its top-level commas.
+            let mut out = Vec::new();
+            let (mut depth, mut start) = (1, 0);
+            for (j, c) in group.char_indices() {
+                match c {
+                    '{' => depth += 1,
+                    '}' | ',' if depth == 1 => {
+                        for t in expand(&group[start..j]) {
+                            out.push(prefix.iter().cloned().chain(t).collect());
+                        }
+                        start = j + 1;
+                        if c == '}' {
+                            return out;
+                        }
                     }
-                    start = false;
+                    '}' => depth -= 1,
+                    _ => {}
                 }
-                _ => {}
             }
-            j += 1;
+            return out;
         }
-    } else {
-        let name = ident(rest);
-        if !name.is_empty() {
-            found.insert(name);
+        let name = ident(r);
+        if name.is_empty() {
+            return if prefix.is_empty() {
+                Vec::new()
+            } else {
+                vec![prefix]
+            };
+        }
+        r = &r[name.len()..];
+        prefix.push(name);
+        match r.strip_prefix("::") {
+            Some(more) => r = more.trim_start(),
+            None => return vec![prefix],
         }
     }
 }
@@ -254,6 +303,56 @@ fn every_module_imports_only_modules_below_it() {
         bad.is_empty(),
         "imports of modules above in the stack ({}):\n{}",
         STACK.join(" < "),
+        bad.iter()
+            .map(|(f, m, n)| format!("  {f}: {m} imports {n}"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+}
+
+/// Imports between the files of `logical` against [`LOGICAL`]: `(file, module, imported)`.
+fn logical_violations(files: &[(Vec<String>, String, String)]) -> Vec<(String, String, String)> {
+    let rank = |m: &str| LOGICAL.iter().position(|s| *s == m);
+    let mut bad = Vec::new();
+    for (path, file, code) in files {
+        if path.first().map(String::as_str) != Some("logical") || path.len() < 2 {
+            continue;
+        }
+        let me = &path[1];
+        for name in imports_under(path, code, &["logical"]) {
+            match (rank(me), rank(&name)) {
+                (Some(a), Some(b)) if b < a => {}
+                // Names that are not files of `logical` (its re-exports) are checked where
+                // they are defined.
+                (_, None) => {}
+                _ => bad.push((file.clone(), me.clone(), name)),
+            }
+        }
+    }
+    bad
+}
+
+#[test]
+fn the_files_of_logical_import_only_those_below_them() {
+    let files = sources();
+    let children: BTreeSet<String> = files
+        .iter()
+        .filter(|(p, ..)| p.first().map(String::as_str) == Some("logical") && p.len() >= 2)
+        .map(|(p, ..)| p[1].clone())
+        .collect();
+    let unplaced: Vec<&String> = children
+        .iter()
+        .filter(|c| !LOGICAL.contains(&c.as_str()))
+        .collect();
+    assert!(
+        unplaced.is_empty(),
+        "files of logical not in its stack: {unplaced:?}"
+    );
+    let bad = logical_violations(&files);
+    assert!(
+        bad.is_empty(),
+        "imports of logical's files above them ({}):\n{}",
+        LOGICAL.join(" < "),
         bad.iter()
             .map(|(f, m, n)| format!("  {f}: {m} imports {n}"))
             .collect::<Vec<_>>()
@@ -345,10 +444,52 @@ fn the_checker_catches_upward_imports_in_every_form() {
             "// use crate::logical::Scene;\nlet s = \"crate::logical\";",
         ),
         file("physical/file", "/* crate::pack */ use super::format::*;"),
-        file("build/blocks", "use super::super::physical::format;"),
+        file("pack/blocks", "use super::super::physical::format;"),
         file("physical/block", "use super::file::OavmFile;"),
     ];
     for c in &fine {
         assert!(violations(std::slice::from_ref(c)).is_empty(), "{}", c.2);
+    }
+}
+
+#[test]
+fn the_checker_catches_circles_inside_logical() {
+    let cases = [
+        file("logical/trace", "use super::scene::Walk;"),
+        file("logical/trace/neighbours", "use super::super::stream::Job;"),
+        file("logical/trace/topdown", "use crate::logical::scene::Scene;"),
+        file("logical/pager", "use super::{held::ReadyMap, trace::Tree};"),
+        file("logical/held", "fn f() { crate::logical::{order::Order}; }"),
+    ];
+    for c in &cases {
+        assert_eq!(
+            logical_violations(std::slice::from_ref(c)).len(),
+            1,
+            "{}",
+            c.2
+        );
+    }
+    let fine = [
+        file("logical/stream", "use super::trace::{Best, Entry};"),
+        file(
+            "logical/trace/ray",
+            "use super::{HitInfo, Tree}; use super::super::held::Held;",
+        ),
+        file("logical/trace/cluster", "use super::ray::RayCtx;"),
+        file(
+            "logical/scene",
+            "use crate::logical::pager::Pager; use crate::physical::Header;",
+        ),
+        file(
+            "logical/pager/tests",
+            "use super::*; use super::super::held::ReadyMap;",
+        ),
+    ];
+    for c in &fine {
+        assert!(
+            logical_violations(std::slice::from_ref(c)).is_empty(),
+            "{}",
+            c.2
+        );
     }
 }
