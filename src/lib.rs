@@ -8,8 +8,19 @@
 //!   parent, child and neighbour queries on Morton codes;
 //! - [`logical`]: the octree with merged empty volumes as the tracer sees it, and the tracer.
 //!
-//! Beside them: [`mesh`] reads meshes, [`build`] turns a mesh into the physical bytes, [`geom`]
-//! holds the geometry kernels every part shares.
+//! Beside them: [`mesh`] reads meshes, [`pack`] turns a mesh into the physical bytes (and
+//! updates a packed file in place), [`render`] makes images with the tracer, [`geom`] holds the
+//! geometry kernels every part shares, [`progress`] reports long work.
+//!
+//! ```no_run
+//! # fn main() -> Result<(), oavm::Error> {
+//! use oavm::pack::{PackOptions, Quiet, pack};
+//! pack("data/bunny.ply".as_ref(), "bunny.oavm".as_ref(), &PackOptions::default(), &Quiet)?;
+//! let scene = oavm::Scene::open("bunny.oavm")?;
+//! # Ok(()) }
+//! ```
+//!
+//! `examples/minimal.rs` traces a batch of rays through such a file.
 
 #![deny(unsafe_code)]
 

@@ -51,7 +51,7 @@ pub use streaming::{BYTES_PER_CHUNK_TRIANGLE, HISTOGRAM_LEVEL};
 use subdivide::SubdivideParams;
 pub use write::{TreeParts, encode, encode_with};
 
-/// Build options. The defaults were chosen by measurement (see `tools/tune.rs` and the README).
+/// Build options. The defaults were chosen by measurement (see `tools/tune.sh` and the constants below).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct BuildOptions {
     /// Deepest level a leaf may have (`D`; the root is level 0). At most 21.

@@ -1,7 +1,7 @@
 //! Reading an `.oavm` file: O(1) checks at open, typed zero-copy views of the sections after.
 //!
 //! [`OavmFile`] is generic over its bytes (`D: AsRef<[u8]>`): tests run it on an
-//! [`AlignedBytes`] buffer, production on a [`super::mmap::MappedFile`], through the same code.
+//! [`AlignedBytes`] buffer, production on a [`crate::os::MappedFile`], through the same code.
 //! Opening checks the header, the section table and the level table (at most 22 entries), so its
 //! cost does not depend on the size of the file; the contents of the other sections are checked
 //! by [`super::verify`] on demand and bounds-checked by every reader as it goes.

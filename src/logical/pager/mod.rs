@@ -35,7 +35,7 @@
 //! bits for at most one pass over the ring, then evicts referenced blocks too, so hits racing
 //! the hand cannot keep it going round. **Eviction of a raw block is memory-safe while another
 //! thread reads it**: releasing drops pages, not the mapping, and a later access faults the
-//! same bytes back in from the file (see [`super::mmap::MappedFile::release`]). So a raw hit
+//! same bytes back in from the file (see [`crate::os::MappedFile::release`]). So a raw hit
 //! takes no pin, and writes nothing unless it sets the bit: one atomic load in the common case.
 //! The price is paid by budgets of a few blocks: a block evicted while its caller still walks
 //! it is read from the disk again.
@@ -643,7 +643,7 @@ impl Pager {
         c.misses += 1;
         c.bytes_read += entry.stored_len;
         self.evict_raw(src);
-        self.evict_zstd();
+        self.evict_slots();
         Ok(BlockBytes::Raw(self.raw_slice(src, block, entry)?))
     }
 
@@ -735,7 +735,7 @@ impl Pager {
             if self.state[block as usize].load(Ordering::Acquire) == BAD {
                 return Err(self.remembered(block));
             }
-            if let Some(guard) = self.zstd_hit(block) {
+            if let Some(guard) = self.slot_hit(block) {
                 c.hits += 1;
                 return Ok(BlockBytes::Decoded(SlotGuard(guard)));
             }
@@ -753,7 +753,7 @@ impl Pager {
 
     /// The slot holding `block`, locked for reading, if it holds it (waits while it is being
     /// filled).
-    fn zstd_hit(&self, block: u32) -> Option<RwLockReadGuard<'_, Slot>> {
+    fn slot_hit(&self, block: u32) -> Option<RwLockReadGuard<'_, Slot>> {
         let s = self.block_slot[block as usize].load(Ordering::Acquire);
         let slot = self.slots.get(s as usize)?;
         let guard = slot.read().unwrap_or_else(|p| p.into_inner());
@@ -857,7 +857,7 @@ impl Pager {
     /// nothing more to free. Freed slots hold no block and go to the free list. Called after
     /// an admission, holding at most the read lock of the slot just filled (which `try_write`
     /// then skips); under the clock mutex, which waits on nothing.
-    fn evict_zstd(&self) {
+    fn evict_slots(&self) {
         if self.slots.is_empty() || self.resident.load(Ordering::SeqCst) <= self.budget() {
             return;
         }
@@ -940,7 +940,7 @@ impl Pager {
                 if entry.codec == CODEC_ZSTD {
                     c.bytes_decompressed += entry.raw_len;
                 }
-                self.evict_zstd();
+                self.evict_slots();
                 self.evict_raw(src);
                 Ok(BlockBytes::Decoded(SlotGuard(read)))
             }
