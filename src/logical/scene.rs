@@ -152,7 +152,23 @@ pub struct SceneInfo {
 }
 
 impl Scene<MappedFile> {
-    /// Maps and opens the file at `path`, with the default options.
+    /// Maps and opens the file at `path`, with the default options. Opening checks the header,
+    /// the section table and the top tree (O(1) in the file's size) and reads no block: blocks
+    /// are paged in when a ray first needs them.
+    ///
+    /// ```
+    /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+    /// # let dir = tempfile::tempdir()?;
+    /// # let path = dir.path().join("bunny.oavm");
+    /// # let opts = oavm::pack::PackOptions::default();
+    /// # oavm::pack::pack("data/bunny.ply".as_ref(), &path, &opts, &oavm::pack::Quiet)?;
+    /// let scene = oavm::Scene::open(&path)?; // packed from data/bunny.ply
+    /// assert_eq!(scene.file().header().input_triangles, 69_451);
+    /// // A file that is not one is an error naming it, never a panic.
+    /// let err = oavm::Scene::open("data/bunny.ply").err().unwrap();
+    /// assert!(err.to_string().contains("data/bunny.ply"), "{err}");
+    /// # Ok(()) }
+    /// ```
     pub fn open(path: impl AsRef<Path>) -> Result<Scene<MappedFile>, Error> {
         Self::open_with(path, &SceneOptions::default())
     }
@@ -421,6 +437,36 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     /// Closest hits of `rays` into `out` (same length), in parallel, traced in
     /// [`Self::default_order`]: as given when the budget holds the file, streamed when it does
     /// not (see [`Self::intersect_batch_ordered`]; the answers are the same).
+    ///
+    /// ```
+    /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+    /// # let dir = tempfile::tempdir()?;
+    /// # let path = dir.path().join("bunny.oavm");
+    /// # let opts = oavm::pack::PackOptions::default();
+    /// # oavm::pack::pack("data/bunny.ply".as_ref(), &path, &opts, &oavm::pack::Quiet)?;
+    /// use oavm::{Hit, Ray, Scene};
+    /// let scene = Scene::open(&path)?; // the bunny
+    /// let h = scene.file().header();
+    /// let centre: [f32; 3] = std::array::from_fn(|k| (h.mesh_min[k] + h.mesh_max[k]) / 2.0);
+    /// // Two rays from outside the bunny's box toward its centre, and one away from it.
+    /// let rays = [
+    ///     Ray::new([centre[0], centre[1], 10.0], [0.0, 0.0, -1.0], 0.0, f32::INFINITY),
+    ///     Ray::new([centre[0], 10.0, centre[2]], [0.0, -1.0, 0.0], 0.0, f32::INFINITY),
+    ///     Ray::new([centre[0], centre[1], 10.0], [0.0, 0.0, 1.0], 0.0, f32::INFINITY),
+    /// ];
+    /// let mut hits = [Hit::MISS; 3];
+    /// let counters = scene.intersect_batch(&rays, &mut hits)?;
+    /// assert!(hits[0].is_hit() && hits[1].is_hit() && !hits[2].is_hit());
+    /// // The same answers as an f64 brute force over the mesh's triangles.
+    /// let mesh = oavm::mesh::load("data/bunny.ply".as_ref())?;
+    /// let diagonal = 0.3; // about the bunny's
+    /// for (ray, hit) in rays.iter().zip(&hits) {
+    ///     let want = oavm::geom::reference::closest(&mesh.corners(), ray);
+    ///     assert!(want.agrees(hit, diagonal), "{want:?} against {hit:?}");
+    /// }
+    /// assert_eq!(counters.rays, 3);
+    /// # Ok(()) }
+    /// ```
     pub fn intersect_batch(&self, rays: &[Ray], out: &mut [Hit]) -> Result<Counters, Error> {
         self.intersect_batch_ordered(rays, out, self.default_order())
     }
