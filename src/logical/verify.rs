@@ -84,20 +84,26 @@ struct UnitTotals {
     triangles: u64,
 }
 
+impl UnitTotals {
+    /// Grows the bounds to hold triangle `v`.
+    fn grow(&mut self, v: &[[f32; 3]; 3]) {
+        for p in v {
+            for (k, &c) in p.iter().enumerate() {
+                self.lo[k] = self.lo[k].min(c);
+                self.hi[k] = self.hi[k].max(c);
+            }
+        }
+    }
+}
+
+/// The block roots the top tree links to, by (block, root): each link's code and bounds.
+type Roots = std::collections::HashMap<(u32, u32), (u64, LinkBounds)>;
+
+/// Checks the contents of the top tree and of every block, the links between them, and the
+/// header's totals against what they hold.
 fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
     let header = file.header();
-    // The root cube holds the mesh (spec §2: fitted to it, or to bounds given at pack time
-    // that hold it; an update keeps the cube).
-    let inside = (0..3).all(|k| {
-        header.mesh_min[k] as f64 > header.root_min[k]
-            && (header.mesh_max[k] as f64) < header.root_min[k] + header.root_size
-    });
-    if !inside {
-        d.push(format!(
-            "header: mesh bounds {:?}..{:?} are not inside the root cube (min {:?}, size {})",
-            header.mesh_min, header.mesh_max, header.root_min, header.root_size
-        ));
-    }
+    check_root_cube(header, d);
 
     // The top tree.
     let top_infos = LevelInfos::new(file.levels(), 0);
@@ -127,13 +133,42 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
     check_ropes(&top, &top_index.codes, &top_index, None, header, d);
 
     // Links: every block root linked exactly once, from its level.
-    let directory = file.directory();
-    // (The map holds one entry per link: its size follows the top tree's, never the
-    // directory's claims.)
-    let mut roots: std::collections::HashMap<(u32, u32), (u64, LinkBounds)> =
-        std::collections::HashMap::new();
-    // Link bounds: well-formed on links, zero elsewhere (open checked there is one per node);
-    // each link's are compared with its block's leaves when the block is checked.
+    check_link_bounds(file, d);
+    let roots = linked_roots(file, &top_totals.links, d);
+
+    // The blocks: stored one after another inside the blocks section, each read as the pager
+    // reads it (entry, checksum, decoding) and checked like the top tree.
+    let placed = check_block_placement(file, d);
+    let prims = check_prim_chunks(file, d);
+    let (plausible, prims_seen) = prim_bits(header, file.bytes().len(), d);
+    let seen = Seen {
+        bits: &prims_seen,
+        table: &prims,
+    };
+    let results = check_blocks(file, &placed, &roots, &top_index, &seen);
+
+    let (totals, bounded) = sum_totals(top_totals, results, d);
+    check_totals(header, &totals, bounded, plausible, &seen, d);
+}
+
+/// The root cube holds the mesh (spec §2: fitted to it, or to bounds given at pack time that
+/// hold it; an update keeps the cube).
+fn check_root_cube(header: &Header, d: &mut Defects) {
+    let inside = (0..3).all(|k| {
+        header.mesh_min[k] as f64 > header.root_min[k]
+            && (header.mesh_max[k] as f64) < header.root_min[k] + header.root_size
+    });
+    if !inside {
+        d.push(format!(
+            "header: mesh bounds {:?}..{:?} are not inside the root cube (min {:?}, size {})",
+            header.mesh_min, header.mesh_max, header.root_min, header.root_size
+        ));
+    }
+}
+
+/// Link bounds: well-formed on links, zero elsewhere (open checked there is one per node);
+/// each link's are compared with its block's leaves when the block is checked.
+fn check_link_bounds<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects) {
     let link_bounds: &[LinkBounds] = file.records(SectionKind::LinkBounds);
     let top_nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
     for (i, (rec, lb)) in top_nodes.iter().zip(link_bounds).enumerate() {
@@ -148,7 +183,22 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
             ));
         }
     }
-    for &(b, root, level, code, at) in &top_totals.links {
+}
+
+/// The block roots the top tree's `links` name, with each link's code and bounds; a link past
+/// the directory, from another level than its block's roots or to a root the block does not
+/// have, and a root linked twice, are defects.
+fn linked_roots<D: AsRef<[u8]>>(
+    file: &OavmFile<D>,
+    links: &[(u32, u32, u32, u64, u64)],
+    d: &mut Defects,
+) -> Roots {
+    let directory = file.directory();
+    let link_bounds: &[LinkBounds] = file.records(SectionKind::LinkBounds);
+    // (The map holds one entry per link: its size follows the top tree's, never the
+    // directory's claims.)
+    let mut roots = Roots::new();
+    for &(b, root, level, code, at) in links {
         let bounds = link_bounds.get(at as usize).copied().unwrap_or_default();
         let Some(entry) = directory.get(b as usize) else {
             d.push(format!(
@@ -172,53 +222,72 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
             d.push(format!("block {b}: root {root} is linked twice"));
         }
     }
+    roots
+}
 
-    // The blocks: stored one after another inside the blocks section, each read as the pager
-    // reads it (entry, checksum, decoding) and checked like the top tree (in parallel; each
-    // decoded block is dropped when checked).
-    let bytes = file.bytes();
-    let placed = check_block_placement(file, d);
-    let prims = check_prim_chunks(file, d);
-    let reader = BlockReader::new(file);
-    // Distinct triangles, by primitive id: a bitset of `input_triangles` bits, at most as many
-    // bytes as the file has (a header claiming more is reported, and the count skipped), so
-    // that no header makes verify allocate more than the file's size.
-    let plausible = header.input_triangles <= 8 * bytes.len() as u64;
+/// The bitset of distinct triangles the blocks hold, by primitive id: `input_triangles` bits,
+/// at most as many bytes as the file has (a header claiming more is reported, and the bitset
+/// left empty), so that no header makes verify allocate more than the file's size. Returns
+/// whether the count is plausible, and the bitset.
+fn prim_bits(
+    header: &Header,
+    file_len: usize,
+    d: &mut Defects,
+) -> (bool, Vec<std::sync::atomic::AtomicU64>) {
+    let plausible = header.input_triangles <= 8 * file_len as u64;
     if !plausible {
         d.push(format!(
             "header: input_triangles {} is implausible for a file of {} bytes",
-            header.input_triangles,
-            bytes.len()
+            header.input_triangles, file_len
         ));
     }
-    let prims_seen: Vec<std::sync::atomic::AtomicU64> = (0..if plausible {
+    let bits = (0..if plausible {
         header.input_triangles.div_ceil(64)
     } else {
         0
     })
         .map(|_| std::sync::atomic::AtomicU64::new(0))
         .collect();
-    let results: Vec<(Defects, UnitTotals)> = (0..directory.len())
+    (plausible, bits)
+}
+
+/// Checks every placed block, in parallel (each decoded block is dropped when checked): the
+/// defects and totals of each, in block order.
+fn check_blocks<D: AsRef<[u8]> + Sync>(
+    file: &OavmFile<D>,
+    placed: &[bool],
+    roots: &Roots,
+    top: &TopNodes<'_>,
+    seen: &Seen<'_>,
+) -> Vec<(Defects, UnitTotals)> {
+    let header = file.header();
+    let directory = file.directory();
+    let reader = BlockReader::new(file);
+    (0..directory.len())
         .into_par_iter()
         .filter(|&b| placed[b])
         .map(|b| {
             let mut bd = Defects::default();
             let block = Block {
                 reader: &reader,
-                bytes,
+                bytes: file.bytes(),
                 id: b as u32,
                 entry: directory[b],
             };
-            let seen = Seen {
-                bits: &prims_seen,
-                table: &prims,
-            };
-            let totals = check_block(&block, header, &roots, &top_index, &seen, &mut bd);
+            let totals = check_block(&block, header, roots, top, seen, &mut bd);
             (bd, totals)
         })
-        .collect();
+        .collect()
+}
 
-    let mut totals = top_totals;
+/// The file's totals: the top tree's and the blocks' (whose defects are appended to `d`, in
+/// block order); and whether some unit held triangles (else the bounds are not set).
+fn sum_totals(
+    top: UnitTotals,
+    results: Vec<(Defects, UnitTotals)>,
+    d: &mut Defects,
+) -> (UnitTotals, bool) {
+    let mut totals = top;
     let mut first_bounds = true;
     for (bd, t) in results {
         d.append(bd);
@@ -238,6 +307,20 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
             first_bounds = false;
         }
     }
+    (totals, !first_bounds)
+}
+
+/// The header's counts against the file's totals: leaves, triangle records, distinct
+/// triangles (if the header's count is `plausible`), the primitive table's completeness, and
+/// the mesh bounds (if some unit held triangles: `bounded`).
+fn check_totals(
+    header: &Header,
+    totals: &UnitTotals,
+    bounded: bool,
+    plausible: bool,
+    seen: &Seen<'_>,
+    d: &mut Defects,
+) {
     if totals.empty != header.empty_leaves || totals.solid != header.solid_leaves {
         d.push(format!(
             "{} empty and {} solid leaves, the header says {} and {}",
@@ -250,7 +333,8 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
             totals.triangles, header.block_triangles
         ));
     }
-    let distinct: u64 = prims_seen
+    let distinct: u64 = seen
+        .bits
         .iter()
         .map(|w| w.load(std::sync::atomic::Ordering::Relaxed).count_ones() as u64)
         .sum();
@@ -260,8 +344,8 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
             header.stored_triangles
         ));
     }
-    check_table_complete(&prims, &prims_seen, d);
-    if !first_bounds && (totals.lo != header.mesh_min || totals.hi != header.mesh_max) {
+    check_table_complete(seen.table, seen.bits, d);
+    if bounded && (totals.lo != header.mesh_min || totals.hi != header.mesh_max) {
         d.push(format!(
             "header: mesh bounds {:?}..{:?} are not the triangles' bounds {:?}..{:?}",
             header.mesh_min, header.mesh_max, totals.lo, totals.hi
@@ -327,7 +411,7 @@ struct Block<'a> {
 fn check_block(
     block: &Block,
     header: &Header,
-    roots: &std::collections::HashMap<(u32, u32), (u64, LinkBounds)>,
+    roots: &Roots,
     top: &TopNodes<'_>,
     seen: &Seen<'_>,
     d: &mut Defects,
@@ -355,18 +439,7 @@ fn check_block(
         d.push(format!("block {b}: a root has no link in the top tree"));
         return UnitTotals::default();
     };
-    // Each link's bounds are exactly what the root's solid leaves give (spec §8.1); records
-    // that give none are reported by the unit check below.
-    if let Ok(computed) = crate::physical::bounds::root_bounds(view.levels, view.nodes) {
-        for (j, (c, (_, stored))) in computed.iter().zip(&linked).enumerate() {
-            if c != stored {
-                d.push(format!(
-                    "block {b}: the link to root {j} has bounds {:?}..{:?}, its leaves give {:?}..{:?}",
-                    stored.lo, stored.hi, c.lo, c.hi
-                ));
-            }
-        }
-    }
+    check_root_bounds(&view, &linked, b, d);
     let root_codes = linked.iter().map(|&(code, _)| code).collect();
     let infos = LevelInfos::new(view.levels, view.header.root_level);
     let unit = Unit {
@@ -392,6 +465,30 @@ fn check_block(
     if unit.clusters.is_none() {
         totals.triangles = view.triangles.len() as u64;
     }
+    check_block_prims(&view, b, seen, d);
+    check_leaf_kind(&view, b, &e, unit.clusters.is_some(), &totals, d);
+    totals
+}
+
+/// Each link's bounds are exactly what the root's solid leaves give (spec §8.1); records that
+/// give none are reported by the unit check.
+fn check_root_bounds(view: &BlockView<'_>, linked: &[(u64, LinkBounds)], b: u32, d: &mut Defects) {
+    if let Ok(computed) = crate::physical::bounds::root_bounds(view.levels, view.nodes) {
+        for (j, (c, (_, stored))) in computed.iter().zip(linked).enumerate() {
+            if c != stored {
+                d.push(format!(
+                    "block {b}: the link to root {j} has bounds {:?}..{:?}, its leaves give {:?}..{:?}",
+                    stored.lo, stored.hi, c.lo, c.hi
+                ));
+            }
+        }
+    }
+}
+
+/// Marks the primitives block `b` stores (triangle records, occluders and group lanes) as
+/// seen, and compares each with the primitive table, which holds the triangle as the block
+/// stores it (spec §8.6).
+fn check_block_prims(view: &BlockView<'_>, b: u32, seen: &Seen<'_>, d: &mut Defects) {
     let lanes = view
         .groups
         .iter()
@@ -403,7 +500,6 @@ fn check_block(
         if let Some(w) = seen.bits.get(prim as usize / 64) {
             w.fetch_or(1 << (prim % 64), std::sync::atomic::Ordering::Relaxed);
         }
-        // The primitive table holds the triangle as the block stores it (spec §8.6).
         if !seen.table.is_empty() {
             let c = (prim as u64 / PRIM_CHUNK) as usize;
             let i = (prim as u64 % PRIM_CHUNK) as usize;
@@ -426,24 +522,40 @@ fn check_block(
             "block {b}: {mismatched} stored triangles differ from the primitive table (primitive {prim}, first)"
         ));
     }
-    if unit.clusters.is_none() && !(view.cluster_nodes.is_empty() && view.groups.is_empty()) {
+}
+
+/// A block holds the parts of its file's kind of leaf only (leaf lists, or clusters:
+/// `clusters`), and a block of clusters the triangles its directory entry `e` says (block
+/// `b`'s `totals` count them).
+fn check_leaf_kind(
+    view: &BlockView<'_>,
+    b: u32,
+    e: &BlockEntry,
+    clusters: bool,
+    totals: &UnitTotals,
+    d: &mut Defects,
+) {
+    if !clusters && (!view.cluster_nodes.is_empty() || !view.groups.is_empty()) {
         d.push(format!(
             "block {b}: cluster nodes or groups in a file of leaf lists"
         ));
     }
-    if unit.clusters.is_some() && !(view.refs.is_empty() && view.triangles.is_empty()) {
+    if clusters && !(view.refs.is_empty() && view.triangles.is_empty()) {
         d.push(format!(
             "block {b}: references or triangle records in a file of clusters"
         ));
     }
-    if unit.clusters.is_some() && totals.triangles != e.triangles as u64 {
+    if clusters && totals.triangles != e.triangles as u64 {
         d.push(format!(
             "block {b}: its groups hold {} triangles, the directory says {}",
             totals.triangles, e.triangles
         ));
     }
-    totals
 }
+
+/// A leaf of a unit, for the leaf-order checks: the Morton key of its cell's lowest corner
+/// (the code at the deepest level), its level, index in the level, and kind.
+type Leaf = (u64, u32, u64, NodeKind);
 
 /// Checks one unit: node kinds, rank words, leaf order of references, volumes, triangles.
 fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
@@ -452,69 +564,98 @@ fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
         hi: [f32::NEG_INFINITY; 3],
         ..UnitTotals::default()
     };
-    let label = &u.label;
-    let base = u.map.base();
-    let levels = u.map.levels();
-    let (volumes, refs, tris) = (u.volumes, u.refs, u.tris);
-    let merged = header.flags & FLAG_MERGED != 0;
 
     // Node kinds, rank directory, and the leaves (for the order checks below).
-    let mut leaves: Vec<(u64, u32, u64, NodeKind)> = Vec::new();
-    for (ll, lv) in levels.iter().enumerate() {
-        let l = base + ll as u32;
-        let mut internal = 0u64;
-        let mut rank = 0u64;
-        for w in 0..lv.node_count.div_ceil(64) {
-            let Some(word) = u.map.rank_word(l, w) else {
-                d.push(format!("{label} level {l}: rank word {w} missing"));
-                break;
-            };
-            let mut bits = 0u64;
-            for i in 64 * w..(64 * w + 64).min(lv.node_count) {
-                let Ok(rec) = u.map.node(l, i) else {
-                    break;
-                };
-                match rec.kind() {
-                    None => d.push(format!(
-                        "{label} level {l} node {i}: invalid record {rec:?}"
-                    )),
-                    Some(NodeKind::Internal) => {
-                        bits |= 1 << (i % 64);
-                        internal += 1;
-                    }
-                    Some(NodeKind::Solid { .. }) if u.top => d.push(format!(
-                        "{label} level {l} node {i}: a solid leaf in the top tree"
-                    )),
-                    Some(NodeKind::Link { .. }) if !u.top => {
-                        d.push(format!("{label} level {l} node {i}: a link inside a block"))
-                    }
-                    Some(k) => {
-                        match k {
-                            NodeKind::Empty { .. } => totals.empty += 1,
-                            NodeKind::Solid { .. } => totals.solid += 1,
-                            _ => {}
-                        }
-                        leaves.push((0, l, i, k));
-                    }
-                }
-            }
-            if word.internal != bits || word.rank != rank {
-                d.push(format!(
-                    "{label} level {l} rank word {w}: stores bits {:#x} rank {}, the nodes give {bits:#x} and {rank}",
-                    word.internal, word.rank
-                ));
-            }
-            rank += bits.count_ones() as u64;
-        }
-        if internal != lv.internal_count {
-            d.push(format!(
-                "{label} level {l}: {internal} internal nodes, the level table says {}",
-                lv.internal_count
-            ));
-        }
+    let mut leaves: Vec<Leaf> = Vec::new();
+    for (ll, lv) in u.map.levels().iter().enumerate() {
+        check_level(u, ll, lv, &mut totals, &mut leaves, d);
     }
 
     // Leaf codes, for depth-first order: found from the roots by rank, never trusted from data.
+    order_leaves(u, &mut leaves, &mut totals, d);
+
+    // Solid leaves tile the references in depth-first order; empty leaves' volumes contain them.
+    // (Triangles are marked used from the leaves' ranges: a count word is not a reference.)
+    let mut walk = LeafWalk::new(u, header);
+    for leaf in &leaves {
+        walk.leaf(leaf, &mut totals, d);
+    }
+    walk.check_covered(d);
+
+    check_volumes(u, &walk.volume_used, d);
+    check_triangles(u, header, &walk.tri_used, &mut totals, d);
+    totals
+}
+
+/// Checks the node records of local level `ll` (`lv` its level entry) and their rank words
+/// and internal count; counts the leaves in `totals` and adds them to `leaves` (key 0, which
+/// [`order_leaves`] sets).
+fn check_level(
+    u: &Unit,
+    ll: usize,
+    lv: &LevelEntry,
+    totals: &mut UnitTotals,
+    leaves: &mut Vec<Leaf>,
+    d: &mut Defects,
+) {
+    let label = &u.label;
+    let l = u.map.base() + ll as u32;
+    let mut internal = 0u64;
+    let mut rank = 0u64;
+    for w in 0..lv.node_count.div_ceil(64) {
+        let Some(word) = u.map.rank_word(l, w) else {
+            d.push(format!("{label} level {l}: rank word {w} missing"));
+            break;
+        };
+        let mut bits = 0u64;
+        for i in 64 * w..(64 * w + 64).min(lv.node_count) {
+            let Ok(rec) = u.map.node(l, i) else {
+                break;
+            };
+            match rec.kind() {
+                None => d.push(format!(
+                    "{label} level {l} node {i}: invalid record {rec:?}"
+                )),
+                Some(NodeKind::Internal) => {
+                    bits |= 1 << (i % 64);
+                    internal += 1;
+                }
+                Some(NodeKind::Solid { .. }) if u.top => d.push(format!(
+                    "{label} level {l} node {i}: a solid leaf in the top tree"
+                )),
+                Some(NodeKind::Link { .. }) if !u.top => {
+                    d.push(format!("{label} level {l} node {i}: a link inside a block"))
+                }
+                Some(k) => {
+                    match k {
+                        NodeKind::Empty { .. } => totals.empty += 1,
+                        NodeKind::Solid { .. } => totals.solid += 1,
+                        _ => {}
+                    }
+                    leaves.push((0, l, i, k));
+                }
+            }
+        }
+        if word.internal != bits || word.rank != rank {
+            d.push(format!(
+                "{label} level {l} rank word {w}: stores bits {:#x} rank {}, the nodes give {bits:#x} and {rank}",
+                word.internal, word.rank
+            ));
+        }
+        rank += bits.count_ones() as u64;
+    }
+    if internal != lv.internal_count {
+        d.push(format!(
+            "{label} level {l}: {internal} internal nodes, the level table says {}",
+            lv.internal_count
+        ));
+    }
+}
+
+/// Gives each leaf the key of its cell from the codes found from the roots by rank, records
+/// the links in `totals`, and sorts the leaves into depth-first order.
+fn order_leaves(u: &Unit, leaves: &mut [Leaf], totals: &mut UnitTotals, d: &mut Defects) {
+    let base = u.map.base();
     let codes = level_codes(u, d);
     for leaf in leaves.iter_mut() {
         let (l, i) = (leaf.1, leaf.2);
@@ -531,192 +672,286 @@ fn check_unit(u: &Unit, header: &Header, d: &mut Defects) -> UnitTotals {
         }
     }
     leaves.sort_unstable_by_key(|&(key, ..)| key);
+}
 
-    // Solid leaves tile the references in depth-first order; empty leaves' volumes contain them.
-    // (Triangles are marked used from the leaves' ranges: a count word is not a reference.)
-    let mut tri_used = vec![false; tris.len()];
-    let mut next_ref = 0u64;
-    let (mut next_node, mut next_group) = (0u64, 0u64);
-    let mut volume_used = vec![false; volumes.len()];
-    for &(key, l, i, kind) in &leaves {
-        let lo = morton::decode(key);
-        let size = cell_size(l);
+/// Where a leaf is: its level, index in the level, Morton key, and cell (lowest corner and
+/// edge, lattice units).
+struct LeafAt {
+    l: u32,
+    i: u64,
+    key: u64,
+    lo: [u32; 3],
+    size: u32,
+}
+
+/// A solid leaf's record (see [`NodeKind::Solid`]).
+#[derive(Clone, Copy)]
+struct Solid {
+    first: u32,
+    inline_count: u32,
+    bounds: LeafBounds,
+}
+
+/// The walk of a unit's leaves in depth-first order: the solid leaves must tile the
+/// references (or, in a file of clusters, the cluster nodes and groups) in that order; the
+/// triangles and volumes the leaves use.
+struct LeafWalk<'u, 'a> {
+    u: &'u Unit<'a>,
+    header: &'u Header,
+    merged: bool,
+    tri_used: Vec<bool>,
+    volume_used: Vec<bool>,
+    /// Where the next solid leaf's references, cluster nodes and groups must start.
+    next_ref: u64,
+    next_node: u64,
+    next_group: u64,
+}
+
+impl<'u, 'a> LeafWalk<'u, 'a> {
+    fn new(u: &'u Unit<'a>, header: &'u Header) -> Self {
+        LeafWalk {
+            u,
+            header,
+            merged: header.flags & FLAG_MERGED != 0,
+            tri_used: vec![false; u.tris.len()],
+            volume_used: vec![false; u.volumes.len()],
+            next_ref: 0,
+            next_node: 0,
+            next_group: 0,
+        }
+    }
+
+    /// Checks the next leaf in depth-first order (links have nothing to check here).
+    fn leaf(&mut self, &(key, l, i, kind): &Leaf, totals: &mut UnitTotals, d: &mut Defects) {
+        let at = LeafAt {
+            l,
+            i,
+            key,
+            lo: morton::decode(key),
+            size: cell_size(l),
+        };
         match kind {
             NodeKind::Solid {
                 first,
                 inline_count,
                 bounds,
-            } if u.clusters.is_some() => {
-                let geometry = u.clusters.unwrap_or(ClusterGeometry {
-                    root_min: [0.0; 3],
-                    root_size: 1.0,
-                });
-                if inline_count != 0 {
-                    d.push(format!(
-                        "{label} level {l} node {i}: a cluster's leaf with a reference count"
-                    ));
-                }
-                if first as u64 != next_node {
-                    d.push(format!(
-                        "{label} level {l} node {i}: cluster root {first}, expected {next_node} (leaf order)"
-                    ));
-                }
-                let clip = geometry.widened_cell(l, key >> (3 * (MAX_LEVEL - l)));
-                match check_cluster(u.cluster_nodes, u.groups, first, clip) {
-                    Err(what) => {
-                        d.push(format!("{label} level {l} node {i}: cluster: {what}"));
-                        next_node = first as u64 + 1;
-                    }
-                    Ok(shape) => {
-                        if shape.groups.start as u64 != next_group {
-                            d.push(format!(
-                                "{label} level {l} node {i}: cluster groups start at {}, expected {next_group} (leaf order)",
-                                shape.groups.start
-                            ));
-                        }
-                        next_node = shape.nodes.end as u64;
-                        next_group = shape.groups.end as u64;
-                        let groups = u
-                            .groups
-                            .get(shape.groups.start as usize..shape.groups.end as usize)
-                            .unwrap_or(&[]);
-                        let lanes: Vec<TriRecord> = groups
-                            .iter()
-                            .flat_map(|g| {
-                                (0..g.count.min(8) as usize).map(|l| TriRecord {
-                                    v: g.triangle(l),
-                                    prim: g.prim[l],
-                                })
-                            })
-                            .collect();
-                        let all: Vec<u32> = (0..lanes.len() as u32).collect();
-                        if let Some(what) = bounds_defect(header, &lanes, &all, lo, size, bounds) {
-                            d.push(format!("{label} level {l} node {i}: {what}"));
-                        }
-                        for t in &lanes {
-                            if let Some(what) = triangle_defect(header, t) {
-                                d.push(format!("{label} level {l} node {i}: a lane's {what}"));
-                            }
-                            for p in &t.v {
-                                for (k, &c) in p.iter().enumerate() {
-                                    totals.lo[k] = totals.lo[k].min(c);
-                                    totals.hi[k] = totals.hi[k].max(c);
-                                }
-                            }
-                        }
-                        totals.triangles += lanes.len() as u64;
-                    }
-                }
-            }
-            NodeKind::Solid {
-                first,
-                inline_count,
-                bounds,
             } => {
-                if first as u64 != next_ref {
-                    d.push(format!(
-                        "{label} level {l} node {i}: references start at {first}, expected {next_ref} (leaf order)"
-                    ));
-                }
-                match leaf_refs(refs, first, inline_count) {
-                    None => {
-                        d.push(format!("{label} level {l} node {i}: references run past the refs or have a bad count word"));
-                        next_ref = first as u64 + inline_count.max(1) as u64;
-                    }
-                    Some((leaf, range)) => {
-                        next_ref = range.end as u64;
-                        for &t in leaf {
-                            match tri_used.get_mut(t as usize) {
-                                Some(used) => *used = true,
-                                None => d.push(format!(
-                                    "{label} level {l} node {i}: triangle {t} out of range"
-                                )),
-                            }
-                        }
-                        if !leaf.windows(2).all(|w| w[0] < w[1]) {
-                            d.push(format!(
-                                "{label} level {l} node {i}: references are not strictly increasing"
-                            ));
-                        }
-                        if let Some(what) = bounds_defect(header, tris, leaf, lo, size, bounds) {
-                            d.push(format!("{label} level {l} node {i}: {what}"));
-                        }
-                    }
+                let s = Solid {
+                    first,
+                    inline_count,
+                    bounds,
+                };
+                if self.u.clusters.is_some() {
+                    self.cluster_leaf(&at, s, totals, d);
+                } else {
+                    self.list_leaf(&at, s, d);
                 }
             }
-            NodeKind::Empty { volume, shape } => match volumes.get(volume as usize) {
-                None => d.push(format!(
-                    "{label} level {l} node {i}: volume {volume} out of range"
-                )),
-                Some(v) => {
-                    volume_used[volume as usize] = true;
-                    let contains = (0..3).all(|k| v.lo[k] <= lo[k] && lo[k] + size <= v.hi[k]);
-                    if !contains {
-                        d.push(format!(
-                            "{label} level {l} node {i}: volume {volume} does not contain the leaf"
-                        ));
-                    }
-                    let (slo, shi) = shape.box_around(lo);
-                    if !merged && (shape.level as u32 != l || shape.axes != 0) {
-                        d.push(format!("{label} level {l} node {i}: merged volume {shape:?} in a file built without merging"));
-                    }
-                    if shape.level as u32 > l || slo != v.lo || shi != v.hi {
-                        d.push(format!(
-                            "{label} level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
-                        ));
-                    }
-                }
-            },
+            NodeKind::Empty { volume, shape } => self.empty_leaf(&at, volume, shape, d),
             NodeKind::Internal | NodeKind::Link { .. } => {}
         }
     }
-    if next_ref != refs.len() as u64 {
-        d.push(format!(
-            "{label}: leaves reference {next_ref} of {} stored references",
-            refs.len()
-        ));
-    }
-    if next_node != u.cluster_nodes.len() as u64 || next_group != u.groups.len() as u64 {
-        d.push(format!(
-            "{label}: clusters hold nodes 0..{next_node} and groups 0..{next_group} of {} and {}",
-            u.cluster_nodes.len(),
-            u.groups.len()
-        ));
+
+    /// A solid leaf of a file of clusters: its cluster is sound and starts where the previous
+    /// leaf's ended (nodes and groups), and its tight bounds hold its lanes' triangles, which
+    /// count in the unit's totals.
+    fn cluster_leaf(&mut self, at: &LeafAt, s: Solid, totals: &mut UnitTotals, d: &mut Defects) {
+        let u = self.u;
+        let (label, l, i) = (&u.label, at.l, at.i);
+        let Solid {
+            first,
+            inline_count,
+            bounds,
+        } = s;
+        let geometry = u.clusters.unwrap_or(ClusterGeometry {
+            root_min: [0.0; 3],
+            root_size: 1.0,
+        });
+        if inline_count != 0 {
+            d.push(format!(
+                "{label} level {l} node {i}: a cluster's leaf with a reference count"
+            ));
+        }
+        let next_node = self.next_node;
+        if first as u64 != next_node {
+            d.push(format!(
+                "{label} level {l} node {i}: cluster root {first}, expected {next_node} (leaf order)"
+            ));
+        }
+        let clip = geometry.widened_cell(l, at.key >> (3 * (MAX_LEVEL - l)));
+        let shape = match check_cluster(u.cluster_nodes, u.groups, first, clip) {
+            Err(what) => {
+                d.push(format!("{label} level {l} node {i}: cluster: {what}"));
+                self.next_node = first as u64 + 1;
+                return;
+            }
+            Ok(shape) => shape,
+        };
+        let next_group = self.next_group;
+        if shape.groups.start as u64 != next_group {
+            d.push(format!(
+                "{label} level {l} node {i}: cluster groups start at {}, expected {next_group} (leaf order)",
+                shape.groups.start
+            ));
+        }
+        self.next_node = shape.nodes.end as u64;
+        self.next_group = shape.groups.end as u64;
+        let groups = u
+            .groups
+            .get(shape.groups.start as usize..shape.groups.end as usize)
+            .unwrap_or(&[]);
+        let lanes: Vec<TriRecord> = groups
+            .iter()
+            .flat_map(|g| {
+                (0..g.count.min(8) as usize).map(|l| TriRecord {
+                    v: g.triangle(l),
+                    prim: g.prim[l],
+                })
+            })
+            .collect();
+        let all: Vec<u32> = (0..lanes.len() as u32).collect();
+        if let Some(what) = bounds_defect(self.header, &lanes, &all, at.lo, at.size, bounds) {
+            d.push(format!("{label} level {l} node {i}: {what}"));
+        }
+        for t in &lanes {
+            if let Some(what) = triangle_defect(self.header, t) {
+                d.push(format!("{label} level {l} node {i}: a lane's {what}"));
+            }
+            totals.grow(&t.v);
+        }
+        totals.triangles += lanes.len() as u64;
     }
 
-    // Volumes: valid boxes in the lattice, used, and overlapping no solid leaf (nor, in the top
-    // tree, any block's subtree).
-    for (i, v) in volumes.iter().enumerate() {
+    /// A solid leaf of a file of leaf lists: its references start where the previous leaf's
+    /// ended and name triangles of the unit in increasing order, which its tight bounds hold.
+    fn list_leaf(&mut self, at: &LeafAt, s: Solid, d: &mut Defects) {
+        let u = self.u;
+        let (label, l, i) = (&u.label, at.l, at.i);
+        let Solid {
+            first,
+            inline_count,
+            bounds,
+        } = s;
+        let next_ref = self.next_ref;
+        if first as u64 != next_ref {
+            d.push(format!(
+                "{label} level {l} node {i}: references start at {first}, expected {next_ref} (leaf order)"
+            ));
+        }
+        let Some((leaf, range)) = leaf_refs(u.refs, first, inline_count) else {
+            d.push(format!(
+                "{label} level {l} node {i}: references run past the refs or have a bad count word"
+            ));
+            self.next_ref = first as u64 + inline_count.max(1) as u64;
+            return;
+        };
+        self.next_ref = range.end as u64;
+        for &t in leaf {
+            match self.tri_used.get_mut(t as usize) {
+                Some(used) => *used = true,
+                None => d.push(format!(
+                    "{label} level {l} node {i}: triangle {t} out of range"
+                )),
+            }
+        }
+        if !leaf.windows(2).all(|w| w[0] < w[1]) {
+            d.push(format!(
+                "{label} level {l} node {i}: references are not strictly increasing"
+            ));
+        }
+        if let Some(what) = bounds_defect(self.header, u.tris, leaf, at.lo, at.size, bounds) {
+            d.push(format!("{label} level {l} node {i}: {what}"));
+        }
+    }
+
+    /// An empty leaf: its volume is in the table and contains its cell, and the leaf's shape
+    /// gives that volume's box (its own cell's, in a file built without merging).
+    fn empty_leaf(&mut self, at: &LeafAt, volume: u32, shape: VolumeShape, d: &mut Defects) {
+        let (label, l, i, lo, size) = (&self.u.label, at.l, at.i, at.lo, at.size);
+        let Some(v) = self.u.volumes.get(volume as usize) else {
+            d.push(format!(
+                "{label} level {l} node {i}: volume {volume} out of range"
+            ));
+            return;
+        };
+        self.volume_used[volume as usize] = true;
+        let contains = (0..3).all(|k| v.lo[k] <= lo[k] && lo[k] + size <= v.hi[k]);
+        if !contains {
+            d.push(format!(
+                "{label} level {l} node {i}: volume {volume} does not contain the leaf"
+            ));
+        }
+        let (slo, shi) = shape.box_around(lo);
+        if !self.merged && (shape.level as u32 != l || shape.axes != 0) {
+            d.push(format!("{label} level {l} node {i}: merged volume {shape:?} in a file built without merging"));
+        }
+        if shape.level as u32 > l || slo != v.lo || shi != v.hi {
+            d.push(format!(
+                "{label} level {l} node {i}: volume shape {shape:?} gives {slo:?}..{shi:?}, the volume table {v:?}"
+            ));
+        }
+    }
+
+    /// After the last leaf: the solid leaves covered every reference, cluster node and group.
+    fn check_covered(&self, d: &mut Defects) {
+        let u = self.u;
+        let label = &u.label;
+        let (next_ref, next_node, next_group) = (self.next_ref, self.next_node, self.next_group);
+        if next_ref != u.refs.len() as u64 {
+            d.push(format!(
+                "{label}: leaves reference {next_ref} of {} stored references",
+                u.refs.len()
+            ));
+        }
+        if next_node != u.cluster_nodes.len() as u64 || next_group != u.groups.len() as u64 {
+            d.push(format!(
+                "{label}: clusters hold nodes 0..{next_node} and groups 0..{next_group} of {} and {}",
+                u.cluster_nodes.len(),
+                u.groups.len()
+            ));
+        }
+    }
+}
+
+/// Volumes: valid boxes in the lattice, used (`used`, by an empty leaf), and overlapping no
+/// solid leaf (nor, in the top tree, any block's subtree).
+fn check_volumes(u: &Unit, used: &[bool], d: &mut Defects) {
+    let label = &u.label;
+    for (i, v) in u.volumes.iter().enumerate() {
         if !(0..3).all(|k| v.lo[k] < v.hi[k] && v.hi[k] <= LATTICE_SIZE) {
             d.push(format!(
                 "{label} volume {i}: {v:?} is not a box inside the lattice"
             ));
             continue;
         }
-        if !volume_used[i] {
+        if !used[i] {
             d.push(format!("{label} volume {i}: referenced by no empty leaf"));
         }
         if let Some(what) = solid_leaf_inside(u, v) {
             d.push(format!("{label} volume {i}: {what}"));
         }
     }
+}
 
-    // Triangles (each referenced by some leaf's references, marked above).
-    for (i, t) in tris.iter().enumerate() {
+/// Triangles: sound on their own, each referenced by some leaf's references (`used`, marked
+/// by the leaf walk); their corners grow the unit's bounds.
+fn check_triangles(
+    u: &Unit,
+    header: &Header,
+    used: &[bool],
+    totals: &mut UnitTotals,
+    d: &mut Defects,
+) {
+    let label = &u.label;
+    for (i, t) in u.tris.iter().enumerate() {
         if let Some(what) = triangle_defect(header, t) {
             d.push(format!("{label} triangle {i}: {what}"));
         }
-        if !tri_used[i] {
+        if !used[i] {
             d.push(format!("{label} triangle {i}: referenced by no leaf"));
         }
-        for p in &t.v {
-            for (k, &c) in p.iter().enumerate() {
-                totals.lo[k] = totals.lo[k].min(c);
-                totals.hi[k] = totals.hi[k].max(c);
-            }
-        }
+        totals.grow(&t.v);
     }
-    totals
 }
 
 /// The Morton codes of a unit's nodes, by local level, generated from its roots by rank: level
@@ -779,27 +1014,7 @@ fn check_occluders(
         d.push(format!("{label}: occluders in a file of leaf lists"));
         return;
     }
-    // The block's triangles by primitive id (a triangle of two leaves has the same corners in
-    // both: verify checks the leaves against each other elsewhere).
-    let mut tris: std::collections::HashMap<u32, [[f32; 3]; 3]> = std::collections::HashMap::new();
-    for t in u.tris {
-        tris.insert(t.prim, t.v);
-    }
-    for g in u.groups {
-        for l in 0..(g.count as usize).min(8) {
-            tris.insert(g.prim[l], g.triangle(l));
-        }
-    }
-    // Level and index in the level of every node record.
-    let levels = u.map.levels();
-    let base = u.map.base();
-    let locate = |at: u64| -> Option<(u32, u64)> {
-        levels
-            .iter()
-            .enumerate()
-            .find(|(_, e)| at >= e.node_start && at < e.node_start + e.node_count)
-            .map(|(l, e)| (base + l as u32, at - e.node_start))
-    };
+    let tris = triangles_by_prim(u);
     let scale = LATTICE_SIZE as f64 / header.root_size;
     let m = CELL_MARGIN;
     for (i, e) in entries.iter().enumerate() {
@@ -815,27 +1030,7 @@ fn check_occluders(
             ));
             return;
         }
-        let Some((level, idx)) = locate(e.node as u64) else {
-            d.push(format!(
-                "{label}: occluder entry {i} names node {}, past the block's",
-                e.node
-            ));
-            continue;
-        };
-        match u.map.node(level, idx) {
-            Ok(rec) if rec.kind_bits() == KIND_INTERNAL => {}
-            _ => {
-                d.push(format!(
-                    "{label}: occluder entry {i} names node {}, not an internal node",
-                    e.node
-                ));
-                continue;
-            }
-        }
-        let Some(&code) = codes
-            .get((level - base) as usize)
-            .and_then(|c| c.get(idx as usize))
-        else {
+        let Some((level, code)) = occluder_node(u, codes, i, e, d) else {
             continue;
         };
         let lo = cell_origin(code, level).map(|x| x as f64 - m);
@@ -862,6 +1057,64 @@ fn check_occluders(
             }
         }
     }
+}
+
+/// The block's triangles by primitive id (a triangle of two leaves has the same corners in
+/// both: verify checks the leaves against each other elsewhere).
+fn triangles_by_prim(u: &Unit) -> std::collections::HashMap<u32, [[f32; 3]; 3]> {
+    let mut tris: std::collections::HashMap<u32, [[f32; 3]; 3]> = std::collections::HashMap::new();
+    for t in u.tris {
+        tris.insert(t.prim, t.v);
+    }
+    for g in u.groups {
+        for l in 0..(g.count as usize).min(8) {
+            tris.insert(g.prim[l], g.triangle(l));
+        }
+    }
+    tris
+}
+
+/// The level and code of the node occluder entry `i` (`e`) names; `None` where it names none
+/// of the block's nodes or not an internal node (defects), or a node of no code.
+fn occluder_node(
+    u: &Unit,
+    codes: &[Vec<u64>],
+    i: usize,
+    e: &OccluderNode,
+    d: &mut Defects,
+) -> Option<(u32, u64)> {
+    let label = &u.label;
+    // Level and index in the level of every node record.
+    let levels = u.map.levels();
+    let base = u.map.base();
+    let locate = |at: u64| -> Option<(u32, u64)> {
+        levels
+            .iter()
+            .enumerate()
+            .find(|(_, e)| at >= e.node_start && at < e.node_start + e.node_count)
+            .map(|(l, e)| (base + l as u32, at - e.node_start))
+    };
+    let Some((level, idx)) = locate(e.node as u64) else {
+        d.push(format!(
+            "{label}: occluder entry {i} names node {}, past the block's",
+            e.node
+        ));
+        return None;
+    };
+    match u.map.node(level, idx) {
+        Ok(rec) if rec.kind_bits() == KIND_INTERNAL => {}
+        _ => {
+            d.push(format!(
+                "{label}: occluder entry {i} names node {}, not an internal node",
+                e.node
+            ));
+            return None;
+        }
+    }
+    let &code = codes
+        .get((level - base) as usize)
+        .and_then(|c| c.get(idx as usize))?;
+    Some((level, code))
 }
 
 /// Spec §8.4: a unit's ropes are there exactly when the file says so; an internal node's are
@@ -893,14 +1146,7 @@ fn check_ropes(
         ));
         return;
     }
-    // Level and index in level of a node record, in a unit's map.
-    let locate = |map: &TreeMap<'_>, index: u64| {
-        let base = map.base();
-        map.levels().iter().enumerate().find_map(|(ll, e)| {
-            (index >= e.node_start && index - e.node_start < e.node_count)
-                .then(|| (base + ll as u32, index - e.node_start))
-        })
-    };
+    let targets = RopeTargets { u, codes, top, own };
     let base = u.map.base();
     let mut defects = 0usize;
     for (ll, e) in u.map.levels().iter().enumerate() {
@@ -933,71 +1179,8 @@ fn check_ropes(
                 (cell, cell.map(|x| x + cell_size(level)))
             };
             for (f, &rope) in ropes.across.iter().enumerate() {
-                let (a, positive) = (f / 2, f % 2 == 1);
-                let across = if positive {
-                    hi[a]
-                } else {
-                    lo[a].wrapping_sub(1)
-                };
-                let outside = across >= LATTICE_SIZE || hi.iter().any(|&h| h > LATTICE_SIZE);
-                if outside || rope == ROPE_EXIT {
-                    if outside != (rope == ROPE_EXIT) {
-                        fail(format!(
-                            "face {f}: rope {rope:#x}, but the face is {} the root's boundary",
-                            if outside { "on" } else { "not on" }
-                        ));
-                    }
-                    continue;
-                }
-                let mut r_lo = lo;
-                let mut r_hi = hi.map(|h| h - 1);
-                r_lo[a] = across;
-                r_hi[a] = across;
-                let to_top = rope & ROPE_TOP != 0;
-                if !to_top && own.is_none() {
-                    fail(format!(
-                        "face {f}: a top-tree rope {rope:#x} without the top bit"
-                    ));
-                    continue;
-                }
-                let (map, unit_codes): (&TreeMap<'_>, &[Vec<u64>]) = if to_top {
-                    (&top.map, &top.codes)
-                } else {
-                    (&u.map, codes)
-                };
-                let index = (rope & !ROPE_TOP) as u64;
-                let Some((tl, ti)) = locate(map, index) else {
-                    fail(format!("face {f}: rope {rope:#x} names no node"));
-                    continue;
-                };
-                let Some(&tcode) = unit_codes
-                    .get((tl - map.base()) as usize)
-                    .and_then(|c| c.get(ti as usize))
-                else {
-                    fail(format!("face {f}: rope {rope:#x} names a node of no code"));
-                    continue;
-                };
-                let Ok(trec) = map.node(tl, ti) else {
-                    fail(format!("face {f}: rope {rope:#x} names an unreadable node"));
-                    continue;
-                };
-                let contains = morton::code_at_level(r_lo, tl) == tcode
-                    && morton::code_at_level(r_hi, tl) == tcode;
-                let smallest = match trec.kind() {
-                    Some(NodeKind::Internal) => tl == morton::common_level(r_lo, r_hi),
-                    Some(NodeKind::Link { block, .. }) => Some(block) != own,
-                    _ => true,
-                };
-                if !contains || !smallest {
-                    fail(format!(
-                        "face {f}: rope {rope:#x} names node {ti} of level {tl}, which {} the \
-                         cells across the face {r_lo:?}..={r_hi:?}",
-                        if contains {
-                            "holds but is not the smallest node holding"
-                        } else {
-                            "does not hold"
-                        }
-                    ));
+                if let Some(what) = targets.defect(f, rope, lo, hi) {
+                    fail(what);
                 }
             }
         }
@@ -1005,6 +1188,93 @@ fn check_ropes(
     if defects > 20 {
         d.push(format!("{label}: {} more rope defects", defects - 20));
     }
+}
+
+/// What a unit's ropes may name: its own nodes (`codes`, by local level), and the top tree's;
+/// `own` is the unit's block (`None`: the unit is the top tree).
+struct RopeTargets<'a> {
+    u: &'a Unit<'a>,
+    codes: &'a [Vec<u64>],
+    top: &'a TopNodes<'a>,
+    own: Option<u32>,
+}
+
+impl RopeTargets<'_> {
+    /// What is wrong with `rope`, across face `f` of the walk box `lo..hi` of a leaf or link:
+    /// the rope must lead out exactly when the face is on the root's boundary, else name the
+    /// smallest node that holds every cell just across the face.
+    fn defect(&self, f: usize, rope: u32, lo: [u32; 3], hi: [u32; 3]) -> Option<String> {
+        let (a, positive) = (f / 2, f % 2 == 1);
+        let across = if positive {
+            hi[a]
+        } else {
+            lo[a].wrapping_sub(1)
+        };
+        let outside = across >= LATTICE_SIZE || hi.iter().any(|&h| h > LATTICE_SIZE);
+        if outside || rope == ROPE_EXIT {
+            return (outside != (rope == ROPE_EXIT)).then(|| {
+                format!(
+                    "face {f}: rope {rope:#x}, but the face is {} the root's boundary",
+                    if outside { "on" } else { "not on" }
+                )
+            });
+        }
+        let mut r_lo = lo;
+        let mut r_hi = hi.map(|h| h - 1);
+        r_lo[a] = across;
+        r_hi[a] = across;
+        let to_top = rope & ROPE_TOP != 0;
+        if !to_top && self.own.is_none() {
+            return Some(format!(
+                "face {f}: a top-tree rope {rope:#x} without the top bit"
+            ));
+        }
+        let (map, unit_codes): (&TreeMap<'_>, &[Vec<u64>]) = if to_top {
+            (&self.top.map, &self.top.codes)
+        } else {
+            (&self.u.map, self.codes)
+        };
+        let index = (rope & !ROPE_TOP) as u64;
+        let Some((tl, ti)) = locate_node(map, index) else {
+            return Some(format!("face {f}: rope {rope:#x} names no node"));
+        };
+        let Some(&tcode) = unit_codes
+            .get((tl - map.base()) as usize)
+            .and_then(|c| c.get(ti as usize))
+        else {
+            return Some(format!("face {f}: rope {rope:#x} names a node of no code"));
+        };
+        let Ok(trec) = map.node(tl, ti) else {
+            return Some(format!("face {f}: rope {rope:#x} names an unreadable node"));
+        };
+        let contains =
+            morton::code_at_level(r_lo, tl) == tcode && morton::code_at_level(r_hi, tl) == tcode;
+        let smallest = match trec.kind() {
+            Some(NodeKind::Internal) => tl == morton::common_level(r_lo, r_hi),
+            Some(NodeKind::Link { block, .. }) => Some(block) != self.own,
+            _ => true,
+        };
+        (!contains || !smallest).then(|| {
+            format!(
+                "face {f}: rope {rope:#x} names node {ti} of level {tl}, which {} the \
+                 cells across the face {r_lo:?}..={r_hi:?}",
+                if contains {
+                    "holds but is not the smallest node holding"
+                } else {
+                    "does not hold"
+                }
+            )
+        })
+    }
+}
+
+/// Level and index in the level of node record `index`, in a unit's map.
+fn locate_node(map: &TreeMap<'_>, index: u64) -> Option<(u32, u64)> {
+    let base = map.base();
+    map.levels().iter().enumerate().find_map(|(ll, e)| {
+        (index >= e.node_start && index - e.node_start < e.node_count)
+            .then(|| (base + ll as u32, index - e.node_start))
+    })
 }
 
 /// Checks that a solid leaf's tight bounds contain every part of its triangles inside its cell

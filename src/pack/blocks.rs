@@ -120,11 +120,178 @@ pub fn partition(
     if base_level as usize + nl > MAX_LEVEL as usize + 1 {
         return Err(bad("the tree is deeper than the lattice"));
     }
+    let plan = Plan::new(&tree, base_codes, target)?;
+    let groups = plan.groups(base_level, target);
+    if first_block as u64 + groups.len() as u64 > u32::MAX as u64 {
+        return Err(bad("more blocks than 32-bit ids can number"));
+    }
+    let top = plan.top_nodes(&tree, base_level, &groups, first_block)?;
 
-    // Subtree sizes, bottom-up.
+    // The blocks, in parallel.
+    let blocks = groups
+        .par_iter()
+        .enumerate()
+        .map(|(g, (l, group))| {
+            let unit = extract(&tree, base_level, *l as usize, group, &plan.codes, clusters)?;
+            Ok(BlockParts {
+                id: first_block + g as u32,
+                root_level: base_level + l,
+                unit,
+            })
+        })
+        .collect::<Result<Vec<_>, Error>>()?;
+    Ok(Split { top, blocks })
+}
+
+/// What the split decides for each node of a tree, by local level and index in the level: its
+/// subtree's estimated raw bytes, its Morton code, its role.
+struct Plan {
+    size: Vec<Vec<u64>>,
+    codes: Vec<Vec<u64>>,
+    roles: Vec<Vec<Role>>,
+}
+
+/// The role of a node whose parent stays in the top tree, `s` its subtree's bytes: an empty
+/// leaf stays in the top tree, and so does an internal node larger than the `target`; any
+/// other node is a block root.
+fn classify(rec: &NodeRecord, s: u64, target: u64) -> Role {
+    match rec.kind() {
+        Some(NodeKind::Empty { .. }) => Role::Top,
+        Some(NodeKind::Internal) if s > target => Role::Top,
+        _ => Role::Root,
+    }
+}
+
+impl Plan {
+    /// The sizes (bottom-up), then the codes and roles (top-down) of `tree`'s nodes.
+    fn new(tree: &UnitRef<'_>, base_codes: &[u64], target: u64) -> Result<Plan, Error> {
+        let size = subtree_sizes(tree)?;
+        let nl = tree.levels.len();
+        let mut codes: Vec<Vec<u64>> = vec![base_codes.to_vec()];
+        let mut roles: Vec<Vec<Role>> = vec![
+            level_nodes(tree, 0)?
+                .iter()
+                .zip(&size[0])
+                .map(|(r, &s)| classify(r, s, target))
+                .collect(),
+        ];
+        for l in 0..nl - 1 {
+            let nodes = level_nodes(tree, l)?;
+            let next = level_nodes(tree, l + 1)?;
+            let mut c = vec![0u64; next.len()];
+            let mut role = vec![Role::Inside; next.len()];
+            let mut r = 0usize;
+            for (i, rec) in nodes.iter().enumerate() {
+                if rec.kind() != Some(NodeKind::Internal) {
+                    continue;
+                }
+                for o in 0..8 {
+                    let k = 8 * r + o;
+                    c[k] = codes[l][i] << 3 | o as u64;
+                    if roles[l][i] == Role::Top {
+                        role[k] = classify(&next[k], size[l + 1][k], target);
+                    }
+                }
+                r += 1;
+            }
+            codes.push(c);
+            roles.push(role);
+        }
+        Ok(Plan { size, codes, roles })
+    }
+
+    /// The block roots in leaf order, grouped: consecutive roots of the same level share a
+    /// block while the group fits the `target`. Each group: the local level and the roots'
+    /// indices in it.
+    fn groups(&self, base_level: u32, target: u64) -> Vec<(u32, Vec<u32>)> {
+        let key =
+            |l: usize, i: usize| self.codes[l][i] << (3 * (MAX_LEVEL - base_level - l as u32));
+        let mut roots: Vec<(u64, u32, u32)> = Vec::new();
+        for (l, role) in self.roles.iter().enumerate() {
+            for (i, r) in role.iter().enumerate() {
+                if *r == Role::Root {
+                    roots.push((key(l, i), l as u32, i as u32));
+                }
+            }
+        }
+        roots.sort_unstable();
+        let mut groups: Vec<(u32, Vec<u32>)> = Vec::new();
+        let mut group_size = 0u64;
+        for &(_, l, i) in &roots {
+            let s = self.size[l as usize][i as usize];
+            match groups.last_mut() {
+                Some((gl, g)) if *gl == l && group_size + s <= target => {
+                    g.push(i);
+                    group_size += s;
+                }
+                _ => {
+                    groups.push((l, vec![i]));
+                    group_size = s;
+                }
+            }
+        }
+        groups
+    }
+
+    /// The top tree's nodes: those whose role is the top's, then a link per block root (block
+    /// ids from `first_block`, in group order).
+    fn top_nodes(
+        &self,
+        tree: &UnitRef<'_>,
+        base_level: u32,
+        groups: &[(u32, Vec<u32>)],
+        first_block: u32,
+    ) -> Result<Vec<TopNode>, Error> {
+        let codes = &self.codes;
+        let mut top = Vec::new();
+        for (l, role) in self.roles.iter().enumerate() {
+            let nodes = level_nodes(tree, l)?;
+            for (i, r) in role.iter().enumerate() {
+                if *r != Role::Top {
+                    continue;
+                }
+                let kind = match nodes[i].kind() {
+                    Some(NodeKind::Internal) => TopKind::Internal,
+                    Some(NodeKind::Empty { volume, shape }) => TopKind::Empty {
+                        volume: *tree
+                            .volumes
+                            .get(volume as usize)
+                            .ok_or_else(|| bad("an empty leaf's volume is out of range"))?,
+                        shape,
+                    },
+                    _ => return Err(bad("a solid leaf in the top tree")),
+                };
+                top.push(TopNode {
+                    level: base_level + l as u32,
+                    code: codes[l][i],
+                    kind,
+                });
+            }
+        }
+        for (g, (l, group)) in groups.iter().enumerate() {
+            for (j, &i) in group.iter().enumerate() {
+                top.push(TopNode {
+                    level: base_level + l,
+                    code: codes[*l as usize][i as usize],
+                    kind: TopKind::Link {
+                        block: first_block + g as u32,
+                        root: j as u32,
+                    },
+                });
+            }
+        }
+        Ok(top)
+    }
+}
+
+/// Every node's estimated subtree bytes, by level, bottom-up: its record and share of a rank
+/// word, plus its children's, an empty leaf's volume, a solid leaf's references and a
+/// triangle per reference (an upper bound).
+fn subtree_sizes(tree: &UnitRef<'_>) -> Result<Vec<Vec<u64>>, Error> {
+    let nl = tree.levels.len();
     let mut size: Vec<Vec<u64>> = vec![Vec::new(); nl];
     for l in (0..nl).rev() {
-        let nodes = level_nodes(&tree, l)?;
+        let nodes = level_nodes(tree, l)?;
         let mut v = Vec::with_capacity(nodes.len());
         let mut r = 0usize;
         for rec in nodes {
@@ -158,127 +325,7 @@ pub fn partition(
         }
         size[l] = v;
     }
-
-    // Codes and roles, top-down.
-    let classify = |rec: &NodeRecord, s: u64| match rec.kind() {
-        Some(NodeKind::Empty { .. }) => Role::Top,
-        Some(NodeKind::Internal) if s > target => Role::Top,
-        _ => Role::Root,
-    };
-    let mut codes: Vec<Vec<u64>> = vec![base_codes.to_vec()];
-    let mut roles: Vec<Vec<Role>> = vec![
-        level_nodes(&tree, 0)?
-            .iter()
-            .zip(&size[0])
-            .map(|(r, &s)| classify(r, s))
-            .collect(),
-    ];
-    for l in 0..nl - 1 {
-        let nodes = level_nodes(&tree, l)?;
-        let next = level_nodes(&tree, l + 1)?;
-        let mut c = vec![0u64; next.len()];
-        let mut role = vec![Role::Inside; next.len()];
-        let mut r = 0usize;
-        for (i, rec) in nodes.iter().enumerate() {
-            if rec.kind() != Some(NodeKind::Internal) {
-                continue;
-            }
-            for o in 0..8 {
-                let k = 8 * r + o;
-                c[k] = codes[l][i] << 3 | o as u64;
-                if roles[l][i] == Role::Top {
-                    role[k] = classify(&next[k], size[l + 1][k]);
-                }
-            }
-            r += 1;
-        }
-        codes.push(c);
-        roles.push(role);
-    }
-
-    // Roots in leaf order, grouped.
-    let key = |l: usize, i: usize| codes[l][i] << (3 * (MAX_LEVEL - base_level - l as u32));
-    let mut roots: Vec<(u64, u32, u32)> = Vec::new();
-    for (l, role) in roles.iter().enumerate() {
-        for (i, r) in role.iter().enumerate() {
-            if *r == Role::Root {
-                roots.push((key(l, i), l as u32, i as u32));
-            }
-        }
-    }
-    roots.sort_unstable();
-    let mut groups: Vec<(u32, Vec<u32>)> = Vec::new();
-    let mut group_size = 0u64;
-    for &(_, l, i) in &roots {
-        let s = size[l as usize][i as usize];
-        match groups.last_mut() {
-            Some((gl, g)) if *gl == l && group_size + s <= target => {
-                g.push(i);
-                group_size += s;
-            }
-            _ => {
-                groups.push((l, vec![i]));
-                group_size = s;
-            }
-        }
-    }
-    if first_block as u64 + groups.len() as u64 > u32::MAX as u64 {
-        return Err(bad("more blocks than 32-bit ids can number"));
-    }
-
-    // The top nodes.
-    let mut top = Vec::new();
-    for (l, role) in roles.iter().enumerate() {
-        let nodes = level_nodes(&tree, l)?;
-        for (i, r) in role.iter().enumerate() {
-            if *r != Role::Top {
-                continue;
-            }
-            let kind = match nodes[i].kind() {
-                Some(NodeKind::Internal) => TopKind::Internal,
-                Some(NodeKind::Empty { volume, shape }) => TopKind::Empty {
-                    volume: *tree
-                        .volumes
-                        .get(volume as usize)
-                        .ok_or_else(|| bad("an empty leaf's volume is out of range"))?,
-                    shape,
-                },
-                _ => return Err(bad("a solid leaf in the top tree")),
-            };
-            top.push(TopNode {
-                level: base_level + l as u32,
-                code: codes[l][i],
-                kind,
-            });
-        }
-    }
-    for (g, (l, group)) in groups.iter().enumerate() {
-        for (j, &i) in group.iter().enumerate() {
-            top.push(TopNode {
-                level: base_level + l,
-                code: codes[*l as usize][i as usize],
-                kind: TopKind::Link {
-                    block: first_block + g as u32,
-                    root: j as u32,
-                },
-            });
-        }
-    }
-
-    // The blocks, in parallel.
-    let blocks = groups
-        .par_iter()
-        .enumerate()
-        .map(|(g, (l, group))| {
-            let unit = extract(&tree, base_level, *l as usize, group, &codes, clusters)?;
-            Ok(BlockParts {
-                id: first_block + g as u32,
-                root_level: base_level + l,
-                unit,
-            })
-        })
-        .collect::<Result<Vec<_>, Error>>()?;
-    Ok(Split { top, blocks })
+    Ok(size)
 }
 
 /// The records of the subtrees rooted at nodes `group` of local level `l0` (absolute level
@@ -292,25 +339,7 @@ fn extract(
     codes: &[Vec<u64>],
     clusters: Option<&ClusterGeometry>,
 ) -> Result<UnitParts, Error> {
-    // Global indices of the block's nodes, by local level.
-    let mut local: Vec<Vec<u32>> = vec![group.to_vec()];
-    loop {
-        let d = local.len() - 1;
-        let l = l0 + d;
-        let nodes = level_nodes(tree, l)?;
-        let ranks = level_ranks(tree, l)?;
-        let mut next = Vec::new();
-        for &i in &local[d] {
-            if nodes[i as usize].kind() == Some(NodeKind::Internal) {
-                let c = 8 * rank(ranks, i as usize) as u32;
-                next.extend(c..c + 8);
-            }
-        }
-        if next.is_empty() {
-            break;
-        }
-        local.push(next);
-    }
+    let local = block_nodes(tree, l0, group)?;
 
     // Leaves in leaf order: volumes, references and triangles renumbered.
     let mut leaves: Vec<(u64, u32, u32, u64)> = Vec::new();
@@ -334,35 +363,11 @@ fn extract(
         records.push(recs);
     }
     leaves.sort_unstable();
-    let mut volumes = Vec::new();
-    let mut volume_map: HashMap<u32, u32> = HashMap::new();
-    let mut refs: Vec<u32> = Vec::new();
-    let mut triangles: Vec<TriRecord> = Vec::new();
-    let mut tri_map: HashMap<u32, u32> = HashMap::new();
-    let mut cluster_nodes: Vec<ClusterNode> = Vec::new();
-    let mut groups: Vec<TriGroup> = Vec::new();
-    let mut cluster_tris: Vec<ClusterTri> = Vec::new();
-    // One builder per block: its scratch buffers serve every cluster of the block.
-    let mut builder = ClusterBuilder::new();
+    let mut parts = BlockLeaves::new(tree);
     for &(_, d, j, code) in &leaves {
         let rec = &mut records[d as usize][j as usize];
-        match rec.kind() {
-            Some(NodeKind::Empty { volume, shape }) => {
-                let v = match volume_map.get(&volume) {
-                    Some(&v) => v,
-                    None => {
-                        let b = *tree
-                            .volumes
-                            .get(volume as usize)
-                            .ok_or_else(|| bad("an empty leaf's volume is out of range"))?;
-                        volumes.push(b);
-                        let v = volumes.len() as u32 - 1;
-                        volume_map.insert(volume, v);
-                        v
-                    }
-                };
-                *rec = NodeRecord::empty(v, shape);
-            }
+        *rec = match rec.kind() {
+            Some(NodeKind::Empty { volume, shape }) => parts.empty(volume, shape)?,
             Some(NodeKind::Solid {
                 first,
                 inline_count,
@@ -370,74 +375,174 @@ fn extract(
             }) => {
                 let (leaf, _) = leaf_refs(tree.refs, first, inline_count)
                     .ok_or_else(|| bad("a leaf's references are out of range"))?;
-                if let Some(geometry) = clusters {
-                    cluster_tris.clear();
-                    for &t in leaf {
-                        let r = tree
-                            .triangles
-                            .get(t as usize)
-                            .ok_or_else(|| bad("a reference is out of range"))?;
-                        cluster_tris.push(ClusterTri {
-                            v: r.v,
-                            prim: r.prim,
-                        });
+                match clusters {
+                    Some(geometry) => {
+                        let level = base_level + l0 as u32 + d;
+                        let cell = geometry.widened_cell(level, code);
+                        parts.cluster(leaf, cell, bounds)?
                     }
-                    let level = base_level + l0 as u32 + d;
-                    let Ok(root) = u32::try_from(cluster_nodes.len()) else {
-                        return Err(bad("a block with more than 2^32 cluster nodes"));
-                    };
-                    builder
-                        .build_into(
-                            &cluster_tris,
-                            geometry.widened_cell(level, code),
-                            &mut cluster_nodes,
-                            &mut groups,
-                        )
-                        .map_err(|e| bad(format!("building a cluster: {e}")))?;
-                    *rec = NodeRecord::cluster(root, bounds);
-                    continue;
+                    None => parts.list(leaf, bounds)?,
                 }
-                let payload = refs.len() as u32;
-                if leaf.len() > MAX_INLINE_REFS as usize {
-                    refs.push(leaf.len() as u32);
-                }
-                let start = refs.len();
-                for &t in leaf {
-                    let local = match tri_map.get(&t) {
-                        Some(&x) => x,
-                        None => {
-                            let r = *tree
-                                .triangles
-                                .get(t as usize)
-                                .ok_or_else(|| bad("a reference is out of range"))?;
-                            triangles.push(r);
-                            let x = triangles.len() as u32 - 1;
-                            tri_map.insert(t, x);
-                            x
-                        }
-                    };
-                    refs.push(local);
-                }
-                refs[start..].sort_unstable();
-                *rec = NodeRecord::solid(payload, leaf.len() as u32, bounds);
             }
             _ => return Err(bad("an invalid leaf record")),
-        }
+        };
     }
     let (levels, nodes, ranks) = lay_levels(records);
     Ok(UnitParts {
         levels,
         nodes,
         ranks,
-        volumes,
-        refs,
-        triangles,
-        cluster_nodes,
-        groups,
+        volumes: parts.volumes,
+        refs: parts.refs,
+        triangles: parts.triangles,
+        cluster_nodes: parts.cluster_nodes,
+        groups: parts.groups,
         ropes: Vec::new(),
         occluder_nodes: Vec::new(),
         occluders: Vec::new(),
     })
+}
+
+/// The indices in `tree` of the nodes of the subtrees rooted at nodes `group` of level `l0`,
+/// by level from the roots down.
+fn block_nodes(tree: &UnitRef<'_>, l0: usize, group: &[u32]) -> Result<Vec<Vec<u32>>, Error> {
+    let mut local: Vec<Vec<u32>> = vec![group.to_vec()];
+    loop {
+        let d = local.len() - 1;
+        let l = l0 + d;
+        let nodes = level_nodes(tree, l)?;
+        let ranks = level_ranks(tree, l)?;
+        let mut next = Vec::new();
+        for &i in &local[d] {
+            if nodes[i as usize].kind() == Some(NodeKind::Internal) {
+                let c = 8 * rank(ranks, i as usize) as u32;
+                next.extend(c..c + 8);
+            }
+        }
+        if next.is_empty() {
+            return Ok(local);
+        }
+        local.push(next);
+    }
+}
+
+/// A block's leaf parts as its leaves are taken in leaf order: the volumes, references and
+/// triangles (or cluster nodes and groups) of the tree, renumbered within the block, each
+/// stored once.
+struct BlockLeaves<'t, 'a> {
+    tree: &'t UnitRef<'a>,
+    volumes: Vec<VolumeRecord>,
+    /// The tree's volume indices to the block's.
+    volume_map: HashMap<u32, u32>,
+    refs: Vec<u32>,
+    triangles: Vec<TriRecord>,
+    /// The tree's triangle indices to the block's.
+    tri_map: HashMap<u32, u32>,
+    cluster_nodes: Vec<ClusterNode>,
+    groups: Vec<TriGroup>,
+    cluster_tris: Vec<ClusterTri>,
+    /// One builder per block: its scratch buffers serve every cluster of the block.
+    builder: ClusterBuilder,
+}
+
+impl<'t, 'a> BlockLeaves<'t, 'a> {
+    fn new(tree: &'t UnitRef<'a>) -> Self {
+        BlockLeaves {
+            tree,
+            volumes: Vec::new(),
+            volume_map: HashMap::new(),
+            refs: Vec::new(),
+            triangles: Vec::new(),
+            tri_map: HashMap::new(),
+            cluster_nodes: Vec::new(),
+            groups: Vec::new(),
+            cluster_tris: Vec::new(),
+            builder: ClusterBuilder::new(),
+        }
+    }
+
+    /// The record of an empty leaf whose volume is the tree's `volume`.
+    fn empty(&mut self, volume: u32, shape: VolumeShape) -> Result<NodeRecord, Error> {
+        let v = match self.volume_map.get(&volume) {
+            Some(&v) => v,
+            None => {
+                let b = *self
+                    .tree
+                    .volumes
+                    .get(volume as usize)
+                    .ok_or_else(|| bad("an empty leaf's volume is out of range"))?;
+                self.volumes.push(b);
+                let v = self.volumes.len() as u32 - 1;
+                self.volume_map.insert(volume, v);
+                v
+            }
+        };
+        Ok(NodeRecord::empty(v, shape))
+    }
+
+    /// The record of a solid leaf made a cluster of the triangles the tree's references `leaf`
+    /// name, clipped to its widened `cell` (world units).
+    fn cluster(
+        &mut self,
+        leaf: &[u32],
+        cell: ([f64; 3], [f64; 3]),
+        bounds: LeafBounds,
+    ) -> Result<NodeRecord, Error> {
+        self.cluster_tris.clear();
+        for &t in leaf {
+            let r = self
+                .tree
+                .triangles
+                .get(t as usize)
+                .ok_or_else(|| bad("a reference is out of range"))?;
+            self.cluster_tris.push(ClusterTri {
+                v: r.v,
+                prim: r.prim,
+            });
+        }
+        let Ok(root) = u32::try_from(self.cluster_nodes.len()) else {
+            return Err(bad("a block with more than 2^32 cluster nodes"));
+        };
+        self.builder
+            .build_into(
+                &self.cluster_tris,
+                cell,
+                &mut self.cluster_nodes,
+                &mut self.groups,
+            )
+            .map_err(|e| bad(format!("building a cluster: {e}")))?;
+        Ok(NodeRecord::cluster(root, bounds))
+    }
+
+    /// The record of a solid leaf holding the tree's references `leaf` as a list of the
+    /// block's (with a count word before more than [`MAX_INLINE_REFS`]), sorted.
+    fn list(&mut self, leaf: &[u32], bounds: LeafBounds) -> Result<NodeRecord, Error> {
+        let refs = &mut self.refs;
+        let payload = refs.len() as u32;
+        if leaf.len() > MAX_INLINE_REFS as usize {
+            refs.push(leaf.len() as u32);
+        }
+        let start = refs.len();
+        for &t in leaf {
+            let local = match self.tri_map.get(&t) {
+                Some(&x) => x,
+                None => {
+                    let r = *self
+                        .tree
+                        .triangles
+                        .get(t as usize)
+                        .ok_or_else(|| bad("a reference is out of range"))?;
+                    self.triangles.push(r);
+                    let x = self.triangles.len() as u32 - 1;
+                    self.tri_map.insert(t, x);
+                    x
+                }
+            };
+            refs.push(local);
+        }
+        refs[start..].sort_unstable();
+        Ok(NodeRecord::solid(payload, leaf.len() as u32, bounds))
+    }
 }
 
 /// The level table, node records and rank words of levels given record by record.

@@ -43,8 +43,61 @@ pub(super) fn layout_from(
     records: &[TriRecord],
     lattice: &[LatticeTri],
 ) -> Result<Laid, Error> {
-    // All leaves, ordered by the Morton code of their lowest lattice corner: depth-first order,
-    // so the leaves (and with them references and triangles) of a subtree are contiguous.
+    let leaves = leaf_order(levels, base);
+    let bounds = solid_bounds(levels, base, lattice);
+    let parts = LeafParts::number(levels, &leaves, boxes, records)?;
+
+    // Node records level by level, and the rank directory of each level.
+    let mut level_entries = Vec::with_capacity(levels.len());
+    let mut nodes = Vec::new();
+    let mut ranks = Vec::new();
+    let (mut empty_leaves, mut solid_leaves) = (0u64, 0u64);
+    for (l, lv) in levels.iter().enumerate() {
+        let start = nodes.len();
+        nodes.extend(lv.nodes.iter().enumerate().map(|(i, n)| match n {
+            BuildNode::Internal => NodeRecord::internal(),
+            BuildNode::Leaf(t) if t.is_empty() => {
+                empty_leaves += 1;
+                NodeRecord::empty(parts.payload[l][i], parts.shapes[l][i])
+            }
+            BuildNode::Leaf(t) => {
+                solid_leaves += 1;
+                NodeRecord::solid(parts.payload[l][i], t.len() as u32, bounds[l][i])
+            }
+        }));
+        let (words, internal_count) = rank_words(nodes[start..].iter().map(|r| r.is_internal()));
+        level_entries.push(LevelEntry {
+            node_count: lv.nodes.len() as u64,
+            internal_count,
+            node_start: start as u64,
+            rank_start: ranks.len() as u64,
+        });
+        ranks.extend(words);
+    }
+
+    Ok(Laid {
+        tree: UnitParts {
+            levels: level_entries,
+            nodes,
+            ranks,
+            volumes: parts.volumes,
+            refs: parts.refs,
+            triangles: parts.triangles,
+            cluster_nodes: Vec::new(),
+            groups: Vec::new(),
+            ropes: Vec::new(),
+            occluder_nodes: Vec::new(),
+            occluders: Vec::new(),
+        },
+        empty_leaves,
+        solid_leaves,
+    })
+}
+
+/// All leaves as (key, level, index in the level), ordered by the key, the Morton code of
+/// their lowest lattice corner: depth-first order, so the leaves (and with them references
+/// and triangles) of a subtree are contiguous.
+fn leaf_order(levels: &[BuildLevel], base: u32) -> Vec<(u64, u32, u32)> {
     let mut leaves: Vec<(u64, u32, u32)> = levels
         .iter()
         .enumerate()
@@ -64,9 +117,13 @@ pub(super) fn layout_from(
         })
         .collect();
     leaves.par_sort_unstable();
+    leaves
+}
 
-    // Tight bounds of every solid leaf (spec §4.2), in parallel.
-    let bounds: Vec<Vec<LeafBounds>> = levels
+/// Tight bounds of every solid leaf (spec §4.2), by level and index, in parallel; other nodes
+/// get [`LeafBounds::FULL`].
+fn solid_bounds(levels: &[BuildLevel], base: u32, lattice: &[LatticeTri]) -> Vec<Vec<LeafBounds>> {
+    levels
         .par_iter()
         .enumerate()
         .map(|(l, lv)| {
@@ -81,109 +138,91 @@ pub(super) fn layout_from(
                 })
                 .collect()
         })
-        .collect();
+        .collect()
+}
 
-    let too_many = |what: &str, n: usize| {
-        Error::Build(format!(
-            "{n} {what}: more than this version's 32-bit indices can address; raise --leaf-size \
-             or lower --max-depth"
-        ))
-    };
-    let mut payload: Vec<Vec<u32>> = levels.iter().map(|lv| vec![0; lv.nodes.len()]).collect();
-    let mut shapes: Vec<Vec<VolumeShape>> = levels
-        .iter()
-        .map(|lv| vec![VolumeShape { level: 0, axes: 0 }; lv.nodes.len()])
-        .collect();
-    let mut refs: Vec<u32> = Vec::new();
-    let mut new_index = vec![u32::MAX; records.len()];
-    let mut triangles: Vec<TriRecord> = Vec::with_capacity(records.len());
-    let mut volumes: Vec<VolumeRecord> = Vec::new();
-    let mut volume_index: HashMap<VolumeRecord, u32> = HashMap::new();
-    for &(_, l, i) in &leaves {
-        let (l, i) = (l as usize, i as usize);
-        let BuildNode::Leaf(tris) = &levels[l].nodes[i] else {
-            continue;
+/// The leaves' parts, numbered in leaf order: each empty leaf's volume (index in the volume
+/// table, each distinct box stored once) and shape, each solid leaf's first reference word;
+/// the references and the triangles they name (each stored once, in order of first use).
+struct LeafParts {
+    /// A leaf's payload (volume index or first reference word), by level and index.
+    payload: Vec<Vec<u32>>,
+    shapes: Vec<Vec<VolumeShape>>,
+    refs: Vec<u32>,
+    triangles: Vec<TriRecord>,
+    volumes: Vec<VolumeRecord>,
+}
+
+impl LeafParts {
+    /// Numbers the parts of `leaves` (in leaf order), whose empty leaves' merged volumes
+    /// `boxes` gives and whose solid leaves reference `records`.
+    fn number(
+        levels: &[BuildLevel],
+        leaves: &[(u64, u32, u32)],
+        boxes: &merge::LeafBoxes,
+        records: &[TriRecord],
+    ) -> Result<LeafParts, Error> {
+        let too_many = |what: &str, n: usize| {
+            Error::Build(format!(
+                "{n} {what}: more than this version's 32-bit indices can address; raise --leaf-size \
+                 or lower --max-depth"
+            ))
         };
-        if tris.is_empty() {
-            let merged =
-                boxes[l][i].ok_or_else(|| Error::Build("empty leaf without a volume".into()))?;
-            let b = merged.volume;
-            let next = volumes.len();
-            let v = *volume_index.entry(b).or_insert_with(|| {
-                volumes.push(b);
-                next as u32
-            });
-            if volumes.len() > u32::MAX as usize {
-                return Err(too_many("volumes", volumes.len()));
-            }
-            payload[l][i] = v;
-            shapes[l][i] = merged.shape;
-        } else {
-            if refs.len() + tris.len() + 1 > u32::MAX as usize {
-                return Err(too_many("triangle references", refs.len() + tris.len()));
-            }
-            payload[l][i] = refs.len() as u32;
-            if tris.len() > MAX_INLINE_REFS as usize {
-                refs.push(tris.len() as u32); // escaped count (spec §4.2)
-            }
-            let start = refs.len();
-            for &t in tris {
-                let slot = &mut new_index[t as usize];
-                if *slot == u32::MAX {
-                    *slot = triangles.len() as u32;
-                    triangles.push(records[t as usize]);
+        let mut parts = LeafParts {
+            payload: levels.iter().map(|lv| vec![0; lv.nodes.len()]).collect(),
+            shapes: levels
+                .iter()
+                .map(|lv| vec![VolumeShape { level: 0, axes: 0 }; lv.nodes.len()])
+                .collect(),
+            refs: Vec::new(),
+            triangles: Vec::with_capacity(records.len()),
+            volumes: Vec::new(),
+        };
+        let mut new_index = vec![u32::MAX; records.len()];
+        let mut volume_index: HashMap<VolumeRecord, u32> = HashMap::new();
+        let (refs, triangles, volumes) =
+            (&mut parts.refs, &mut parts.triangles, &mut parts.volumes);
+        for &(_, l, i) in leaves {
+            let (l, i) = (l as usize, i as usize);
+            let BuildNode::Leaf(tris) = &levels[l].nodes[i] else {
+                continue;
+            };
+            if tris.is_empty() {
+                let merged = boxes[l][i]
+                    .ok_or_else(|| Error::Build("empty leaf without a volume".into()))?;
+                let b = merged.volume;
+                let next = volumes.len();
+                let v = *volume_index.entry(b).or_insert_with(|| {
+                    volumes.push(b);
+                    next as u32
+                });
+                if volumes.len() > u32::MAX as usize {
+                    return Err(too_many("volumes", volumes.len()));
                 }
-                refs.push(*slot);
+                parts.payload[l][i] = v;
+                parts.shapes[l][i] = merged.shape;
+            } else {
+                if refs.len() + tris.len() + 1 > u32::MAX as usize {
+                    return Err(too_many("triangle references", refs.len() + tris.len()));
+                }
+                parts.payload[l][i] = refs.len() as u32;
+                if tris.len() > MAX_INLINE_REFS as usize {
+                    refs.push(tris.len() as u32); // escaped count (spec §4.2)
+                }
+                let start = refs.len();
+                for &t in tris {
+                    let slot = &mut new_index[t as usize];
+                    if *slot == u32::MAX {
+                        *slot = triangles.len() as u32;
+                        triangles.push(records[t as usize]);
+                    }
+                    refs.push(*slot);
+                }
+                refs[start..].sort_unstable();
             }
-            refs[start..].sort_unstable();
         }
+        Ok(parts)
     }
-
-    // Node records level by level, and the rank directory of each level.
-    let mut level_entries = Vec::with_capacity(levels.len());
-    let mut nodes = Vec::new();
-    let mut ranks = Vec::new();
-    let (mut empty_leaves, mut solid_leaves) = (0u64, 0u64);
-    for (l, lv) in levels.iter().enumerate() {
-        let start = nodes.len();
-        nodes.extend(lv.nodes.iter().enumerate().map(|(i, n)| match n {
-            BuildNode::Internal => NodeRecord::internal(),
-            BuildNode::Leaf(t) if t.is_empty() => {
-                empty_leaves += 1;
-                NodeRecord::empty(payload[l][i], shapes[l][i])
-            }
-            BuildNode::Leaf(t) => {
-                solid_leaves += 1;
-                NodeRecord::solid(payload[l][i], t.len() as u32, bounds[l][i])
-            }
-        }));
-        let (words, internal_count) = rank_words(nodes[start..].iter().map(|r| r.is_internal()));
-        level_entries.push(LevelEntry {
-            node_count: lv.nodes.len() as u64,
-            internal_count,
-            node_start: start as u64,
-            rank_start: ranks.len() as u64,
-        });
-        ranks.extend(words);
-    }
-
-    Ok(Laid {
-        tree: UnitParts {
-            levels: level_entries,
-            nodes,
-            ranks,
-            volumes,
-            refs,
-            triangles,
-            cluster_nodes: Vec::new(),
-            groups: Vec::new(),
-            ropes: Vec::new(),
-            occluder_nodes: Vec::new(),
-            occluders: Vec::new(),
-        },
-        empty_leaves,
-        solid_leaves,
-    })
 }
 
 /// The tight bounds of a solid leaf: the box of the parts of its triangles inside its cell

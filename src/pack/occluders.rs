@@ -174,6 +174,35 @@ struct Nodes {
     parent: Vec<u32>,
 }
 
+impl Nodes {
+    /// The root above node `i` (itself, for a root).
+    fn root_of(&self, mut i: u32) -> u32 {
+        while let Some(&p) = self.parent.get(i as usize) {
+            if p == u32::MAX {
+                break;
+            }
+            i = p;
+        }
+        i
+    }
+
+    /// The lowest node above both `a` and `b` (`u32::MAX` if they are under different roots).
+    fn lca(&self, mut a: u32, mut b: u32) -> u32 {
+        while a != b {
+            let (la, lb) = (self.level[a as usize], self.level[b as usize]);
+            if la >= lb {
+                a = self.parent[a as usize];
+            } else {
+                b = self.parent[b as usize];
+            }
+            if a == u32::MAX || b == u32::MAX {
+                return u32::MAX;
+            }
+        }
+        a
+    }
+}
+
 fn block_nodes(
     map: &TreeMap<'_>,
     levels: &[LevelEntry],
@@ -219,109 +248,24 @@ fn block_occluders(
     p: &ShadowParams,
     report: &mut OccluderReport,
 ) -> Result<(Vec<OccluderNode>, Vec<TriRecord>), Error> {
-    let n = nodes.level.len();
-    let unit = header.root_size / LATTICE_SIZE as f64;
-    let cell = |i: usize| -> Box3 {
-        let lo = morton::cell_origin(nodes.code[i], nodes.level[i]);
-        let s = morton::cell_size(nodes.level[i]) as f64 * unit;
-        let lo: [f64; 3] = std::array::from_fn(|k| header.root_min[k] + lo[k] as f64 * unit);
-        [lo, std::array::from_fn(|k| lo[k] + s)]
-    };
-    // Costs, bottom-up (children follow their parents in record order), and each candidate's
-    // leaves.
-    let mut cost = vec![0f64; n];
-    let mut kids = vec![0f64; n];
-    let mut internal = vec![false; n];
-    let mut leaves: HashMap<u32, (TriRecord, Vec<u32>)> = HashMap::new();
-    let mut tris = Vec::new();
-    for i in (0..n).rev() {
-        let rec = map
-            .node(nodes.level[i], i as u64 - map.node_start(nodes.level[i]))
-            .map_err(bad)?;
-        match rec.kind_bits() {
-            KIND_INTERNAL => {
-                internal[i] = true;
-                cost[i] = TRAVERSAL_COST + 0.25 * kids[i];
-            }
-            KIND_SOLID => {
-                leaf_triangles(view, rec, &mut tris)?;
-                cost[i] = ISECT_COST * tris.len() as f64;
-                for t in &tris {
-                    if area(&tri_box(&t.v)) > p.candidate_ratio * mean {
-                        leaves
-                            .entry(t.prim)
-                            .or_insert_with(|| (*t, Vec::new()))
-                            .1
-                            .push(i as u32);
-                    }
-                }
-            }
-            _ => {}
-        }
-        if let Some(&parent) = nodes.parent.get(i)
-            && let Some(k) = kids.get_mut(parent as usize)
-        {
-            *k += cost[i];
-        }
-    }
-    report.candidates += leaves.len() as u64;
+    let costs = Costs::of(view, map, nodes, mean, p)?;
+    report.candidates += costs.leaves.len() as u64;
     // The best node of each candidate, per root its leaves are under.
-    let root_of = |mut i: u32| {
-        while let Some(&p) = nodes.parent.get(i as usize) {
-            if p == u32::MAX {
-                break;
-            }
-            i = p;
-        }
-        i
-    };
-    let lca = |mut a: u32, mut b: u32| {
-        while a != b {
-            let (la, lb) = (nodes.level[a as usize], nodes.level[b as usize]);
-            if la >= lb {
-                a = nodes.parent[a as usize];
-            } else {
-                b = nodes.parent[b as usize];
-            }
-            if a == u32::MAX || b == u32::MAX {
-                return u32::MAX;
-            }
-        }
-        a
-    };
     let mut chosen: Vec<(u32, f64, TriRecord)> = Vec::new();
     let mut by_root: HashMap<u32, u32> = HashMap::new();
-    for (tri, ls) in leaves.values() {
+    for (tri, ls) in costs.leaves.values() {
         by_root.clear();
         for &l in ls {
-            let r = root_of(l);
+            let r = nodes.root_of(l);
             let e = by_root.entry(r).or_insert(l);
-            *e = lca(*e, l);
+            *e = nodes.lca(*e, l);
         }
         let b = tri_box(&tri.v);
         for &home in by_root.values() {
             if home == u32::MAX {
                 continue;
             }
-            // A triangle of one leaf: from the leaf's parent.
-            let mut node = if internal[home as usize] {
-                home
-            } else {
-                nodes.parent[home as usize]
-            };
-            let mut best = (0.0, u32::MAX);
-            while node != u32::MAX {
-                let i = node as usize;
-                let c = cell(i);
-                let hit = (area(&clip(&b, &c)) / area(&c).max(f64::MIN_POSITIVE)).min(1.0);
-                let with = ISECT_COST + (1.0 - hit) * kids[i];
-                let d = nodes.level[home as usize].saturating_sub(nodes.level[i]) as f64;
-                let benefit = kids[i] / with * (-p.depth_k * d).exp();
-                if benefit > best.0 {
-                    best = (benefit, node);
-                }
-                node = nodes.parent[i];
-            }
+            let best = best_node(nodes, &costs, header, p, home, &b);
             if best.0 > p.min_benefit {
                 chosen.push((best.1, best.0, *tri));
             }
@@ -350,6 +294,109 @@ fn block_occluders(
         }
     }
     Ok((entries, out))
+}
+
+/// A block's estimated costs (module docs), by node record: the sum of each node's children's,
+/// which internal nodes are, and each candidate triangle (by primitive id) with its leaves.
+struct Costs {
+    kids: Vec<f64>,
+    internal: Vec<bool>,
+    leaves: HashMap<u32, (TriRecord, Vec<u32>)>,
+}
+
+impl Costs {
+    /// The costs, bottom-up (children follow their parents in record order), and each
+    /// candidate's leaves: a triangle whose box's area is over `p.candidate_ratio` times the
+    /// `mean`.
+    fn of(
+        view: &BlockView<'_>,
+        map: &TreeMap<'_>,
+        nodes: &Nodes,
+        mean: f64,
+        p: &ShadowParams,
+    ) -> Result<Costs, Error> {
+        let n = nodes.level.len();
+        let mut cost = vec![0f64; n];
+        let mut kids = vec![0f64; n];
+        let mut internal = vec![false; n];
+        let mut leaves: HashMap<u32, (TriRecord, Vec<u32>)> = HashMap::new();
+        let mut tris = Vec::new();
+        for i in (0..n).rev() {
+            let rec = map
+                .node(nodes.level[i], i as u64 - map.node_start(nodes.level[i]))
+                .map_err(bad)?;
+            match rec.kind_bits() {
+                KIND_INTERNAL => {
+                    internal[i] = true;
+                    cost[i] = TRAVERSAL_COST + 0.25 * kids[i];
+                }
+                KIND_SOLID => {
+                    leaf_triangles(view, rec, &mut tris)?;
+                    cost[i] = ISECT_COST * tris.len() as f64;
+                    for t in &tris {
+                        if area(&tri_box(&t.v)) > p.candidate_ratio * mean {
+                            leaves
+                                .entry(t.prim)
+                                .or_insert_with(|| (*t, Vec::new()))
+                                .1
+                                .push(i as u32);
+                        }
+                    }
+                }
+                _ => {}
+            }
+            if let Some(&parent) = nodes.parent.get(i)
+                && let Some(k) = kids.get_mut(parent as usize)
+            {
+                *k += cost[i];
+            }
+        }
+        Ok(Costs {
+            kids,
+            internal,
+            leaves,
+        })
+    }
+}
+
+/// The node of greatest weighted saving for a triangle whose box is `b` and whose leaves are
+/// all under node `home`, from `home` (a triangle of one leaf: from the leaf's parent) up to
+/// its root: (saving, node), the node `u32::MAX` if none saves anything.
+fn best_node(
+    nodes: &Nodes,
+    costs: &Costs,
+    header: &Header,
+    p: &ShadowParams,
+    home: u32,
+    b: &Box3,
+) -> (f64, u32) {
+    let unit = header.root_size / LATTICE_SIZE as f64;
+    let cell = |i: usize| -> Box3 {
+        let lo = morton::cell_origin(nodes.code[i], nodes.level[i]);
+        let s = morton::cell_size(nodes.level[i]) as f64 * unit;
+        let lo: [f64; 3] = std::array::from_fn(|k| header.root_min[k] + lo[k] as f64 * unit);
+        [lo, std::array::from_fn(|k| lo[k] + s)]
+    };
+    let kids = &costs.kids;
+    let mut node = if costs.internal[home as usize] {
+        home
+    } else {
+        nodes.parent[home as usize]
+    };
+    let mut best = (0.0, u32::MAX);
+    while node != u32::MAX {
+        let i = node as usize;
+        let c = cell(i);
+        let hit = (area(&clip(b, &c)) / area(&c).max(f64::MIN_POSITIVE)).min(1.0);
+        let with = ISECT_COST + (1.0 - hit) * kids[i];
+        let d = nodes.level[home as usize].saturating_sub(nodes.level[i]) as f64;
+        let benefit = kids[i] / with * (-p.depth_k * d).exp();
+        if benefit > best.0 {
+            best = (benefit, node);
+        }
+        node = nodes.parent[i];
+    }
+    best
 }
 
 /// Rewrites the file `file` into `sink` with occluders chosen by `params` (module docs; spec

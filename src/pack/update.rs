@@ -485,14 +485,35 @@ struct Job {
     nodes: Vec<usize>,
 }
 
-/// The leaves of the blocks an update removes.
-struct Removed {
+/// Empty and solid leaves: of the blocks an update removes, or of those it writes.
+#[derive(Clone, Copy, Default)]
+struct Leaves {
     empty: u64,
     solid: u64,
 }
 
+impl Leaves {
+    /// The leaves among `nodes`.
+    fn of(nodes: &[NodeRecord]) -> Leaves {
+        let mut n = Leaves::default();
+        for r in nodes {
+            match r.kind_bits() {
+                KIND_EMPTY => n.empty += 1,
+                KIND_SOLID => n.solid += 1,
+                _ => {}
+            }
+        }
+        n
+    }
+
+    fn add(&mut self, other: Leaves) {
+        self.empty += other.empty;
+        self.solid += other.solid;
+    }
+}
+
 /// The distinct triangles a decoded block stores, and its leaf counts.
-fn block_triangles(view: &BlockView<'_>) -> (Vec<TriRecord>, u64, u64) {
+fn block_triangles(view: &BlockView<'_>) -> (Vec<TriRecord>, Leaves) {
     let mut seen = HashSet::new();
     let mut out = Vec::new();
     for t in view.triangles {
@@ -510,34 +531,13 @@ fn block_triangles(view: &BlockView<'_>) -> (Vec<TriRecord>, u64, u64) {
             }
         }
     }
-    let (mut empty, mut solid) = (0, 0);
-    for n in view.nodes {
-        match n.kind_bits() {
-            KIND_EMPTY => empty += 1,
-            KIND_SOLID => solid += 1,
-            _ => {}
-        }
-    }
-    (out, empty, solid)
-}
-
-fn leaf_counts(unit: UnitRef<'_>) -> (u64, u64) {
-    let (mut empty, mut solid) = (0, 0);
-    for n in unit.nodes {
-        match n.kind_bits() {
-            KIND_EMPTY => empty += 1,
-            KIND_SOLID => solid += 1,
-            _ => {}
-        }
-    }
-    (empty, solid)
+    (out, Leaves::of(view.nodes))
 }
 
 fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     let t0 = Instant::now();
     let path = u.path.clone();
-    let file = &u.file;
-    let header = *file.header();
+    let header = *u.file.header();
     let mut report = UpdateReport {
         file: path.display().to_string(),
         previous_generation: header.generation,
@@ -549,7 +549,85 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
 
     // 1. The changes, old and new, and where they may be. The edits are consumed: from here
     // on the changes (in increasing primitive order) are what says what a primitive becomes.
-    let old_count = header.input_triangles;
+    let changes = take_changes(&mut u);
+    let lattice = Lattice::of_root(header.root_min, header.root_size);
+    check_changes(&changes, &lattice, &header, &path, &mut report)?;
+    let file = &u.file;
+    let top = read_top(file, &path)?;
+    let changed = ChangedSet::new(&changes, header.input_triangles.max(u.count));
+
+    // 2. Where the changes reach: blocks to rebuild, empty leaves to fill.
+    let reach = reach_changes(&top, &lattice, &changes, &path)?;
+    report.diff_seconds += t0.elapsed().as_secs_f64();
+
+    // 3. The subtrees to build: the roots of every reached block together, every empty leaf
+    // reached alone.
+    let t1 = Instant::now();
+    let directory = file.directory();
+    let (jobs, replaced) = plan_jobs(&top, directory, &reach, &path, &mut report)?;
+    let build = build_options(&header);
+    let src = Sources {
+        file,
+        reader: BlockReader::new(file),
+        path: &path,
+        changes: &changes,
+        changed: &changed,
+        reach: &reach,
+        lattice,
+        build,
+        clusters: (build.leaf == LeafKind::Cluster).then_some(ClusterGeometry {
+            root_min: header.root_min,
+            root_size: header.root_size,
+        }),
+        block_opts: block_options(&header, opts),
+    };
+
+    // 4. The writer of the new generation: the directory with the reached blocks' entries
+    // freed, appending after everything the file holds.
+    let (mut w, start) = open_generation(&u, &top, &reach.blocks, report.generation)?;
+
+    // 5. Build and write, a batch of jobs at a time.
+    let mut built = Rebuilt::new(
+        &top,
+        &replaced,
+        &reach.blocks,
+        directory,
+        header.level_count,
+    );
+    built.run(jobs, &src, &mut w, &mut report)?;
+    report.leaves_before = built.removed.empty + built.removed.solid;
+    report.leaves_after = built.added.empty + built.added.solid;
+
+    // 6. The top tree's empty leaves merged again, as a whole.
+    let mut top_nodes = std::mem::take(&mut built.top_nodes);
+    report.top_empty_before = count_empty(&top.nodes);
+    remerge_top(&mut top_nodes, build.merge);
+    report.top_empty_after = count_empty(&top_nodes);
+    let top_unit = assemble_top(top_nodes)?;
+    report.build_seconds = t1.elapsed().as_secs_f64() - built.write_seconds;
+    let t2 = Instant::now();
+
+    // 7. The primitive chunks that changed, and the header's triangle counts and mesh bounds.
+    let io = |e: std::io::Error| Error::io(&path, e);
+    report.prim_chunks_written =
+        write_prim_chunks(&u, &changes, header.input_triangles, &mut w).map_err(io)?;
+    w.trim_free();
+    report.blocks_after = w.block_count() as u64;
+    let meta = header_after(&u, &header, &changes, &built, &report);
+    let (_, end) = w.finish(&meta, top_unit.as_ref()).map_err(io)?;
+    report.write_seconds = built.write_seconds + t2.elapsed().as_secs_f64();
+    report.file_bytes = std::fs::metadata(&path).map_err(io)?.len();
+    report.bytes_written = end - start + (std::mem::size_of::<Header>() as u64);
+    report.blocks_rebuilt = reach.blocks.len() as u64;
+    report.total_seconds = report.diff_seconds + t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// Takes the updater's edits as changes, in increasing primitive order, each with the record
+/// the open generation stores: the edits that change a record, then every primitive past the
+/// new count, removed.
+fn take_changes(u: &mut Updater) -> Vec<Change> {
+    let old_count = u.file.header().input_triangles;
     let edits = std::mem::take(&mut u.edits);
     // Sized once: grown by doubling, the list of 80 million changes would reserve 10 GB.
     let mut changes: Vec<Change> =
@@ -572,14 +650,25 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         });
     }
     debug_assert!(changes.windows(2).all(|w| w[0].prim < w[1].prim));
-    let lattice = Lattice::of_root(header.root_min, header.root_size);
+    changes
+}
+
+/// Refuses a change that moves a triangle out of the file's root cube, and counts the
+/// primitives inserted, removed and moved.
+fn check_changes(
+    changes: &[Change],
+    lattice: &Lattice,
+    header: &Header,
+    path: &Path,
+    report: &mut UpdateReport,
+) -> Result<(), Error> {
     let top_size = LATTICE_SIZE as f64;
-    for c in &changes {
+    for c in changes {
         if holds_triangle(&c.new) {
             let t = lattice.map(&c.new.v);
             if (0..3).any(|k| t.lo[k] <= 0.0 || t.hi[k] >= top_size) {
                 return Err(invalid(
-                    &path,
+                    path,
                     format!(
                         "primitive {} moves to {:?}, outside the file's root cube (min {:?}, \
                          edge {}): pack the scene again over bounds that hold all its frames",
@@ -595,56 +684,80 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
             (false, false) => {}
         }
     }
-    let top = read_top(file, &path)?;
-    // The changed primitives, as a bitset (a bit per primitive id: 16 MB for 128 million).
-    let mut changed = vec![0u64; (old_count.max(u.count)).div_ceil(64) as usize];
-    for c in &changes {
-        changed[c.prim as usize / 64] |= 1 << (c.prim % 64);
+    Ok(())
+}
+
+/// The changed primitives, as a bitset (a bit per primitive id: 16 MB for 128 million).
+struct ChangedSet(Vec<u64>);
+
+impl ChangedSet {
+    /// The primitives of `changes`, of `prims` primitive ids.
+    fn new(changes: &[Change], prims: u64) -> ChangedSet {
+        let mut changed = vec![0u64; prims.div_ceil(64) as usize];
+        for c in changes {
+            changed[c.prim as usize / 64] |= 1 << (c.prim % 64);
+        }
+        ChangedSet(changed)
     }
-    let is_changed = |p: u32| {
-        changed
+
+    fn contains(&self, p: u32) -> bool {
+        self.0
             .get(p as usize / 64)
             .is_some_and(|w| w >> (p % 64) & 1 != 0)
-    };
+    }
+}
 
-    // 2. Where the changes reach: blocks to rebuild (old or new triangle overlaps a root), and
-    // the new triangles by link or empty leaf, as (node, change) pairs sorted by node.
+/// Where the changes reach the top tree.
+struct Reach {
+    /// The blocks to rebuild (an old or a new triangle overlaps one of their roots), sorted.
+    blocks: Vec<u32>,
+    /// The empty top-tree leaves a new triangle reaches, in node order.
+    filled: Vec<usize>,
+    /// The new triangles by the link or empty leaf they reach: (node, change) pairs, sorted
+    /// by node.
+    pairs: Vec<(u32, u32)>,
+}
+
+impl Reach {
+    /// The changed triangles that reach top-tree node `i`.
+    fn reaching<'a>(
+        &'a self,
+        i: usize,
+        changes: &'a [Change],
+    ) -> impl Iterator<Item = TriRecord> + 'a {
+        let lo = self.pairs.partition_point(|p| (p.0 as usize) < i);
+        let hi = self.pairs.partition_point(|p| (p.0 as usize) <= i);
+        self.pairs[lo..hi].iter().map(|&(_, c)| {
+            let c = &changes[c as usize];
+            TriRecord {
+                v: c.new.v,
+                prim: c.prim,
+            }
+        })
+    }
+}
+
+/// Changes a run of [`reached_by`] takes (a task of the parallel descent).
+const RUN: usize = 1024;
+
+/// Where the changes reach: blocks to rebuild (old or new triangle overlaps a root), and the
+/// new triangles by link or empty leaf, as (node, change) pairs sorted by node.
+fn reach_changes(
+    top: &Top,
+    lattice: &Lattice,
+    changes: &[Change],
+    path: &Path,
+) -> Result<Reach, Error> {
     if changes.len() > u32::MAX as usize || top.nodes.len() > u32::MAX as usize {
         return Err(invalid(
-            &path,
+            path,
             "too many changes or top-tree nodes for one update",
         ));
     }
-    const RUN: usize = 1024;
     let reached: Vec<Reached> = changes
         .par_chunks(RUN)
         .enumerate()
-        .map(|(run, cs)| {
-            let mut links = Vec::new();
-            let mut news = Vec::new();
-            let mut buf = Vec::new();
-            let mut stack = Vec::new();
-            for (k, c) in cs.iter().enumerate() {
-                if holds_triangle(&c.old) {
-                    buf.clear();
-                    descend(&top, &lattice.map(&c.old.v), &mut stack, &mut buf);
-                    links.extend(
-                        buf.iter()
-                            .filter(|&&i| matches!(top.nodes[i].kind, TopKind::Link { .. }))
-                            .map(|&i| i as u32),
-                    );
-                }
-                if holds_triangle(&c.new) {
-                    buf.clear();
-                    descend(&top, &lattice.map(&c.new.v), &mut stack, &mut buf);
-                    let at = (run * RUN + k) as u32;
-                    news.extend(buf.iter().map(|&i| (i as u32, at)));
-                }
-            }
-            links.sort_unstable();
-            links.dedup();
-            (links, news)
-        })
+        .map(|(run, cs)| reached_by(top, lattice, cs, run * RUN))
         .collect();
     let mut blocks: HashSet<u32> = HashSet::new();
     let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(reached.iter().map(|r| r.1.len()).sum());
@@ -667,64 +780,65 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
             _ => filled.push(i),
         }
     }
-    // The changed triangles that reach top-tree node `i`.
-    let reaching = |i: usize| {
-        let lo = pairs.partition_point(|p| (p.0 as usize) < i);
-        let hi = pairs.partition_point(|p| (p.0 as usize) <= i);
-        pairs[lo..hi].iter().map(|&(_, c)| {
-            let c = &changes[c as usize];
-            TriRecord {
-                v: c.new.v,
-                prim: c.prim,
-            }
-        })
-    };
     let mut blocks: Vec<u32> = blocks.into_iter().collect();
     blocks.sort_unstable();
-    report.diff_seconds += t0.elapsed().as_secs_f64();
+    Ok(Reach {
+        blocks,
+        filled,
+        pairs,
+    })
+}
 
-    // 3. The subtrees to build: the roots of every reached block together, every empty leaf
-    // reached alone.
-    let t1 = Instant::now();
-    let directory = file.directory();
-    let reader = BlockReader::new(file);
+/// What a run of changes reaches (see [`Reached`]); `first` is the index of its first change
+/// in the change list.
+fn reached_by(top: &Top, lattice: &Lattice, cs: &[Change], first: usize) -> Reached {
+    let mut links = Vec::new();
+    let mut news = Vec::new();
+    let mut buf = Vec::new();
+    let mut stack = Vec::new();
+    for (k, c) in cs.iter().enumerate() {
+        if holds_triangle(&c.old) {
+            buf.clear();
+            descend(top, &lattice.map(&c.old.v), &mut stack, &mut buf);
+            links.extend(
+                buf.iter()
+                    .filter(|&&i| matches!(top.nodes[i].kind, TopKind::Link { .. }))
+                    .map(|&i| i as u32),
+            );
+        }
+        if holds_triangle(&c.new) {
+            buf.clear();
+            descend(top, &lattice.map(&c.new.v), &mut stack, &mut buf);
+            let at = (first + k) as u32;
+            news.extend(buf.iter().map(|&i| (i as u32, at)));
+        }
+    }
+    links.sort_unstable();
+    links.dedup();
+    (links, news)
+}
+
+/// The subtrees to build, and the top-tree nodes they replace: the roots of every reached
+/// block together, in block order; then every empty leaf reached alone, in node order (the
+/// order of the sorted pairs), so that block ids are handed out the same way on every run.
+fn plan_jobs(
+    top: &Top,
+    directory: &[BlockEntry],
+    reach: &Reach,
+    path: &Path,
+    report: &mut UpdateReport,
+) -> Result<(Vec<Job>, HashSet<usize>), Error> {
     let mut jobs: Vec<Job> = Vec::new();
     let mut replaced: HashSet<usize> = HashSet::new();
-    for &b in &blocks {
-        let e = directory
-            .get(b as usize)
-            .ok_or_else(|| invalid(&path, format!("a link to block {b}, past the directory")))?;
-        let mut roots = Vec::with_capacity(e.root_count as usize);
-        for root in 0..e.root_count {
-            let &(level, code) = top
-                .roots
-                .get(&(b, root))
-                .ok_or_else(|| invalid(&path, format!("root {root} of block {b} is not linked")))?;
-            roots.push((level, code));
-        }
-        roots.sort_unstable_by_key(|r| r.1);
-        let Some(&(level, _)) = roots.first() else {
+    for &b in &reach.blocks {
+        let Some(job) = block_job(top, directory, b, path)? else {
             continue;
         };
-        if roots.iter().any(|r| r.0 != level) {
-            return Err(invalid(
-                &path,
-                format!("block {b}: roots at different levels"),
-            ));
-        }
-        let nodes: Vec<usize> = roots.iter().map(|r| top.at[r]).collect();
-        replaced.extend(&nodes);
-        report.subtrees_rebuilt += roots.len() as u64;
-        jobs.push(Job {
-            block: Some(b),
-            level,
-            codes: roots.iter().map(|r| r.1).collect(),
-            nodes,
-        });
+        replaced.extend(&job.nodes);
+        report.subtrees_rebuilt += job.codes.len() as u64;
+        jobs.push(job);
     }
-    // In node order (the order of the sorted pairs), so that block ids are handed out the same
-    // way on every run.
-    for &i in &filled {
+    for &i in &reach.filled {
         replaced.insert(i);
         let n = top.nodes[i];
         jobs.push(Job {
@@ -734,9 +848,51 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
             nodes: vec![i],
         });
     }
-    report.empty_leaves_filled = filled.len() as u64;
-    report.subtrees_rebuilt += filled.len() as u64;
-    let build = BuildOptions {
+    report.empty_leaves_filled = reach.filled.len() as u64;
+    report.subtrees_rebuilt += reach.filled.len() as u64;
+    Ok((jobs, replaced))
+}
+
+/// The job that rebuilds block `b`'s roots (one level, Morton order); `None` for a block with
+/// no roots.
+fn block_job(
+    top: &Top,
+    directory: &[BlockEntry],
+    b: u32,
+    path: &Path,
+) -> Result<Option<Job>, Error> {
+    let e = directory
+        .get(b as usize)
+        .ok_or_else(|| invalid(path, format!("a link to block {b}, past the directory")))?;
+    let mut roots = Vec::with_capacity(e.root_count as usize);
+    for root in 0..e.root_count {
+        let &(level, code) = top
+            .roots
+            .get(&(b, root))
+            .ok_or_else(|| invalid(path, format!("root {root} of block {b} is not linked")))?;
+        roots.push((level, code));
+    }
+    roots.sort_unstable_by_key(|r| r.1);
+    let Some(&(level, _)) = roots.first() else {
+        return Ok(None);
+    };
+    if roots.iter().any(|r| r.0 != level) {
+        return Err(invalid(
+            path,
+            format!("block {b}: roots at different levels"),
+        ));
+    }
+    Ok(Some(Job {
+        block: Some(b),
+        level,
+        codes: roots.iter().map(|r| r.1).collect(),
+        nodes: roots.iter().map(|r| top.at[r]).collect(),
+    }))
+}
+
+/// The build options the file was packed with, as its header records them.
+fn build_options(header: &Header) -> BuildOptions {
+    BuildOptions {
         max_depth: header.max_depth,
         leaf_size: header.leaf_size,
         merge: header.flags & FLAG_MERGED != 0,
@@ -745,23 +901,32 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
         } else {
             LeafKind::List
         },
-    };
-    let clusters = (build.leaf == LeafKind::Cluster).then_some(ClusterGeometry {
-        root_min: header.root_min,
-        root_size: header.root_size,
-    });
+    }
+}
+
+/// How the new blocks are stored: compressed as asked, or as the file's blocks are.
+fn block_options(header: &Header, opts: &UpdateOptions) -> BlockOptions {
     let compress = match opts.compress {
         Some(c) => c,
         None => (header.flags & FLAG_COMPRESSED != 0).then_some(DEFAULT_ZSTD_LEVEL),
     };
-    let block_opts = BlockOptions {
+    BlockOptions {
         block_size: opts.block_size,
         compress,
-    };
+    }
+}
 
-    // 4. The writer of the new generation: the directory with the reached blocks' entries
-    // freed, appending after everything the file holds.
-    let mut dir: Vec<BlockEntry> = directory.to_vec();
+/// The writer of the new generation, and the offset it starts at: the directory with the
+/// reached blocks' entries freed (and their roots' bounds dropped), appending after
+/// everything the file holds.
+fn open_generation(
+    u: &Updater,
+    top: &Top,
+    blocks: &[u32],
+    generation: u64,
+) -> Result<(FileWriter<FileSink>, u64), Error> {
+    let path = &u.path;
+    let mut dir: Vec<BlockEntry> = u.file.directory().to_vec();
     let mut bounds: Vec<Vec<LinkBounds>> = dir
         .iter()
         .enumerate()
@@ -771,105 +936,179 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
                 .collect()
         })
         .collect();
-    for &b in &blocks {
+    for &b in blocks {
         dir[b as usize] = BlockEntry::zeroed();
         bounds[b as usize].clear();
     }
-    let start = std::fs::metadata(&path)
-        .map_err(|e| Error::io(&path, e))?
+    let start = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
         .len()
         .next_multiple_of(RAW_BLOCK_ALIGN);
-    let io = |e: std::io::Error| Error::io(&path, e);
+    let io = |e: std::io::Error| Error::io(path, e);
     let mut handle = u.handle.try_clone().map_err(io)?;
     {
         use std::io::Seek;
         handle.seek(std::io::SeekFrom::Start(start)).map_err(io)?;
     }
-    let chunks: Vec<PrimChunk> = file.records::<PrimChunk>(SectionKind::Prims).to_vec();
-    let mut w = FileWriter::resume(
+    let chunks: Vec<PrimChunk> = u.file.records::<PrimChunk>(SectionKind::Prims).to_vec();
+    let w = FileWriter::resume(
         FileSink::new(handle),
         start,
-        report.generation,
+        generation,
         dir,
         bounds,
         Some(chunks),
     )
     .map_err(io)?;
+    Ok((w, start))
+}
 
-    // 5. Build and write, a batch of jobs at a time (what is held is one batch's triangles and
-    // blocks): each reached block decoded, its triangles but the changed ones added to the
-    // changed ones that now reach its roots; block ids from the freed entries first (lowest
-    // first), then new ones at the directory's end, in increasing order.
-    let mut free: Vec<u32> = blocks.clone();
-    free.extend(
-        directory
-            .iter()
-            .enumerate()
-            .filter(|(_, e)| e.is_free())
-            .map(|(b, _)| b as u32),
-    );
-    free.sort_unstable();
-    free.dedup();
-    let mut free = free.into_iter();
-    let mut next_id = directory.len() as u32;
-    let mut top_nodes: Vec<TopNode> = top
+/// What building the new subtrees reads: the open generation's blocks, the changes and where
+/// they reach, and how the new blocks are built and stored.
+struct Sources<'a> {
+    file: &'a OavmFile<MappedFile>,
+    reader: BlockReader,
+    path: &'a Path,
+    changes: &'a [Change],
+    changed: &'a ChangedSet,
+    reach: &'a Reach,
+    lattice: Lattice,
+    build: BuildOptions,
+    clusters: Option<ClusterGeometry>,
+    block_opts: BlockOptions,
+}
+
+/// Builds a job's subtrees over the changed triangles that now reach its nodes and, for a
+/// reached block, the triangles it stores but the changed ones. Returns them with the
+/// block's leaves (none for an empty leaf filled).
+fn build_job(src: &Sources<'_>, j: &Job) -> Result<(Subtree, Leaves), Error> {
+    let mut leaves = Leaves::default();
+    let mut records: Vec<TriRecord> = j
         .nodes
         .iter()
-        .enumerate()
-        .filter(|(i, _)| !replaced.contains(i))
-        .map(|(_, n)| *n)
+        .flat_map(|&i| src.reach.reaching(i, src.changes))
         .collect();
-    let mut level_end = header.level_count;
-    let (mut added_empty, mut added_solid) = (0u64, 0u64);
-    let (mut removed_empty, mut removed_solid) = (0u64, 0u64);
-    let mut write_seconds = 0.0;
-    let batch_size = 4 * rayon::current_num_threads().max(1);
-    while !jobs.is_empty() {
-        let batch: Vec<Job> = jobs.drain(..batch_size.min(jobs.len())).collect();
-        let built: Vec<(Subtree, u64, u64)> = batch
-            .into_par_iter()
-            .map(|j| {
-                let (mut empty, mut solid) = (0, 0);
-                let mut records: Vec<TriRecord> =
-                    j.nodes.iter().flat_map(|&i| reaching(i)).collect();
-                if let Some(b) = j.block {
-                    let e = &directory[b as usize];
-                    let raw = reader
-                        .read(file.bytes(), b, e)
-                        .map_err(|err| invalid(&path, err))?;
-                    let view = BlockView::parse(&raw, b, e)
-                        .map_err(|w| invalid(&path, format!("block {b}: {w}")))?;
-                    let (tris, le, ls) = block_triangles(&view);
-                    (empty, solid) = (le, ls);
-                    records.extend(tris.into_iter().filter(|t| !is_changed(t.prim)));
-                }
-                records.sort_unstable_by_key(|r| r.prim);
-                records.dedup_by_key(|r| r.prim);
-                let s = build_subtrees(
-                    &records,
-                    j.level,
-                    &j.codes,
-                    &lattice,
-                    &build,
-                    opts.block_size,
-                    0,
-                    clusters.as_ref(),
-                )?;
-                Ok((s, empty, solid))
-            })
-            .collect::<Result<_, Error>>()?;
+    if let Some(b) = j.block {
+        let e = &src.file.directory()[b as usize];
+        let raw = src
+            .reader
+            .read(src.file.bytes(), b, e)
+            .map_err(|err| invalid(src.path, err))?;
+        let view = BlockView::parse(&raw, b, e)
+            .map_err(|w| invalid(src.path, format!("block {b}: {w}")))?;
+        let (tris, counts) = block_triangles(&view);
+        leaves = counts;
+        records.extend(tris.into_iter().filter(|t| !src.changed.contains(t.prim)));
+    }
+    records.sort_unstable_by_key(|r| r.prim);
+    records.dedup_by_key(|r| r.prim);
+    let s = build_subtrees(
+        &records,
+        j.level,
+        &j.codes,
+        &src.lattice,
+        &src.build,
+        src.block_opts.block_size,
+        0,
+        src.clusters.as_ref(),
+    )?;
+    Ok((s, leaves))
+}
+
+/// The new generation's blocks and top tree, as the batches of jobs are built and written.
+struct Rebuilt {
+    /// Ids for new blocks: the free entries, lowest first; then `next_id` on, at the
+    /// directory's end.
+    free: std::vec::IntoIter<u32>,
+    next_id: u32,
+    /// The top tree: the nodes no job replaced, and the new subtrees' top nodes.
+    top_nodes: Vec<TopNode>,
+    /// One past the deepest level.
+    level_end: u32,
+    /// Leaves of the blocks removed, and of those written.
+    removed: Leaves,
+    added: Leaves,
+    write_seconds: f64,
+}
+
+impl Rebuilt {
+    /// Starts from the open generation's top tree less the `replaced` nodes; new blocks take
+    /// the ids of the reached `blocks` and of the directory's free entries first (lowest
+    /// first), then new ones at the directory's end, in increasing order.
+    fn new(
+        top: &Top,
+        replaced: &HashSet<usize>,
+        blocks: &[u32],
+        directory: &[BlockEntry],
+        level_count: u32,
+    ) -> Rebuilt {
+        let mut free: Vec<u32> = blocks.to_vec();
+        free.extend(
+            directory
+                .iter()
+                .enumerate()
+                .filter(|(_, e)| e.is_free())
+                .map(|(b, _)| b as u32),
+        );
+        free.sort_unstable();
+        free.dedup();
+        Rebuilt {
+            free: free.into_iter(),
+            next_id: directory.len() as u32,
+            top_nodes: top
+                .nodes
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| !replaced.contains(i))
+                .map(|(_, n)| *n)
+                .collect(),
+            level_end: level_count,
+            removed: Leaves::default(),
+            added: Leaves::default(),
+            write_seconds: 0.0,
+        }
+    }
+
+    /// Builds and writes the jobs, a batch at a time (what is held is one batch's triangles
+    /// and blocks), the jobs of a batch in parallel.
+    fn run(
+        &mut self,
+        mut jobs: Vec<Job>,
+        src: &Sources<'_>,
+        w: &mut FileWriter<FileSink>,
+        report: &mut UpdateReport,
+    ) -> Result<(), Error> {
+        let batch_size = 4 * rayon::current_num_threads().max(1);
+        while !jobs.is_empty() {
+            let batch: Vec<Job> = jobs.drain(..batch_size.min(jobs.len())).collect();
+            let built: Vec<(Subtree, Leaves)> = batch
+                .into_par_iter()
+                .map(|j| build_job(src, &j))
+                .collect::<Result<_, Error>>()?;
+            let new_blocks = self.take(built);
+            for b in &new_blocks {
+                self.added.add(Leaves::of(b.unit.as_ref().nodes));
+                report.volumes_after += b.unit.volumes.len() as u64;
+            }
+            self.write(new_blocks, src, w, report)?;
+        }
+        Ok(())
+    }
+
+    /// Takes a batch's subtrees: their blocks get ids, their top nodes join the top tree
+    /// (links to the new ids). Returns the blocks.
+    fn take(&mut self, built: Vec<(Subtree, Leaves)>) -> Vec<BlockParts> {
         let mut new_blocks: Vec<BlockParts> = Vec::new();
-        for (s, empty, solid) in built {
-            removed_empty += empty;
-            removed_solid += solid;
+        for (s, leaves) in built {
+            self.removed.add(leaves);
             let ids: Vec<u32> = s
                 .split
                 .blocks
                 .iter()
                 .map(|_| {
-                    free.next().unwrap_or_else(|| {
-                        next_id += 1;
-                        next_id - 1
+                    self.free.next().unwrap_or_else(|| {
+                        self.next_id += 1;
+                        self.next_id - 1
                     })
                 })
                 .collect();
@@ -880,59 +1119,58 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
                         root,
                     };
                 }
-                top_nodes.push(n);
+                self.top_nodes.push(n);
             }
             for (mut b, id) in s.split.blocks.into_iter().zip(ids) {
                 b.id = id;
                 new_blocks.push(b);
             }
-            level_end = level_end.max(s.level_end);
+            self.level_end = self.level_end.max(s.level_end);
         }
-        for b in &new_blocks {
-            let (empty, solid) = leaf_counts(b.unit.as_ref());
-            added_empty += empty;
-            added_solid += solid;
-            report.volumes_after += b.unit.volumes.len() as u64;
-        }
+        new_blocks
+    }
+
+    /// Stores a batch's blocks (in parallel) and places them in the new generation.
+    fn write(
+        &mut self,
+        mut new_blocks: Vec<BlockParts>,
+        src: &Sources<'_>,
+        w: &mut FileWriter<FileSink>,
+        report: &mut UpdateReport,
+    ) -> Result<(), Error> {
         let tw = Instant::now();
         // Ids past the directory's end are placed in order (a writer fills the directory in
         // order); they were handed out in increasing order.
         new_blocks.sort_unstable_by_key(|b| b.id);
         let stored: Vec<StoredBlock> = new_blocks
             .par_iter()
-            .map(|b| store_block(b.unit.as_ref(), b.root_level, b.id, &block_opts))
+            .map(|b| store_block(b.unit.as_ref(), b.root_level, b.id, &src.block_opts))
             .collect::<Result<_, _>>()?;
         for s in stored {
-            w.place(s).map_err(io)?;
+            w.place(s).map_err(|e| Error::io(src.path, e))?;
         }
         report.blocks_written += new_blocks.len() as u64;
-        write_seconds += tw.elapsed().as_secs_f64();
+        self.write_seconds += tw.elapsed().as_secs_f64();
+        Ok(())
     }
-    report.leaves_before = removed_empty + removed_solid;
-    report.leaves_after = added_empty + added_solid;
-    let removed = Removed {
-        empty: removed_empty,
-        solid: removed_solid,
-    };
+}
 
-    // 6. The top tree's empty leaves merged again, as a whole.
-    let top_empty_before = top
-        .nodes
+/// The empty leaves among top-tree nodes.
+fn count_empty(nodes: &[TopNode]) -> u64 {
+    nodes
         .iter()
         .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
-        .count() as u64;
-    remerge_top(&mut top_nodes, build.merge);
-    let top_empty_after = top_nodes
-        .iter()
-        .filter(|n| matches!(n.kind, TopKind::Empty { .. }))
-        .count() as u64;
-    report.top_empty_before = top_empty_before;
-    report.top_empty_after = top_empty_after;
-    let top_unit = assemble_top(top_nodes)?;
-    report.build_seconds = t1.elapsed().as_secs_f64() - write_seconds;
-    let t2 = Instant::now();
+        .count() as u64
+}
 
-    // The primitive chunks that changed, and the header's triangle counts and mesh bounds.
+/// Writes the primitive chunks the changes touch (and the one the new count cuts short), and
+/// drops those past the new count. Returns how many were written.
+fn write_prim_chunks(
+    u: &Updater,
+    changes: &[Change],
+    old_count: u64,
+    w: &mut FileWriter<FileSink>,
+) -> std::io::Result<u64> {
     let new_count = u.count;
     let mut touched: Vec<u64> = changes
         .iter()
@@ -947,41 +1185,43 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     for &c in &touched {
         let lo = c * PRIM_CHUNK;
         let hi = (lo + PRIM_CHUNK).min(new_count);
-        let records = records_after(&u, &changes, lo..hi);
-        w.write_prim_chunk(c as usize, &records).map_err(io)?;
+        let records = records_after(u, changes, lo..hi);
+        w.write_prim_chunk(c as usize, &records)?;
     }
     w.truncate_prim_chunks(new_count.div_ceil(PRIM_CHUNK) as usize);
-    report.prim_chunks_written = touched.len() as u64;
-    w.trim_free();
-    report.blocks_after = w.block_count() as u64;
+    Ok(touched.len() as u64)
+}
 
+/// The new generation's header: the previous one with the triangle counts, the mesh bounds,
+/// the leaf counts (the top tree's empty leaves before and after are the report's) and the
+/// levels after the update.
+fn header_after(
+    u: &Updater,
+    header: &Header,
+    changes: &[Change],
+    built: &Rebuilt,
+    report: &UpdateReport,
+) -> Header {
     let mut stored_triangles = header.stored_triangles;
-    for c in &changes {
+    for c in changes {
         stored_triangles -= u64::from(holds_triangle(&c.old));
         stored_triangles += u64::from(holds_triangle(&c.new));
     }
-    let (mesh_min, mesh_max) = mesh_bounds(&u, &header, &changes);
+    let (mesh_min, mesh_max) = mesh_bounds(u, header, changes);
     // Leaves: the previous counts, less the removed blocks' and the top tree's empty leaves
     // before, plus the new blocks' and the top tree's after.
-    let meta = Header {
-        input_triangles: new_count,
+    Header {
+        input_triangles: u.count,
         stored_triangles,
         mesh_min,
         mesh_max,
-        empty_leaves: header.empty_leaves - removed.empty - top_empty_before
-            + added_empty
-            + top_empty_after,
-        solid_leaves: header.solid_leaves - removed.solid + added_solid,
-        level_count: level_end.min(MAX_LEVEL + 1),
-        ..header
-    };
-    let (_, end) = w.finish(&meta, top_unit.as_ref()).map_err(io)?;
-    report.write_seconds = write_seconds + t2.elapsed().as_secs_f64();
-    report.file_bytes = std::fs::metadata(&path).map_err(io)?.len();
-    report.bytes_written = end - start + (std::mem::size_of::<Header>() as u64);
-    report.blocks_rebuilt = blocks.len() as u64;
-    report.total_seconds = report.diff_seconds + t0.elapsed().as_secs_f64();
-    Ok(report)
+        empty_leaves: header.empty_leaves - built.removed.empty - report.top_empty_before
+            + built.added.empty
+            + report.top_empty_after,
+        solid_leaves: header.solid_leaves - built.removed.solid + built.added.solid,
+        level_count: built.level_end.min(MAX_LEVEL + 1),
+        ..*header
+    }
 }
 
 /// The records of primitives `prims` after the update: the changed ones' new records (found

@@ -216,6 +216,35 @@ fn read_header(file: &[u8], slot: usize, file_len: u64) -> Result<Header, Format
             found: header.version,
         });
     }
+    let section_count = check_header_frame(&header, slot, file_len)?;
+    let table_end = need + section_count * std::mem::size_of::<SectionEntry>();
+    if bytes.len() < table_end {
+        return Err(header_err(format!(
+            "the file ends inside the section table ({table_end} bytes needed)"
+        )));
+    }
+    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+    hasher.update(&bytes[..HEADER_CHECKED_LEN]);
+    hasher.update(&bytes[need..table_end]);
+    let computed = hasher.digest();
+    if computed != header.checksum {
+        return Err(FormatError::Checksum {
+            section: "header and section table",
+            stored: header.checksum,
+            computed,
+        });
+    }
+    check_header_fields(&header)?;
+    Ok(header)
+}
+
+/// The header fields that say where things are and how many, checked before the checksum
+/// (which covers the section table they locate): block size limit, header size, the slot of
+/// the generation, file size, flags, section count and table offset. Returns the section
+/// count.
+fn check_header_frame(header: &Header, slot: usize, file_len: u64) -> Result<usize, FormatError> {
+    let at = HEADER_SLOTS[slot] as usize;
+    let need = std::mem::size_of::<Header>();
     if header.max_block_raw_len > MAX_BLOCK_RAW_LEN {
         return Err(header_err(format!(
             "max_block_raw_len {} is above the limit of {MAX_BLOCK_RAW_LEN} bytes",
@@ -268,23 +297,12 @@ fn read_header(file: &[u8], slot: usize, file_len: u64) -> Result<Header, Format
             at + need
         )));
     }
-    let table_end = need + section_count * std::mem::size_of::<SectionEntry>();
-    if bytes.len() < table_end {
-        return Err(header_err(format!(
-            "the file ends inside the section table ({table_end} bytes needed)"
-        )));
-    }
-    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
-    hasher.update(&bytes[..HEADER_CHECKED_LEN]);
-    hasher.update(&bytes[need..table_end]);
-    let computed = hasher.digest();
-    if computed != header.checksum {
-        return Err(FormatError::Checksum {
-            section: "header and section table",
-            stored: header.checksum,
-            computed,
-        });
-    }
+    Ok(section_count)
+}
+
+/// The header fields checked after the checksum: reserved bytes, the lattice, level count and
+/// depth, the root cube and the mesh bounds.
+fn check_header_fields(header: &Header) -> Result<(), FormatError> {
     if header.reserved.iter().any(|&r| r != 0) {
         return Err(header_err("reserved fields are not zero"));
     }
@@ -332,7 +350,7 @@ fn read_header(file: &[u8], slot: usize, file_len: u64) -> Result<Header, Format
     if !mesh_ok {
         return Err(header_err("mesh bounds are not finite or min > max"));
     }
-    Ok(header)
+    Ok(())
 }
 
 fn read_section_table(

@@ -611,19 +611,42 @@ impl<S: Sink> FileWriter<S> {
     /// `meta` holds the header fields the builder knows (root cube, mesh bounds, triangle,
     /// leaf and level counts, build options, the `MERGED` flag); the writer sets the rest.
     pub fn finish(mut self, meta: &Header, top: UnitRef<'_>) -> std::io::Result<(S, u64)> {
+        let directory = std::mem::take(&mut self.directory);
+        let link_bounds = self.link_bounds(top.nodes)?;
+        let ropes = self.top_ropes(&top)?;
+        let prims = self.prims.take();
+        if let Some(p) = &prims
+            && p.len() as u64 != meta.input_triangles.div_ceil(PRIM_CHUNK)
+        {
+            return Err(std::io::Error::other(format!(
+                "{} primitive chunks for {} input triangles",
+                p.len(),
+                meta.input_triangles
+            )));
+        }
+        let flags = file_flags(meta, &directory, ropes, prims.is_some());
         let mut entries = [SectionEntry::zeroed(); SectionKind::ALL.len()];
         entries[0] = SectionEntry {
             kind: SectionKind::Blocks as u32,
             codec: 0,
             offset: self.blocks_start,
-            length: self.at - self.blocks_start,
-            count: self.directory.len() as u64,
+            // The data region (the blocks section) ends where the directory begins (spec §2.1).
+            length: self.at.next_multiple_of(SECTION_ALIGN) - self.blocks_start,
+            count: directory.len() as u64,
             block_directory: 0,
             checksum: 0,
         };
-        let directory = std::mem::take(&mut self.directory);
-        let link_bounds = self.link_bounds(top.nodes)?;
-        // Ropes (spec §8.4) are all or nothing: the top tree's and every block's.
+        let sections = top_sections(&directory, &top, &link_bounds, prims.as_deref());
+        let section_count = self.write_sections(sections, flags, &mut entries)?;
+        let file_size = self.at;
+        let header = self.header(meta, flags, &directory, section_count);
+        self.write_header(header, &entries[..section_count])?;
+        Ok((self.sink, file_size))
+    }
+
+    /// Whether the file has ropes (spec §8.4), which are all or nothing: the top tree's (one
+    /// per node) and every block's.
+    fn top_ropes(&self, top: &UnitRef<'_>) -> std::io::Result<bool> {
         let ropes = !top.ropes.is_empty();
         if ropes && top.ropes.len() != top.nodes.len() {
             return Err(std::io::Error::other(format!(
@@ -637,73 +660,17 @@ impl<S: Sink> FileWriter<S> {
                 "the top tree and the blocks disagree on whether the file has ropes",
             ));
         }
-        let prims = self.prims.take();
-        if let Some(p) = &prims
-            && p.len() as u64 != meta.input_triangles.div_ceil(PRIM_CHUNK)
-        {
-            return Err(std::io::Error::other(format!(
-                "{} primitive chunks for {} input triangles",
-                p.len(),
-                meta.input_triangles
-            )));
-        }
-        let sections: [(SectionKind, &[u8], u64); 8] = [
-            (
-                SectionKind::Directory,
-                bytemuck::cast_slice(&directory),
-                directory.len() as u64,
-            ),
-            (
-                SectionKind::Levels,
-                bytemuck::cast_slice(top.levels),
-                top.levels.len() as u64,
-            ),
-            (
-                SectionKind::Nodes,
-                bytemuck::cast_slice(top.nodes),
-                top.nodes.len() as u64,
-            ),
-            (
-                SectionKind::Ranks,
-                bytemuck::cast_slice(top.ranks),
-                top.ranks.len() as u64,
-            ),
-            (
-                SectionKind::Volumes,
-                bytemuck::cast_slice(top.volumes),
-                top.volumes.len() as u64,
-            ),
-            (
-                SectionKind::LinkBounds,
-                bytemuck::cast_slice(&link_bounds),
-                link_bounds.len() as u64,
-            ),
-            (
-                SectionKind::Ropes,
-                bytemuck::cast_slice(top.ropes),
-                top.ropes.len() as u64,
-            ),
-            (
-                SectionKind::Prims,
-                bytemuck::cast_slice(prims.as_deref().unwrap_or(&[])),
-                prims.as_ref().map_or(0, |p| p.len() as u64),
-            ),
-        ];
-        // The data region (the blocks section) ends where the directory begins (spec §2.1).
-        entries[0].length = self.at.next_multiple_of(SECTION_ALIGN) - self.blocks_start;
-        let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS | FLAG_OCCLUDERS);
-        let live = || directory.iter().filter(|e| !e.is_free());
-        if live().any(|e| e.codec != CODEC_RAW) {
-            flags |= FLAG_COMPRESSED;
-        }
-        let max_raw = live().map(|e| e.raw_len).max().unwrap_or(0);
-        let block_triangles: u64 = live().map(|e| e.triangles as u64).sum();
-        if ropes {
-            flags |= FLAG_ROPES;
-        }
-        if prims.is_some() {
-            flags |= FLAG_PRIMS;
-        }
+        Ok(ropes)
+    }
+
+    /// Writes the sections present with `flags`, each aligned, and their entries in the
+    /// section table after the blocks' (`entries[0]`); returns how many entries there are.
+    fn write_sections(
+        &mut self,
+        sections: [(SectionKind, &[u8], u64); 8],
+        flags: u32,
+        entries: &mut [SectionEntry],
+    ) -> std::io::Result<usize> {
         let mut section_count = 1;
         for (kind, bytes, count) in sections {
             if !kind.present(flags) {
@@ -723,20 +690,36 @@ impl<S: Sink> FileWriter<S> {
             self.sink.append(bytes)?;
             self.at += bytes.len() as u64;
         }
-        let file_size = self.at;
-        // Occluders (spec §8.5) may be in some blocks and not others: the pass that adds them
-        // says so in `meta`.
+        Ok(section_count)
+    }
+
+    /// The header slot of the generation written: generation g goes to slot (g - 1) mod 2
+    /// (spec §2.1).
+    fn slot(&self) -> u64 {
+        HEADER_SLOTS[((self.generation - FIRST_GENERATION) % 2) as usize]
+    }
+
+    /// The header of the file written (its checksum not yet set), once every section is: the
+    /// fields of `meta` the builder knows, and the rest from what was written.
+    fn header(
+        &self,
+        meta: &Header,
+        flags: u32,
+        directory: &[BlockEntry],
+        section_count: usize,
+    ) -> Header {
+        let live = || directory.iter().filter(|e| !e.is_free());
+        let max_raw = live().map(|e| e.raw_len).max().unwrap_or(0);
+        let block_triangles: u64 = live().map(|e| e.triangles as u64).sum();
         let header_size = std::mem::size_of::<Header>() as u64;
-        // Generation g goes to slot (g - 1) mod 2 (spec §2.1).
-        let slot = HEADER_SLOTS[((self.generation - FIRST_GENERATION) % 2) as usize];
-        let mut header = Header {
+        Header {
             magic: MAGIC,
             version: VERSION,
             flags,
             header_size: header_size as u32,
             section_count: section_count as u32,
-            section_table_offset: slot + header_size,
-            file_size,
+            section_table_offset: self.slot() + header_size,
+            file_size: self.at,
             root_min: meta.root_min,
             root_size: meta.root_size,
             mesh_min: meta.mesh_min,
@@ -755,24 +738,103 @@ impl<S: Sink> FileWriter<S> {
             generation: self.generation,
             reserved: [0; 9],
             checksum: 0,
-        };
-        let table: &[u8] = bytemuck::cast_slice(&entries[..section_count]);
+        }
+    }
+
+    /// Writes `header`, its checksum set over it and the section `table`, and the table into
+    /// the generation's header slot; for a new generation, its sections are made durable
+    /// before the header that makes them the file's, and the header after.
+    fn write_header(&mut self, mut header: Header, table: &[SectionEntry]) -> std::io::Result<()> {
+        let table: &[u8] = bytemuck::cast_slice(table);
         let mut hasher = xxhash_rust::xxh3::Xxh3::new();
         hasher.update(&bytemuck::bytes_of(&header)[..HEADER_CHECKED_LEN]);
         hasher.update(table);
         header.checksum = hasher.digest();
-        // Its sections must be durable before the header that makes them the file's.
         if self.durable {
             self.sink.sync()?;
         }
         let mut bytes = bytemuck::bytes_of(&header).to_vec();
         bytes.extend_from_slice(table);
-        self.sink.patch(slot, &bytes)?;
+        self.sink.patch(self.slot(), &bytes)?;
         if self.durable {
             self.sink.sync()?;
         }
-        Ok((self.sink, file_size))
+        Ok(())
     }
+}
+
+/// The header's flags: those of `meta` the builder sets (merged, clusters, occluders: a pass
+/// that adds occluders, which some blocks may lack, says so in `meta`), and those of what was
+/// written: compressed blocks among the live ones, ropes, the primitive table.
+fn file_flags(meta: &Header, directory: &[BlockEntry], ropes: bool, prims: bool) -> u32 {
+    let mut flags = meta.flags & (FLAG_MERGED | FLAG_CLUSTERS | FLAG_OCCLUDERS);
+    if directory
+        .iter()
+        .filter(|e| !e.is_free())
+        .any(|e| e.codec != CODEC_RAW)
+    {
+        flags |= FLAG_COMPRESSED;
+    }
+    if ropes {
+        flags |= FLAG_ROPES;
+    }
+    if prims {
+        flags |= FLAG_PRIMS;
+    }
+    flags
+}
+
+/// The sections after the blocks, in file order, with their bytes and record counts: the
+/// directory, the top tree's levels, nodes, ranks, volumes, link bounds and ropes, and the
+/// primitive chunk directory (empty when absent).
+fn top_sections<'a>(
+    directory: &'a [BlockEntry],
+    top: &UnitRef<'a>,
+    link_bounds: &'a [LinkBounds],
+    prims: Option<&'a [PrimChunk]>,
+) -> [(SectionKind, &'a [u8], u64); 8] {
+    [
+        (
+            SectionKind::Directory,
+            bytemuck::cast_slice(directory),
+            directory.len() as u64,
+        ),
+        (
+            SectionKind::Levels,
+            bytemuck::cast_slice(top.levels),
+            top.levels.len() as u64,
+        ),
+        (
+            SectionKind::Nodes,
+            bytemuck::cast_slice(top.nodes),
+            top.nodes.len() as u64,
+        ),
+        (
+            SectionKind::Ranks,
+            bytemuck::cast_slice(top.ranks),
+            top.ranks.len() as u64,
+        ),
+        (
+            SectionKind::Volumes,
+            bytemuck::cast_slice(top.volumes),
+            top.volumes.len() as u64,
+        ),
+        (
+            SectionKind::LinkBounds,
+            bytemuck::cast_slice(link_bounds),
+            link_bounds.len() as u64,
+        ),
+        (
+            SectionKind::Ropes,
+            bytemuck::cast_slice(top.ropes),
+            top.ropes.len() as u64,
+        ),
+        (
+            SectionKind::Prims,
+            bytemuck::cast_slice(prims.unwrap_or(&[])),
+            prims.map_or(0, |p| p.len() as u64),
+        ),
+    ]
 }
 
 #[cfg(test)]
