@@ -2,8 +2,8 @@
 //! `../shared/RAYS.md`, every kind of bad input, and the real meshes of `../shared/scenes/`.
 //!
 //! PLY files are written here by a small writer ([`write_ply`]) so that the same mesh can be
-//! read back from ascii, little- and big-endian binary. The throughput measurement is the
-//! ignored test `throughput` (run it with `--release -- --ignored --nocapture`).
+//! read back from ascii, little- and big-endian binary. The readers' throughput is measured by
+//! `tools/parse_bench.rs`.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -1457,55 +1457,4 @@ fn mutated_files_never_panic() {
     }
     // Most mutations break the file; the reader noticed rather than accepting everything.
     assert!(errors > 3000, "only {errors} errors");
-}
-
-// ---------------------------------------------------------------------------------------------
-// Throughput (not a test: run with `cargo test --release --test mesh_input -- --ignored --nocapture`)
-
-#[test]
-#[ignore = "a measurement, not a test"]
-fn throughput() {
-    fn measure(name: &str, bytes: &[u8], parse: fn(&[u8], &str) -> Result<Mesh, MeshError>) {
-        let mut best = f64::INFINITY;
-        let mut triangles = 0;
-        for _ in 0..5 {
-            let t = std::time::Instant::now();
-            let mesh = parse(bytes, name).unwrap();
-            best = best.min(t.elapsed().as_secs_f64());
-            triangles = mesh.triangles.len();
-        }
-        println!(
-            "{name:40} {:8.1} MB  {:8.1} ms  {:8.0} MB/s  {triangles} triangles",
-            bytes.len() as f64 / 1e6,
-            best * 1e3,
-            bytes.len() as f64 / 1e6 / best
-        );
-    }
-    let read = |p: &str| std::fs::read(scenes().join(p)).unwrap();
-    measure(
-        "bunny/bun_zipper.ply",
-        &read("bunny/bun_zipper.ply"),
-        parse_ply,
-    );
-    measure(
-        "bunny/stanford-bunny.obj",
-        &read("bunny/stanford-bunny.obj"),
-        parse_obj,
-    );
-    let dragon = read("dragon/dragon_vrip.ply");
-    measure("dragon/dragon_vrip.ply", &dragon, parse_ply);
-    let mesh = parse_ply(&dragon, "dragon").unwrap();
-    let positions: Vec<[f64; 3]> = mesh.positions.iter().map(|p| p.map(f64::from)).collect();
-    let faces: Vec<Vec<i64>> = mesh
-        .triangles
-        .iter()
-        .map(|t| t.iter().map(|&i| i64::from(i)).collect())
-        .collect();
-    for enc in [Enc::Le, Enc::Be] {
-        let bytes = simple_ply(enc, &positions, &faces);
-        let path = std::env::temp_dir().join(format!("oavm-dragon-{}.ply", enc.format()));
-        std::fs::write(&path, &bytes).unwrap();
-        assert_eq!(parse_ply(&bytes, "dragon").unwrap(), mesh);
-        measure(&path.display().to_string(), &bytes, parse_ply);
-    }
 }

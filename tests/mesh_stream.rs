@@ -2,12 +2,10 @@
 //! (`parse_ply`): every file here is written to a temporary directory, read both ways, and must
 //! give the same positions and the same triangles by primitive id, or the same error.
 //!
-//! The throughput measurement is the ignored test `throughput` (run it with
-//! `OAVM_STREAM_PLY=big.ply cargo test --release --test mesh_stream -- --ignored --nocapture`).
+//! The streaming reader's throughput is measured by `tools/stream_bench.rs`.
 
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use oavm::mesh::stream::PlyStream;
 use oavm::mesh::{MeshError, parse_ply};
@@ -707,56 +705,4 @@ fn mutated_files_give_the_same_result() {
         }
     }
     assert!(ok > 100 && err > 100, "{ok} good, {err} bad");
-}
-
-// ---------------------------------------------------------------------------------------------
-// Throughput (a measurement, not a test)
-
-fn peak_rss_mib() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
-}
-
-#[test]
-#[ignore = "a measurement: needs OAVM_STREAM_PLY=big binary PLY"]
-fn throughput() {
-    let path = PathBuf::from(
-        std::env::var_os("OAVM_STREAM_PLY")
-            .expect("set OAVM_STREAM_PLY to the binary PLY to measure"),
-    );
-    let t = Instant::now();
-    let s = PlyStream::open(&path).unwrap();
-    let open = t.elapsed().as_secs_f64();
-    let mib = s.file_len() as f64 / (1 << 20) as f64;
-    let t = Instant::now();
-    let positions = s.read_positions(&|_| {}).unwrap();
-    let pass1 = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let mut sum = 0f64;
-    let n = s
-        .for_each_triangle_batch(&positions, 1 << 16, &|_| {}, &mut |b| {
-            sum += b.iter().map(|(_, t)| f64::from(t[0][0])).sum::<f64>();
-            Ok(())
-        })
-        .unwrap();
-    let pass2 = t.elapsed().as_secs_f64();
-    let vbytes = s.vertex_count() as f64 * 12.0 / (1 << 20) as f64;
-    println!(
-        "{}: {mib:.0} MiB, {} vertices, {} faces, {n} triangles (checksum {sum:.3})",
-        path.display(),
-        s.vertex_count(),
-        s.face_count()
-    );
-    println!(
-        "open {:.1} ms; positions {pass1:.2} s; triangle pass {pass2:.2} s; \
-         both {:.2} s = {:.0} MiB/s of file; peak RSS {:.0} MiB (positions {vbytes:.0} MiB)",
-        open * 1e3,
-        pass1 + pass2,
-        mib / (pass1 + pass2),
-        peak_rss_mib()
-    );
 }

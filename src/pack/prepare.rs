@@ -19,13 +19,7 @@ pub(super) struct Prepared {
 }
 
 /// Validates the mesh, drops degenerate triangles, fits the root cube and maps the triangles
-/// into the lattice.
-#[cfg(test)]
-pub(super) fn prepare(mesh: &Mesh) -> Result<Prepared, Error> {
-    prepare_within(mesh, None)
-}
-
-/// [`prepare`], with the root cube fitted to the union of the triangles' bounds and `room`
+/// into the lattice; the root cube fitted to the union of the triangles' bounds and `room`
 /// (`lo`, `hi`; room for the triangles to move into later, `oavm-pack --bounds`).
 pub(super) fn prepare_within(
     mesh: &Mesh,

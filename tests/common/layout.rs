@@ -1,8 +1,9 @@
 //! The byte layout of an `.oavm` file as format-spec.md states it (section by section), written
 //! out by hand for the tests and the fuzz targets that build or damage files byte by byte: they
-//! must not take offsets from the code they check. Shared by `tests/corruption.rs` and
-//! `fuzz/targets.rs` (through `#[path]`); a change of the format changes this file with the spec.
-//! As of format version 5 (generations in two header slots, the primitive table).
+//! must not take offsets from the code they check. Shared by the `tests/corrupt_*.rs` files
+//! (`tests/common/corrupt`) and `fuzz/targets.rs` (through `#[path]`); a change of the format
+//! changes this file with the spec. As of format version 5 (generations in two header slots, the
+//! primitive table).
 #![allow(dead_code)]
 
 /// §12: the version this layout describes.

@@ -54,7 +54,7 @@
 //! let the greedy grouping pack connected triangles (up to 6 of a mesh's triangles share 8
 //! corners) where SAH splits would have cut them apart: fuller groups, fewer bytes, but groups
 //! shaped by connectivity overlap more, so a ray meets more of them. On the dragon's octree
-//! leaves (`K = 512`, 166 triangles each on average; the `stats_dragon` test prints these):
+//! leaves (`K = 512`, 166 triangles each on average; `tools/cluster_stats.rs` prints these):
 //!
 //! | window | lanes per group | bytes per triangle | node visits, group tests per ray |
 //! |-------:|----------------:|-------------------:|--------------------------------:|

@@ -1,0 +1,289 @@
+//! Corrupted `.oavm` files (format-spec.md §11): damage to the top tree's links (§8.1) and to
+//! ropes (§8.4), in the top tree's ropes section and in a block.
+//!
+//! What must hold, the files damaged and how the runs report are in `tests/common/corrupt`
+//! (its module doc), with the fixtures and the harness these files share.
+
+mod common;
+
+use common::corrupt::*;
+
+/// Links of the top tree (§8.1) rewritten, checksums recomputed: to a block past the
+/// directory, to a root past its block's roots, to a block whose roots are at another level,
+/// and to a root another link already names (leaving one root unlinked). Verify reports each;
+/// tracing fails naming the block where the link cannot be followed.
+#[test]
+fn links_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    for fix in [
+        default_file(),
+        list_zstd_file(),
+        deep_file(),
+        deep_zstd_file(),
+    ] {
+        let nodes = section(&fix.bytes, NODES).0;
+        let n = fix.dir.len() as u32;
+        let link = |block: u32, root: u32| {
+            let mut v = block.to_le_bytes().to_vec();
+            v.extend_from_slice(&(KIND_LINK << 30 | root).to_le_bytes());
+            v
+        };
+        // A block's first root (the block's own ray starts in its cell, so it meets the link),
+        // at a level with other links.
+        let first = *fix
+            .links
+            .iter()
+            .find(|l| {
+                l.root == 0
+                    && fix
+                        .links
+                        .iter()
+                        .any(|m| m.level == l.level && (m.block, m.root) != (l.block, l.root))
+            })
+            .expect("a first root at a level of two links");
+        let other_level = fix
+            .links
+            .iter()
+            .find(|l| l.level != first.level)
+            .copied()
+            .expect("links at two levels");
+        let sibling = fix
+            .links
+            .iter()
+            .find(|l| l.level == first.level && (l.block, l.root) != (first.block, first.root))
+            .copied()
+            .expect("two links at one level");
+        let roots_of = |b: u32| fix.dir[b as usize].root_count;
+        // (what, link rewritten, new record, defect, the block tracing must fail on)
+        type Case<'a> = (&'a str, Link, Vec<u8>, &'a str, Vec<usize>);
+        let cases: [Case; 5] = [
+            (
+                "to a block past the directory",
+                first,
+                link(n, 0),
+                "past the",
+                vec![n as usize],
+            ),
+            (
+                "to block u32::MAX",
+                first,
+                link(u32::MAX, 0),
+                "past the",
+                vec![u32::MAX as usize],
+            ),
+            (
+                "to a root past its block's roots",
+                first,
+                link(first.block, roots_of(first.block)),
+                &format!("a link to root {}", roots_of(first.block)),
+                vec![first.block as usize],
+            ),
+            (
+                "to a block whose roots are at another level",
+                first,
+                link(other_level.block, 0),
+                "whose roots are at level",
+                vec![other_level.block as usize],
+            ),
+            (
+                "to a root another link names",
+                first,
+                link(sibling.block, sibling.root),
+                "linked twice",
+                vec![],
+            ),
+        ];
+        for (what, l, new, defect, fails_on) in cases {
+            let at = nodes + 8 * l.node;
+            let mut b = fix.bytes.clone();
+            b[at..at + 8].copy_from_slice(&new);
+            fix_checksums(&mut b);
+            let what = format!(
+                "{}: the link at level {} to block {} root {} rewritten {what}",
+                fix.name, l.level, l.block, l.root
+            );
+            expect_caught(fix, what, b, defect, &fails_on, &mut problems);
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// Ropes (§8.4) rewritten one at a time, checksums recomputed, in the top tree's ropes section
+/// and in the largest block: a link's or a leaf's rope made the exit where the face is inside
+/// the root cube, an exit rope made a node, a rope to the node that holds it (which does not
+/// hold the cells across), to a node past its unit's, a top-tree rope without its top bit, a
+/// block's rope sent to the other unit, an internal node given ropes; and the block header's
+/// `rope_count` made 0 or one more than its nodes. Verify reports each ("rope", or the block
+/// for its header); tracing by ropes returns, answers or an error, never a panic or an endless
+/// walk, and fails naming the block whose header lies.
+#[test]
+fn ropes_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    for fix in [roped_file(), roped_list_zstd_file()] {
+        let u32le = |v: u32| v.to_le_bytes().to_vec();
+        // (what, space, offset in the space, new bytes, defect, blocks tracing must fail on)
+        type Case = (String, Space, usize, Vec<u8>, String, Vec<usize>);
+        let mut cases: Vec<Case> = Vec::new();
+        let kinds =
+            |nodes: &[u8]| -> Vec<u32> { nodes.chunks(8).map(|r| read_u32(r, 4) >> 30).collect() };
+        // The top tree: a link's ropes, and the root's (internal: all 0).
+        let top = fix.region("ropes section").range.start;
+        let (nodes_at, nodes_len) = section(&fix.bytes, NODES);
+        let top_kinds = kinds(&fix.bytes[nodes_at..nodes_at + nodes_len]);
+        let top_nodes = top_kinds.len() as u32;
+        // A link with a face inside the root cube and, if there is one, a face on its boundary.
+        let rope = |b: &[u8], record: usize, f: usize| read_u32(b, record + 4 * f);
+        let link = fix
+            .links
+            .iter()
+            .find(|l| (0..6).any(|f| rope(&fix.bytes, top + ROPE_LEN * l.node, f) != ROPE_EXIT))
+            .expect("a link inside the root cube");
+        let rec = top + ROPE_LEN * link.node;
+        let inner = (0..6)
+            .find(|&f| rope(&fix.bytes, rec, f) != ROPE_EXIT)
+            .expect("a face inside");
+        let old = rope(&fix.bytes, rec, inner);
+        assert!(
+            old & ROPE_TOP != 0,
+            "{}: a top-tree rope has bit 31",
+            fix.name
+        );
+        let place = format!("the link at node {} face {inner}", link.node);
+        let f = Space::File;
+        cases.extend(
+            [
+                (
+                    format!("{place}: the exit"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(ROPE_EXIT),
+                ),
+                (
+                    format!("{place}: without its top bit"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(old & !ROPE_TOP),
+                ),
+                (
+                    format!("{place}: past the top tree's {top_nodes} nodes"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(ROPE_TOP | top_nodes),
+                ),
+                (
+                    format!("{place}: the link itself"),
+                    f,
+                    rec + 4 * inner,
+                    u32le(ROPE_TOP | link.node as u32),
+                ),
+            ]
+            .map(|(w, s, a, n)| (w, s, a, n, "rope".to_string(), vec![])),
+        );
+        if let Some(exit) = (0..6).find(|&f| rope(&fix.bytes, rec, f) == ROPE_EXIT) {
+            cases.push((
+                format!(
+                    "the link at node {} face {exit}: the root, not the exit",
+                    link.node
+                ),
+                f,
+                rec + 4 * exit,
+                u32le(ROPE_TOP),
+                "rope".into(),
+                vec![],
+            ));
+        }
+        assert_eq!(
+            top_kinds[0], KIND_INTERNAL,
+            "{}: the root is internal",
+            fix.name
+        );
+        cases.push((
+            "the top tree's root given a rope".into(),
+            f,
+            top,
+            u32le(ROPE_TOP | 1),
+            "rope".into(),
+            vec![],
+        ));
+
+        // The largest block: a leaf's ropes, an internal node's, the header's rope_count.
+        let blk = fix.largest;
+        let raw = &fix.decoded[blk];
+        let parts = block_parts(raw);
+        let (ropes, b) = (parts[PART_ROPES].start, Space::Block(blk));
+        let block_kinds = kinds(&raw[parts[1].clone()]);
+        let n = block_kinds.len() as u32;
+        // A leaf (solid or empty) with a face inside the root cube.
+        let leaf = (0..block_kinds.len())
+            .filter(|&i| block_kinds[i] != KIND_INTERNAL && block_kinds[i] != KIND_LINK)
+            .find(|&i| (0..6).any(|f| rope(raw, ropes + ROPE_LEN * i, f) != ROPE_EXIT))
+            .expect("a leaf inside the root cube");
+        let rec = ropes + ROPE_LEN * leaf;
+        let inner = (0..6)
+            .find(|&f| rope(raw, rec, f) != ROPE_EXIT)
+            .expect("a face inside");
+        let old = rope(raw, rec, inner);
+        let place = format!("block {blk}'s leaf {leaf} face {inner} (rope {old:#x})");
+        cases.extend(
+            [
+                (
+                    format!("{place}: the exit"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(ROPE_EXIT),
+                ),
+                (
+                    format!("{place}: to the other unit"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(old ^ ROPE_TOP),
+                ),
+                (
+                    format!("{place}: past the block's {n} nodes"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(n),
+                ),
+                (
+                    format!("{place}: the leaf itself"),
+                    b,
+                    rec + 4 * inner,
+                    u32le(leaf as u32),
+                ),
+            ]
+            .map(|(w, s, a, n)| (w, s, a, n, "rope".to_string(), vec![])),
+        );
+        if let Some(i) = block_kinds.iter().position(|&k| k == KIND_INTERNAL) {
+            cases.push((
+                format!("block {blk}'s internal node {i} given a rope"),
+                b,
+                ropes + ROPE_LEN * i,
+                u32le(1),
+                "rope".into(),
+                vec![],
+            ));
+        }
+        for (what, v) in [("0", 0u64), ("one more than its nodes", n as u64 + 1)] {
+            cases.push((
+                format!("block {blk}'s header: rope_count {what}"),
+                b,
+                BH_ROPE_COUNT,
+                v.to_le_bytes().to_vec(),
+                format!("block {blk}"),
+                vec![blk],
+            ));
+        }
+        eprintln!(
+            "{}: {} rewritten ropes and rope counts",
+            fix.name,
+            cases.len()
+        );
+        for (what, space, at, new, defect, fails_on) in cases {
+            let bytes = fix.rewrite(space, at, &new);
+            assert!(bytes != fix.bytes, "{}: {what}: nothing changed", fix.name);
+            let what = format!("{}: {what}", fix.name);
+            expect_caught(fix, what, bytes, &defect, &fails_on, &mut problems);
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
