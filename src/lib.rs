@@ -16,7 +16,6 @@
 #[allow(unsafe_code)]
 pub mod os;
 
-pub mod compare;
 pub mod error;
 pub mod geom;
 pub mod logical;

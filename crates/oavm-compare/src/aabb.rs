@@ -3,7 +3,7 @@
 //! f64 slab test that clips a ray to it.
 
 use super::leaf::Tri;
-use crate::geom::Ray;
+use oavm::geom::Ray;
 
 /// An f32 box; [`Aabb::EMPTY`] grows into the box of what is added to it.
 #[derive(Clone, Copy, Debug)]

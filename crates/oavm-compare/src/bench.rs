@@ -16,12 +16,12 @@ use serde::Serialize;
 use super::{
     Accelerator, KD_VARIANTS, OAVM_VARIANTS, OavmAccel, STRUCTURES, StructureStats, Triangles,
 };
-use crate::error::Error;
-use crate::geom::{Hit, Ray};
-use crate::logical::Counters;
-use crate::mesh::Mesh;
-use crate::pack::BuildOptions;
-use crate::rays::{self, Bounds, Camera};
+use crate::Counters;
+use oavm::error::Error;
+use oavm::geom::{Hit, Ray};
+use oavm::mesh::Mesh;
+use oavm::pack::BuildOptions;
+use oavm::rays::{self, Bounds, Camera};
 
 /// A set fails when more than this fraction of its rays (0.01 %) disagree with OAVM.
 pub const MAX_DISAGREEMENT: f64 = 1e-4;
@@ -157,7 +157,7 @@ impl BenchScene {
             .is_some_and(|e| e.eq_ignore_ascii_case("aff"));
         let mut lights = Vec::new();
         let (mesh, view) = if is_aff {
-            let aff = crate::mesh::load_aff(path, None)?;
+            let aff = oavm::mesh::load_aff(path, None)?;
             lights = aff.lights.iter().map(|l| l.map(|c| c as f32)).collect();
             let view = match aff.camera_path.or(aff.view) {
                 Some(v) => {
@@ -171,7 +171,7 @@ impl BenchScene {
             };
             (aff.mesh, view)
         } else {
-            (crate::mesh::load(path)?, None)
+            (oavm::mesh::load(path)?, None)
         };
         let tris = Triangles::from_mesh(&mesh)?;
         let bounds = Bounds::of_points(tris.v.iter().flatten().copied());
@@ -575,7 +575,7 @@ pub fn batch(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::compare::test_util::{tris_of, unit_rays, unit_soup};
+    use crate::test_util::{tris_of, unit_rays, unit_soup};
 
     /// A structure that answers like another except on every `n`-th call: a miss instead of a
     /// closest hit, the opposite any-hit answer.
@@ -608,7 +608,7 @@ mod tests {
         let (tris, mesh) = tris_of(unit_soup(400, 3));
         let opts = BuildOptions::default();
         let oavm = OavmAccel::build(&mesh, &opts).unwrap();
-        let bvh = crate::compare::bvh::Bvh::build(&tris);
+        let bvh = crate::bvh::Bvh::build(&tris);
         let rays = unit_rays(3000, 4);
         let diag = Bounds::of_points(tris.v.iter().flatten().copied()).diagonal();
         let bad = |r: &Ray| (r.origin[0].to_bits() as u64).is_multiple_of(3);

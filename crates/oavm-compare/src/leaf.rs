@@ -13,7 +13,7 @@
 //!
 //! - closest hit: triangles are tested over `[tmin, t of the closest hit so far]` and a hit is
 //!   kept by [`closer`] (the smaller `t`, ties to the lower primitive id, the convention of
-//!   [`crate::geom::reference`]); which triangles a tie is decided among depends on where the
+//!   [`oavm::geom::reference`]); which triangles a tie is decided among depends on where the
 //!   traversal stops, so ties are only resolved alike among the triangles a structure tests;
 //! - any hit: over the ray's whole `[tmin, tmax]`, stopping after the first test that hits;
 //! - `triangles_tested` counts every triangle tested: a four-lane test of three triangles counts
@@ -26,9 +26,9 @@
 use std::ops::Range;
 
 use super::{Accelerator, StructureStats, Triangles};
-use crate::geom::triangle::RayShear;
-use crate::geom::{Hit, Ray};
-use crate::logical::Counters;
+use crate::Counters;
+use oavm::geom::triangle::RayShear;
+use oavm::geom::{Hit, Ray};
 
 /// A triangle: three vertices.
 pub(crate) type Tri = [[f32; 3]; 3];

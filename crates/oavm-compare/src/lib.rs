@@ -1,6 +1,9 @@
 //! The structures the OAVM paper compares against (its Table 2 and Figs. 7-8), built from the same
 //! triangles and queried through the same interface as OAVM's tracer, so that one benchmark can
-//! run the same rays through all of them (`oavm-bench`).
+//! run the same rays through all of them (`oavm-bench`, this crate's binary).
+//!
+//! Research code beside the product: this crate depends on the library `oavm` (the store, its
+//! builder and tracer), which knows nothing of it. A user of the store needs none of this.
 //!
 //! - [`grid`]: uniform grid, 3D-DDA traversal (Amanatides & Woo 1987);
 //! - [`kdtree`]: the paper's "improved KD-tree": SAH splits with empty-space cut-off, stack
@@ -13,34 +16,35 @@
 //! Each of the four is a folder: `node.rs` (the records traversal reads), `build.rs`,
 //! `traverse.rs` (which finds the leaves a ray crosses and knows nothing of triangles) and
 //! `tests.rs`. Below their traversals they share [`leaf`]: the triangles, the test of a leaf's
-//! triangles with the watertight kernel of [`crate::geom`], and the [`Accelerator`] plumbing.
+//! triangles with the watertight kernel of [`oavm::geom`], and the [`Accelerator`] plumbing.
 //! [`bench`] is the comparison itself, which `oavm-bench` runs. They live in memory; only OAVM
 //! has a file format. Each reports its size with the counting conventions written in its module
-//! docs.
+//! docs, and its work in this crate's [`Counters`].
 
 mod aabb;
 pub mod bench;
 pub mod bvh;
+mod counters;
 pub mod grid;
 pub mod kdtree;
 mod leaf;
-mod oavm;
+mod oavm_accel;
 pub mod octree;
 pub mod shadow;
 #[cfg(test)]
 mod test_util;
 
-pub use oavm::OavmAccel;
+pub use counters::Counters;
+pub use oavm_accel::OavmAccel;
 
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::error::Error;
-use crate::geom::triangle::is_degenerate;
-use crate::geom::{Hit, Ray};
-use crate::logical::Counters;
-use crate::mesh::Mesh;
-use crate::pack::BuildOptions;
+use oavm::error::Error;
+use oavm::geom::triangle::is_degenerate;
+use oavm::geom::{Hit, Ray};
+use oavm::mesh::Mesh;
+use oavm::pack::BuildOptions;
 
 /// Size of a built structure. What a "node" and a "pointer" are for each structure is written in
 /// its module documentation, matched to the paper's Table 2 where possible.
@@ -186,7 +190,7 @@ pub const KD_VARIANTS: [&str; 7] = [
 ];
 
 /// OAVM's walks, by the names `oavm-bench` takes (the plain `oavm` walks files of clusters
-/// top-down; [`crate::logical::Walk`]): `oavm:morton` steps leaf to leaf finding each next
+/// top-down; [`oavm::logical::Walk`]): `oavm:morton` steps leaf to leaf finding each next
 /// leaf from its Morton code (the paper's neighbour step), `oavm:ropes` by the rope of the face
 /// it leaves (format-spec §8.4; the file is built with ropes). Not in `all`.
 pub const OAVM_VARIANTS: [&str; 2] = ["oavm:morton", "oavm:ropes"];
@@ -230,12 +234,12 @@ pub fn build_structure(
         "oavm:morton" => Ok(Box::new(OavmAccel::build_walk(
             mesh,
             opts,
-            crate::logical::Walk::Neighbours,
+            oavm::logical::Walk::Neighbours,
         )?)),
         "oavm:ropes" => Ok(Box::new(OavmAccel::build_walk(
             mesh,
             opts,
-            crate::logical::Walk::Ropes,
+            oavm::logical::Walk::Ropes,
         )?)),
         _ => Err(Error::Invalid(format!(
             "unknown structure {name:?}: expected one of {}, {}, {}",

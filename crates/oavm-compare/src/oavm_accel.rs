@@ -1,13 +1,13 @@
 //! OAVM itself behind the comparison's interface: the bytes a file holds, made in memory.
 
 use super::{Accelerator, StructureStats};
-use crate::error::Error;
-use crate::geom::{Hit, Ray};
-use crate::logical::{Counters, Scene, SceneOptions, Walk};
-use crate::mesh::Mesh;
-use crate::pack::BuildOptions;
-use crate::physical::format::SectionKind;
-use crate::physical::{AlignedBytes, OavmFile};
+use crate::Counters;
+use oavm::error::Error;
+use oavm::geom::{Hit, Ray};
+use oavm::logical::{Scene, SceneOptions, Walk};
+use oavm::mesh::Mesh;
+use oavm::pack::BuildOptions;
+use oavm::physical::{AlignedBytes, OavmFile};
 
 /// OAVM packed in memory (the same bytes a file holds), behind the common interface.
 pub struct OavmAccel {
@@ -24,12 +24,12 @@ impl OavmAccel {
     /// the build, their six pointers per leaf and link in the pointers).
     pub fn build_walk(mesh: &Mesh, opts: &BuildOptions, walk: Walk) -> Result<OavmAccel, Error> {
         let t = std::time::Instant::now();
-        let (parts, s) = crate::pack::build(mesh, opts, &crate::pack::Quiet)?;
-        let mut bytes = crate::pack::encode(&parts)?;
+        let (parts, s) = oavm::pack::build(mesh, opts, &oavm::pack::Quiet)?;
+        let mut bytes = oavm::pack::encode(&parts)?;
         let mut pointers = s.pointers.total;
         if walk == Walk::Ropes {
             let plain = OavmFile::open(bytes).map_err(|e| Error::format("memory", e))?;
-            let (roped, _, report) = crate::pack::ropes::add_ropes(&plain, Vec::new())?;
+            let (roped, _, report) = oavm::pack::ropes::add_ropes(&plain, Vec::new())?;
             bytes = AlignedBytes::from_slice(&roped);
             pointers += report.ropes;
         }
@@ -62,11 +62,17 @@ impl OavmAccel {
 
     /// Another scene over a copy of the same bytes, walked top-down.
     pub fn clone_scene(&self) -> Result<OavmAccel, Error> {
+        self.walked(Walk::TopDown)
+    }
+
+    /// Another scene over a copy of the same bytes, walked by `walk` (a scene's walk is chosen
+    /// when it is opened: [`oavm::logical::SceneOptions::walk`]).
+    pub fn walked(&self, walk: Walk) -> Result<OavmAccel, Error> {
         let scene = Scene::from_bytes_with(
             AlignedBytes::from_slice(self.scene.file().bytes()),
             "memory",
             &SceneOptions {
-                walk: Walk::TopDown,
+                walk,
                 ..SceneOptions::default()
             },
         )?;
@@ -80,7 +86,7 @@ impl OavmAccel {
     /// seconds and the bytes added.
     pub fn with_ropes(&self) -> Result<(OavmAccel, f64, u64), Error> {
         let t = std::time::Instant::now();
-        let (roped, _, report) = crate::pack::ropes::add_ropes(self.scene.file(), Vec::new())?;
+        let (roped, _, report) = oavm::pack::ropes::add_ropes(self.scene.file(), Vec::new())?;
         let seconds = t.elapsed().as_secs_f64();
         let added = (roped.len() as u64).saturating_sub(self.scene.file().bytes().len() as u64);
         let scene = Scene::from_bytes_with(
@@ -105,10 +111,10 @@ impl OavmAccel {
     /// pass reported.
     pub fn with_occluders(
         &self,
-        params: &crate::pack::occluders::ShadowParams,
-    ) -> Result<(OavmAccel, crate::pack::occluders::OccluderReport), Error> {
+        params: &oavm::pack::occluders::ShadowParams,
+    ) -> Result<(OavmAccel, oavm::pack::occluders::OccluderReport), Error> {
         let (bytes, _, report) =
-            crate::pack::occluders::add_occluders(self.scene.file(), params, Vec::new())?;
+            oavm::pack::occluders::add_occluders(self.scene.file(), params, Vec::new())?;
         let scene = Scene::from_bytes_with(
             AlignedBytes::from_slice(&bytes),
             "memory",
@@ -125,40 +131,27 @@ impl OavmAccel {
         Ok((OavmAccel { scene, stats }, report))
     }
 
-    /// Any hit by `walk` (a leaf-to-leaf walk by ropes needs a file with them: [`Self::with_ropes`]),
-    /// the top-down walk taking children in the SATO order if `sato` ([`crate::logical::Tree::sato`])
-    /// and testing the occluders of the nodes it enters if `occluders` (and the file has them,
-    /// [`crate::logical::Tree::occluders`]).
-    pub fn occluded_walk(
-        &self,
-        ray: &Ray,
-        walk: Walk,
-        sato: bool,
-        occluders: bool,
-        c: &mut Counters,
-    ) -> bool {
-        let ropes = self.scene.file().records(SectionKind::Ropes);
-        let tree = self
-            .scene
-            .tree()
-            .walking(walk, ropes)
-            .sato(sato)
-            .occluders(occluders);
-        let before = self.count_start(c);
-        let hit = tree.occluded(ray, c);
-        self.count_end(c, before);
+    /// Any hit by the scene's walk (another walk: [`Self::walked`]; a leaf-to-leaf walk by
+    /// ropes needs a file with them: [`Self::with_ropes`]), the top-down walk taking children in
+    /// the SATO order if `sato` ([`oavm::logical::Tree::sato`]) and testing the occluders of the
+    /// nodes it enters if `occluders` (and the file has them, [`oavm::logical::Tree::occluders`]).
+    pub fn occluded_walk(&self, ray: &Ray, sato: bool, occluders: bool, c: &mut Counters) -> bool {
+        let tree = self.scene.tree().sato(sato).occluders(occluders);
+        let mut walked = oavm::Counters::default();
+        let hit = tree.occluded(ray, &mut walked);
+        count(c, &walked);
         matches!(hit, Ok(true))
     }
+}
 
-    fn count_start(&self, c: &Counters) -> (u64, u64) {
-        (c.rays, c.cluster_nodes_visited)
-    }
-
-    /// The batch counts the rays; nodes include the clusters' (see [`Accelerator`] below).
-    fn count_end(&self, c: &mut Counters, (rays, before): (u64, u64)) {
-        c.rays = rays;
-        c.nodes_visited += c.cluster_nodes_visited - before;
-    }
+/// Adds what OAVM's tracer counted for one ray to `c`: not the ray (the batch counts the rays);
+/// its nodes with the clusters' (see [`Accelerator`] below).
+fn count(c: &mut Counters, walked: &oavm::Counters) {
+    *c += Counters {
+        rays: 0,
+        nodes_visited: walked.nodes_visited + walked.cluster_nodes_visited,
+        ..Counters::from(walked)
+    };
 }
 
 /// The comparison counts every node a structure's traversal visits: for a file of clusters,
@@ -170,10 +163,9 @@ impl Accelerator for OavmAccel {
     }
 
     fn intersect(&self, ray: &Ray, c: &mut Counters) -> Hit {
-        let (rays, before) = (c.rays, c.cluster_nodes_visited); // the batch counts the rays
-        let hit = self.scene.tree().intersect(ray, c);
-        c.rays = rays;
-        c.nodes_visited += c.cluster_nodes_visited - before;
+        let mut walked = oavm::Counters::default();
+        let hit = self.scene.tree().intersect(ray, &mut walked);
+        count(c, &walked);
         match hit {
             Ok(Some(h)) => Hit {
                 t: h.t,
@@ -186,9 +178,9 @@ impl Accelerator for OavmAccel {
     }
 
     fn occluded(&self, ray: &Ray, c: &mut Counters) -> bool {
-        let before = self.count_start(c);
-        let hit = self.scene.tree().occluded(ray, c);
-        self.count_end(c, before);
+        let mut walked = oavm::Counters::default();
+        let hit = self.scene.tree().occluded(ray, &mut walked);
+        count(c, &walked);
         matches!(hit, Ok(true))
     }
 }

@@ -29,12 +29,12 @@ use serde::Serialize;
 use super::bench::{BenchScene, ByOcclusion};
 use super::kdtree::{Adjacency, KdTree, Precompute, PrimitiveIndex, SatoOrder, ShadowParams};
 use super::{Accelerator, OavmAccel, Triangles};
-use crate::error::Error;
-use crate::geom::{Hit, Ray};
-use crate::logical::Counters;
-use crate::logical::Walk;
-use crate::pack::BuildOptions;
-use crate::rays::{Bounds, Camera, Light, ShadowFrame, orbit};
+use crate::Counters;
+use oavm::error::Error;
+use oavm::geom::{Hit, Ray};
+use oavm::logical::Walk;
+use oavm::pack::BuildOptions;
+use oavm::rays::{Bounds, Camera, Light, ShadowFrame, orbit};
 
 /// The variants `--shadow-variant` knows, in the order they are reported.
 pub const SHADOW_VARIANTS: [&str; 3] = ["standard", "sato", "multi"];
@@ -187,13 +187,17 @@ impl ShadowStructure for KdShadow<'_> {
 
 /// OAVM (a file of clusters, packed in memory) with what one variant needs: `standard` is
 /// its top-down walk; `sato` the same walk taking children in the SATO order
-/// ([`crate::logical::Tree::sato`]), which needs no precomputation (the boxes it orders by are
+/// ([`oavm::logical::Tree::sato`]), which needs no precomputation (the boxes it orders by are
 /// in the file already); `multi` adds occluders (spec §8.5) for its primitive walk (the
 /// top-down walk testing them) and ropes (spec §8.4) for its adjacency walk (the leaf-to-leaf
 /// walk from rope to rope, the step OAVM already has: what the source's adjacency index would
 /// add is where the walk starts, and where links are built).
 pub struct OavmShadow {
+    /// The variant's file: walked top-down, or (`multi`) leaf to leaf by its ropes.
     acc: OavmAccel,
+    /// `multi`: the same file walked top-down (a scene's walk is chosen when it is opened), for
+    /// its primitive walk; otherwise `acc` walks top-down.
+    top_down: Option<OavmAccel>,
     precompute: PrecomputeReport,
 }
 
@@ -203,13 +207,15 @@ impl OavmShadow {
         variant: ShadowVariant,
         params: &ShadowParams,
     ) -> Result<OavmShadow, Error> {
-        let (acc, precompute) = match variant {
+        let (acc, top_down, precompute) = match variant {
             ShadowVariant::Multi => {
                 let (occ, report) = plain.with_occluders(params)?;
                 let (acc, seconds, bytes) = occ.with_ropes()?;
                 let added = bytes + report.bytes_after.saturating_sub(report.bytes_before);
+                let top_down = acc.walked(Walk::TopDown)?;
                 (
                     acc,
+                    Some(top_down),
                     PrecomputeReport {
                         seconds: seconds + report.seconds,
                         bytes: added,
@@ -219,19 +225,25 @@ impl OavmShadow {
                     },
                 )
             }
-            _ => (plain.clone_scene()?, PrecomputeReport::default()),
+            _ => (plain.clone_scene()?, None, PrecomputeReport::default()),
         };
-        Ok(OavmShadow { acc, precompute })
+        Ok(OavmShadow {
+            acc,
+            top_down,
+            precompute,
+        })
     }
 }
 
 impl ShadowStructure for OavmShadow {
     fn occluded_by(&self, ray: &Ray, walk: ShadowWalk, c: &mut Counters) -> bool {
+        let top_down = self.top_down.as_ref().unwrap_or(&self.acc);
         match walk {
-            ShadowWalk::Sato => self.acc.occluded_walk(ray, Walk::TopDown, true, false, c),
-            ShadowWalk::Adjacency => self.acc.occluded_walk(ray, Walk::Ropes, false, false, c),
-            ShadowWalk::Primitive => self.acc.occluded_walk(ray, Walk::TopDown, false, true, c),
-            ShadowWalk::Standard => self.acc.occluded_walk(ray, Walk::TopDown, false, false, c),
+            ShadowWalk::Sato => top_down.occluded_walk(ray, true, false, c),
+            // By ropes in `multi`'s file (the only variant that takes this walk).
+            ShadowWalk::Adjacency => self.acc.occluded_walk(ray, false, false, c),
+            ShadowWalk::Primitive => top_down.occluded_walk(ray, false, true, c),
+            ShadowWalk::Standard => top_down.occluded_walk(ray, false, false, c),
         }
     }
 
@@ -461,14 +473,14 @@ fn choose_lights(
     if scene_lights.is_empty() {
         let light = match &scene.view {
             Some((_, Some(l))) => *l,
-            _ => crate::rays::default_light(&scene.bounds),
+            _ => oavm::rays::default_light(&scene.bounds),
         };
         return (vec![light], "default");
     }
     let mut lit = 0usize;
     let mut total = 0usize;
     for &l in scene_lights {
-        let shadow = crate::rays::shadow_rays(primary, hits, l);
+        let shadow = oavm::rays::shadow_rays(primary, hits, l);
         let mut occ = vec![0u8; shadow.len()];
         super::occluded_batch(acc, &shadow, &mut occ);
         lit += occ.iter().filter(|&&o| o == 0).count();

@@ -3,10 +3,10 @@
 
 use super::leaf::Tri;
 use super::{Accelerator, Triangles};
-use crate::geom::{Hit, Ray, reference};
-use crate::logical::Counters;
-use crate::mesh::Mesh;
-use crate::rays::{Bounds, SplitMix64};
+use crate::Counters;
+use oavm::geom::{Hit, Ray, reference};
+use oavm::mesh::Mesh;
+use oavm::rays::{Bounds, SplitMix64};
 
 /// The mesh of the triangles `v` (each its own three vertices) and its `Triangles` (degenerate
 /// ones dropped; primitive ids are indices into `v`).
@@ -207,7 +207,7 @@ pub(crate) fn awkward_rays(t: &Triangles, n: usize, seed: u64) -> Vec<Ray> {
 
 /// Compares the closest and any hit of `acc` with the f64 reference (`geom::reference`, which
 /// shares no code with the structures' f32 test) on every ray of `rays`, closest hits by the
-/// agreement rule ([`Hit::agrees`](crate::geom::Hit::agrees)), any hits exactly (rays grazing
+/// agreement rule ([`Hit::agrees`](oavm::geom::Hit::agrees)), any hits exactly (rays grazing
 /// an edge aside, `reference::grazes`), and requires at least `min_hits` of the rays to hit, so
 /// that a comparison is never vacuous. Returns the number of rays that hit.
 pub(crate) fn check(acc: &dyn Accelerator, mesh: &Mesh, rays: &[Ray], min_hits: usize) -> usize {

@@ -10,12 +10,12 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-use oavm::compare::bench::{self, BenchScene};
-use oavm::compare::{self, OavmAccel, Triangles};
 use oavm::geom::reference;
 use oavm::pack::LeafKind;
 use oavm::rays::{self, Bounds};
 use oavm::{BuildOptions, Hit, Mesh, Ray};
+use oavm_compare::bench::{self, BenchScene};
+use oavm_compare::{OavmAccel, Triangles};
 use rayon::prelude::*;
 use serde_json::Value;
 use tempfile::TempDir;
@@ -157,7 +157,7 @@ fn structures_agree_with_oavm(leaf: LeafKind) -> Vec<Value> {
             .iter()
             .map(|s| s["name"].as_str().unwrap())
             .collect();
-        assert_eq!(names, compare::STRUCTURES, "{}", sc["scene"]);
+        assert_eq!(names, oavm_compare::STRUCTURES, "{}", sc["scene"]);
         let by = |n: &str| structs.iter().find(|s| s["name"] == n).unwrap();
         // The classic octree is OAVM's subdivision with pointers: same nodes.
         assert_eq!(by("octree")["nodes"], by("oavm")["nodes"]);
@@ -264,7 +264,7 @@ fn check_by_occlusion(x: &Value) {
 #[test]
 fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
     let dir = TempDir::new().unwrap();
-    let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/bunny.ply");
+    let bunny = common::data("bunny.ply");
     let mesh = oavm::mesh::load(&bunny).unwrap();
     let tris = Triangles::from_mesh(&mesh).unwrap();
     let b = Bounds::of_points(tris.v.iter().flatten().copied());
@@ -274,7 +274,7 @@ fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
     let diag = b.diagonal();
     let (brute_hits, n) = brute_answers(&mesh, &rays_in, false);
     assert!(n > 1000, "brute force hit only {n} of the rays");
-    for name in compare::STRUCTURES {
+    for name in oavm_compare::STRUCTURES {
         let hits_path = dir.path().join(format!("{name}.hits"));
         let occ_path = dir.path().join(format!("{name}.occl"));
         for (flag, out) in [("--hits", &hits_path), ("--occluded", &occ_path)] {
@@ -289,9 +289,10 @@ fn batch_mode_writes_rays_md_answers_equal_to_the_library() {
             assert_eq!(v["disagree_with_oavm"], 0, "{name} {flag}");
             assert_eq!(v["rays"], 5000);
         }
-        let acc = compare::build_structure(name, &mesh, &tris, &BuildOptions::default()).unwrap();
+        let acc =
+            oavm_compare::build_structure(name, &mesh, &tris, &BuildOptions::default()).unwrap();
         let mut want = vec![Hit::MISS; rays_in.len()];
-        compare::intersect_batch(acc.as_ref(), &rays_in, &mut want);
+        oavm_compare::intersect_batch(acc.as_ref(), &rays_in, &mut want);
         let got = rays::read_hits(&hits_path, u64::MAX).unwrap();
         assert_eq!(got.len(), want.len());
         assert!(
@@ -327,7 +328,7 @@ fn assert_usage_error(o: &Output, needle: &str) {
 #[test]
 fn bad_usage_is_refused_clearly() {
     let dir = TempDir::new().unwrap();
-    let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/bunny.ply");
+    let bunny = common::data("bunny.ply");
     let rays_path = dir.path().join("r.rays");
     rays::write_rays(
         &rays_path,

@@ -1,4 +1,4 @@
-//! The uniform grid and the KD-tree of `oavm::compare` against brute force on real meshes.
+//! The uniform grid and the KD-tree of `oavm_compare` against brute force on real meshes.
 //!
 //! Scenes: the bunny (`bun_zipper.ply`) and the dragon at resolution 3 (`dragon_vrip_res3.ply`).
 //! Ray sets per scene: [`RANDOM`] random rays and a [`WIDTH`] x [`HEIGHT`] camera (closest hit
@@ -16,16 +16,17 @@
 
 mod common;
 
-use oavm::compare::grid::UniformGrid;
-use oavm::compare::kdtree::KdTree;
-use oavm::compare::{Accelerator, Triangles};
 use oavm::geom::reference;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
-use oavm::{Counters, Hit, Mesh, Ray};
+use oavm::{Hit, Mesh, Ray};
+use oavm_compare::Counters;
+use oavm_compare::grid::UniformGrid;
+use oavm_compare::kdtree::KdTree;
+use oavm_compare::{Accelerator, Triangles};
 use rayon::prelude::*;
 
 /// The sets are small because the f64 brute force they are checked against costs about
-/// 2 x 10^-7 s per ray and triangle here; `cargo run --release --example check_structures`
+/// 2 x 10^-7 s per ray and triangle here; `cargo run --release -p oavm-compare --example check_structures`
 /// checks all five structures on full-size sets.
 const RANDOM: usize = 4_000;
 /// 6,912 camera rays (their shadow rays, about 2,000, must be at least 1,000).
@@ -187,14 +188,14 @@ fn dragon_res3_matches_brute_force() {
 /// itself agrees with the f64 brute force on a strided 1,000 of them.
 #[test]
 fn kd_traversal_variants_give_the_stack_walks_answers_on_architecture() {
-    use oavm::compare::kdtree::KdTraversal;
+    use oavm_compare::kdtree::KdTraversal;
     for rel in [
         "bart/kitchen/kitchen.aff",
         "bart/robot/Robot.aff",
         "cornell_box/CornellBox-Original.obj",
     ] {
         let path = common::shared_scene(rel);
-        let scene = oavm::compare::bench::BenchScene::load(&path)
+        let scene = oavm_compare::bench::BenchScene::load(&path)
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         let tris = &scene.tris;
         let rays = random_rays(&scene.bounds, 20_000, 0xd1ff);

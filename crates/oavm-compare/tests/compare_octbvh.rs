@@ -1,16 +1,17 @@
-//! The classic octree and the BVH of the comparison (`oavm::compare::{octree, bvh}`) answer
+//! The classic octree and the BVH of the comparison (`oavm_compare::{octree, bvh}`) answer
 //! exactly like brute force on real meshes (the bunny, the dragon's third decimation) and on
 //! awkward ones, closest hit and any hit; the octree has OAVM's node and pointer counts.
 
 mod common;
 
 use common::shared_scene;
-use oavm::compare::bvh::Bvh;
-use oavm::compare::octree::ClassicOctree;
-use oavm::compare::{Accelerator, Triangles};
 use oavm::geom::reference;
 use oavm::rays::{self, Bounds, Camera};
-use oavm::{BuildOptions, Counters, Hit, Mesh, Ray};
+use oavm::{BuildOptions, Hit, Mesh, Ray};
+use oavm_compare::Counters;
+use oavm_compare::bvh::Bvh;
+use oavm_compare::octree::ClassicOctree;
+use oavm_compare::{Accelerator, Triangles};
 use rayon::prelude::*;
 
 fn load(rel: &str) -> Mesh {
@@ -28,7 +29,7 @@ fn ray_sets(mesh: &Mesh, t: &Triangles) -> Vec<(&'static str, Vec<Ray>)> {
     let tris = mesh.corners();
     let b = bounds_of(t);
     // Small sets: the f64 brute force costs about 2 x 10^-7 s per ray and triangle here
-    // (`cargo run --release --example check_structures` checks full-size sets).
+    // (`cargo run --release -p oavm-compare --example check_structures` checks full-size sets).
     let random = rays::random_rays(&b, 4_000, 42);
     let primary = Camera::framing(&b).primary_rays(96, 72);
     let hits: Vec<Hit> = primary

@@ -10,16 +10,16 @@ mod common;
 use common::{bin, run, shared_scene};
 use oavm::BuildOptions;
 use oavm::Ray;
-use oavm::compare::OavmAccel;
-use oavm::compare::bench::BenchScene;
-use oavm::compare::kdtree::{Adjacency, KdTree, PrimitiveIndex, SatoOrder, ShadowParams};
-use oavm::compare::shadow::{
+use oavm::geom::reference;
+use oavm::logical::Walk;
+use oavm_compare::Counters;
+use oavm_compare::OavmAccel;
+use oavm_compare::bench::BenchScene;
+use oavm_compare::kdtree::{Adjacency, KdTree, PrimitiveIndex, SatoOrder, ShadowParams};
+use oavm_compare::shadow::{
     self, KdShadow, LightKind, OavmShadow, ShadowOptions, ShadowPrep, ShadowSetup, ShadowVariant,
     ViewOverride,
 };
-use oavm::geom::reference;
-use oavm::logical::Counters;
-use oavm::logical::Walk;
 
 fn options(light: LightKind) -> ShadowOptions {
     ShadowOptions {
@@ -447,7 +447,7 @@ fn occluders_in_the_file_answer_alike_and_verify() {
         let tree = s.tree();
         let (mut promoted, mut earlier, mut occluded) = (0u64, 0usize, 0usize);
         for r in &rays {
-            let (mut a, mut b) = (Counters::default(), Counters::default());
+            let (mut a, mut b) = (oavm::Counters::default(), oavm::Counters::default());
             let with = tree.occluders(true).occluded(r, &mut a).expect("trace");
             let without = tree.occluders(false).occluded(r, &mut b).expect("trace");
             assert_eq!(with, without, "{leaf:?}: occluders changed an answer");

@@ -33,9 +33,9 @@
 
 use super::Bvh;
 use super::node::LinearNode;
-use crate::compare::aabb::Aabb;
-use crate::compare::leaf::Soup;
-use crate::compare::{StructureStats, Triangles};
+use crate::aabb::Aabb;
+use crate::leaf::Soup;
+use crate::{StructureStats, Triangles};
 
 /// Bins per axis of the binned SAH.
 pub const BINS: usize = 16;

@@ -1,12 +1,12 @@
 use super::*;
-use crate::compare::Accelerator;
-use crate::compare::leaf::Tri;
-use crate::compare::test_util::{
+use crate::Accelerator;
+use crate::Counters;
+use crate::leaf::Tri;
+use crate::test_util::{
     assert_one_visit_hits_one_triangle, awkward_rays, check, flat_grid, rng_tri, soup, tris_of,
 };
-use crate::geom::{Hit, Ray, reference};
-use crate::logical::Counters;
-use crate::rays::SplitMix64;
+use oavm::geom::{Hit, Ray, reference};
+use oavm::rays::SplitMix64;
 
 /// Builds the BVH over `v`, validates it and checks it against brute force on a few thousand
 /// awkward rays, `min_hits` of them hitting.

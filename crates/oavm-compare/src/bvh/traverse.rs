@@ -17,10 +17,10 @@ use std::ops::Range;
 
 use super::Bvh;
 use super::node::LinearNode;
-use crate::compare::StructureStats;
-use crate::compare::leaf::{STOP, Soup, Walk};
-use crate::geom::Ray;
-use crate::logical::Counters;
+use crate::Counters;
+use crate::StructureStats;
+use crate::leaf::{STOP, Soup, Walk};
+use oavm::geom::Ray;
 
 /// Entries of the traversal stack.
 pub const STACK_SIZE: usize = 64;

@@ -31,10 +31,10 @@ use rayon::prelude::*;
 
 use super::UniformGrid;
 use super::node::Cells;
-use crate::compare::aabb::padded_bounds;
-use crate::compare::leaf::Soup;
-use crate::compare::{StructureStats, Triangles};
-use crate::geom::tribox::triangle_overlaps_box;
+use crate::aabb::padded_bounds;
+use crate::leaf::Soup;
+use crate::{StructureStats, Triangles};
+use oavm::geom::tribox::triangle_overlaps_box;
 
 /// Target cells per triangle (λ in the module docs).
 pub const LAMBDA: f64 = 4.0;

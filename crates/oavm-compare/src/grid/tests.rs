@@ -1,12 +1,12 @@
 use super::build::resolution;
 use super::*;
-use crate::compare::Accelerator;
-use crate::compare::Triangles;
-use crate::compare::test_util::{
+use crate::Accelerator;
+use crate::Counters;
+use crate::Triangles;
+use crate::test_util::{
     check, flat_mesh_and_rays, ranged_rays, rng, tris_of, unit_rays, unit_soup,
 };
-use crate::geom::{Hit, Ray};
-use crate::logical::Counters;
+use oavm::geom::{Hit, Ray};
 
 #[test]
 fn resolution_follows_the_cube_root_rule_and_handles_flat_boxes() {

@@ -15,11 +15,11 @@
 //! - any hit: the walk stops at the first hit.
 
 use super::UniformGrid;
-use crate::compare::StructureStats;
-use crate::compare::aabb::clip_ray;
-use crate::compare::leaf::{Soup, Walk};
-use crate::geom::Ray;
-use crate::logical::Counters;
+use crate::Counters;
+use crate::StructureStats;
+use crate::aabb::clip_ray;
+use crate::leaf::{Soup, Walk};
+use oavm::geom::Ray;
 
 impl Walk for UniformGrid {
     type Leaf = [u32];

@@ -38,10 +38,10 @@ use rayon::prelude::*;
 use super::KdTree;
 use super::node::{KdNode, MAX_30};
 use super::traverse::{KdTraversal, STACK};
-use crate::compare::aabb::{Aabb, padded_bounds};
-use crate::compare::leaf::{Soup, Tri};
-use crate::compare::{StructureStats, Triangles};
-use crate::geom::tribox::clipped_bounds;
+use crate::aabb::{Aabb, padded_bounds};
+use crate::leaf::{Soup, Tri};
+use crate::{StructureStats, Triangles};
+use oavm::geom::tribox::clipped_bounds;
 
 /// pbrt-v3's SAH constants.
 pub const TRAVERSAL_COST: f64 = 1.0;

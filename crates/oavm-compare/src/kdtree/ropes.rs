@@ -71,9 +71,9 @@
 //! (`24 * nodes` bytes, `6 * nodes` pointers), no cells. Each rope taken counts a restart.
 
 use super::{KdTraversal, KdTree};
-use crate::compare::leaf::NO_HIT;
-use crate::geom::Ray;
-use crate::logical::Counters;
+use crate::Counters;
+use crate::leaf::NO_HIT;
+use oavm::geom::Ray;
 
 /// No node across this face: the scene's boundary.
 pub(super) const NONE: u32 = u32::MAX;

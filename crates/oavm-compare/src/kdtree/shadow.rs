@@ -44,16 +44,16 @@ use super::KdTree;
 use super::build::{ISECT_COST, TRAVERSAL_COST};
 use super::ropes::{NONE, push_down};
 use super::traverse::{KdRay, Plain, StackHooks};
-use crate::compare::leaf::{NO_HIT, Query, STOP};
-use crate::geom::Ray;
-use crate::logical::Counters;
+use crate::Counters;
+use crate::leaf::{NO_HIT, Query, STOP};
+use oavm::geom::Ray;
 
 /// How many promoted triangles a ray remembers having tested (more are tested again in their
 /// leaves, which costs tests but not answers).
 pub const REMEMBER: usize = 32;
 
 /// The knobs of the multi-index tree (module docs), shared with OAVM's occluders.
-pub use crate::pack::occluders::ShadowParams;
+pub use oavm::pack::occluders::ShadowParams;
 
 type Cell = [[f32; 3]; 2];
 

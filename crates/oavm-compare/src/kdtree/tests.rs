@@ -1,11 +1,11 @@
 use super::build::{event_order, f32_down, f32_up, push_events, sweep};
 use super::*;
-use crate::compare::test_util::{
+use crate::Counters;
+use crate::test_util::{
     check, flat_mesh_and_rays, ranged_rays, rng, tris_of, unit_rays, unit_soup,
 };
-use crate::compare::{Accelerator, Triangles};
-use crate::geom::{Hit, Ray};
-use crate::logical::Counters;
+use crate::{Accelerator, Triangles};
+use oavm::geom::{Hit, Ray};
 
 /// Every triangle is referenced by some leaf, and the tree respects its depth limit.
 fn check_structure(kd: &KdTree, n: usize) {
@@ -184,7 +184,7 @@ fn variants() -> Vec<KdTraversal> {
 /// kd-restart, and a deeper short stack restarts less.
 #[test]
 fn traversal_variants_match_brute_force_and_the_stack_walk() {
-    use crate::compare::test_util::awkward_rays;
+    use crate::test_util::awkward_rays;
     let scenes = soup_and_planes(31, 15);
     for (s, (tris, mesh)) in scenes.iter().enumerate() {
         let stack = KdTree::build(tris);
@@ -211,7 +211,7 @@ fn traversal_variants_match_brute_force_and_the_stack_walk() {
                 let got = (kd.intersect(r, &mut c), kd.occluded(r, &mut c));
                 if got != *w {
                     assert!(
-                        crate::geom::reference::grazes(&corners, r),
+                        oavm::geom::reference::grazes(&corners, r),
                         "scene {s}, {t:?}, {r:?}: {got:?}, the stack walk {w:?}"
                     );
                 }
@@ -305,7 +305,7 @@ fn ropes_name_the_node_across_each_face() {
 /// Two scenes for the traversal variants: a random soup (seed `soup`), and a smaller soup (seed
 /// `planes`) with 300 triangles lying in the planes x = 0.25, 0.5, 0.75, where a ray can lie in a
 /// split plane.
-fn soup_and_planes(soup: u64, planes: u64) -> Vec<(Triangles, crate::mesh::Mesh)> {
+fn soup_and_planes(soup: u64, planes: u64) -> Vec<(Triangles, oavm::mesh::Mesh)> {
     let mut v = unit_soup(300, planes);
     for &x in &[0.25f32, 0.5, 0.75] {
         for i in 0..100 {
@@ -322,7 +322,7 @@ fn soup_and_planes(soup: u64, planes: u64) -> Vec<(Triangles, crate::mesh::Mesh)
 /// visits the same nodes and leaves and tests the same triangles; it takes ropes.
 #[test]
 fn split_stack_walk_is_the_stack_walk() {
-    use crate::compare::test_util::awkward_rays;
+    use crate::test_util::awkward_rays;
     let scenes = soup_and_planes(71, 72);
     for (s, (tris, mesh)) in scenes.iter().enumerate() {
         let stack = KdTree::build(tris);
@@ -445,9 +445,6 @@ fn split_stack_walk_past_its_register_takes_the_stack_walk() {
 /// build, so that the two primitive indices are chosen alike.
 #[test]
 fn occluders_share_the_sah_constants() {
-    assert_eq!(crate::pack::occluders::ISECT_COST, super::ISECT_COST);
-    assert_eq!(
-        crate::pack::occluders::TRAVERSAL_COST,
-        super::TRAVERSAL_COST
-    );
+    assert_eq!(oavm::pack::occluders::ISECT_COST, super::ISECT_COST);
+    assert_eq!(oavm::pack::occluders::TRAVERSAL_COST, super::TRAVERSAL_COST);
 }

@@ -31,11 +31,11 @@
 //! floor's hit on 534 of 10^6 random rays in the kitchen.
 
 use super::KdTree;
-use crate::compare::StructureStats;
-use crate::compare::aabb::clip_ray;
-use crate::compare::leaf::{NO_HIT, STOP, Soup, Walk};
-use crate::geom::Ray;
-use crate::logical::Counters;
+use crate::Counters;
+use crate::StructureStats;
+use crate::aabb::clip_ray;
+use crate::leaf::{NO_HIT, STOP, Soup, Walk};
+use oavm::geom::Ray;
 
 /// Entries of the traversal stack.
 pub const STACK: usize = 64;

@@ -2,27 +2,27 @@
 //!
 //! **Build.** The same tree as OAVM's, so that the comparison isolates what OAVM adds (merged
 //! empty volumes, pointer-free Morton layout, neighbour stepping): the same root cube
-//! ([`crate::physical::format::root_cube`] of the triangles' bounds), the same mapping of the triangles
-//! into the `2^21` lattice (in f64, as `prepare` in [`crate::pack`] does), and the same
-//! subdivision ([`crate::pack::subdivide::subdivide`], with OAVM's `K` and `D` from
+//! ([`oavm::physical::format::root_cube`] of the triangles' bounds), the same mapping of the triangles
+//! into the `2^21` lattice (in f64, as `prepare` in [`oavm::pack`] does), and the same
+//! subdivision ([`oavm::pack::subdivide::subdivide`], with OAVM's `K` and `D` from
 //! [`BuildOptions`]): a node is split while it holds more than `K` triangles, a triangle goes to
 //! every child it overlaps by the exact triangle–box test, with the cell grown by
 //! [`CELL_MARGIN`]. No merging. The levels are then stored as a pointer octree: every internal
 //! node holds the indices of its 8 children, every solid leaf the offset and length of its
 //! triangle list (a run of the reference array), every empty leaf nothing.
 //!
-//! [`CELL_MARGIN`]: crate::physical::format::CELL_MARGIN
+//! [`CELL_MARGIN`]: oavm::physical::format::CELL_MARGIN
 
 use rayon::prelude::*;
 
 use super::ClassicOctree;
 use super::node::Node;
-use crate::compare::aabb::Aabb;
-use crate::compare::leaf::Soup;
-use crate::compare::{StructureStats, Triangles};
-use crate::mapping::morton::LATTICE_SIZE;
-use crate::pack::BuildOptions;
-use crate::pack::subdivide::{self, BuildNode, LatticeTri, SubdivideParams};
+use crate::aabb::Aabb;
+use crate::leaf::Soup;
+use crate::{StructureStats, Triangles};
+use oavm::mapping::morton::LATTICE_SIZE;
+use oavm::pack::BuildOptions;
+use oavm::pack::subdivide::{self, BuildNode, LatticeTri, SubdivideParams};
 
 impl ClassicOctree {
     /// Builds the octree over `tris` with OAVM's subdivision parameters from `opts` (see the
@@ -67,7 +67,7 @@ impl ClassicOctree {
         }
         let (lo, hi) = (b.lo, b.hi);
         // The root cube and lattice mapping of `pack::prepare`, expression for expression.
-        let (root_min, root_size) = crate::physical::format::root_cube(lo, hi);
+        let (root_min, root_size) = oavm::physical::format::root_cube(lo, hi);
         let scale = LATTICE_SIZE as f64 / root_size;
         tree.root_min = root_min;
         tree.scale = scale;

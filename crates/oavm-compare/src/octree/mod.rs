@@ -11,7 +11,7 @@
 //! than 32-bit node or reference indices, it is not kept and every ray tests every triangle
 //! (correct, slow; far beyond any mesh the comparison uses).
 //!
-//! **Counting conventions** (as `format-spec.md` §9 and [`crate::pack::PointerCounts`]):
+//! **Counting conventions** (as `format-spec.md` §9 and [`oavm::pack::PointerCounts`]):
 //!
 //! - `nodes` = every octree node, internal or leaf, empty or solid: equal to OAVM's node count
 //!   for the same options (OAVM keeps every node too, as a record);

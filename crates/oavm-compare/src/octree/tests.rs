@@ -1,20 +1,20 @@
 use super::*;
-use crate::compare::leaf::Tri;
-use crate::compare::test_util::{
+use crate::Counters;
+use crate::leaf::Tri;
+use crate::test_util::{
     assert_one_visit_hits_one_triangle, awkward_rays, check, flat_grid, soup, tris_of,
 };
-use crate::compare::{Accelerator, Triangles};
-use crate::geom::{Hit, Ray};
-use crate::logical::Counters;
-use crate::pack::BuildOptions;
-use crate::rays::SplitMix64;
+use crate::{Accelerator, Triangles};
+use oavm::geom::{Hit, Ray};
+use oavm::pack::BuildOptions;
+use oavm::rays::SplitMix64;
 
 fn opts(leaf_size: u32, max_depth: u32) -> BuildOptions {
     BuildOptions {
         max_depth,
         leaf_size,
         merge: true,
-        leaf: crate::pack::LeafKind::List,
+        leaf: oavm::pack::LeafKind::List,
     }
 }
 
@@ -23,7 +23,7 @@ fn opts(leaf_size: u32, max_depth: u32) -> BuildOptions {
 fn check_octree(v: Vec<Tri>, o: &BuildOptions, min_hits: usize) -> (ClassicOctree, Triangles) {
     let (t, mesh) = tris_of(v);
     let oct = ClassicOctree::build(&t, o);
-    let (_, s) = crate::pack::build(&mesh, o, &crate::pack::Quiet).expect("OAVM build");
+    let (_, s) = oavm::pack::build(&mesh, o, &oavm::pack::Quiet).expect("OAVM build");
     assert_eq!(oct.stats().nodes, s.nodes, "nodes");
     assert_eq!(
         oct.stats().pointers,

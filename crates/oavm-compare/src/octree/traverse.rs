@@ -17,7 +17,7 @@
 //!   the start) and `+inf` if not. These are set explicitly, so `0 * inf` never makes a NaN;
 //!   every other parameter is finite, since f32 inputs scaled into f64 neither overflow nor
 //!   vanish;
-//! - a solid leaf's triangles go to the shared leaf test ([`crate::compare::leaf`]). A leaf
+//! - a solid leaf's triangles go to the shared leaf test ([`crate::leaf`]). A leaf
 //!   references every triangle overlapping its cell grown by
 //!   `CELL_MARGIN` (2 lattice units, far more than the f64 rounding of the slab parameters), so
 //!   a hit at `t` no later than the leaf's exit is final: no later leaf can hold a closer one,
@@ -25,11 +25,11 @@
 
 use super::ClassicOctree;
 use super::node::Kind;
-use crate::compare::StructureStats;
-use crate::compare::leaf::{NO_HIT, Soup, Walk};
-use crate::geom::Ray;
-use crate::logical::Counters;
-use crate::mapping::morton::LATTICE_SIZE;
+use crate::Counters;
+use crate::StructureStats;
+use crate::leaf::{NO_HIT, Soup, Walk};
+use oavm::geom::Ray;
+use oavm::mapping::morton::LATTICE_SIZE;
 
 /// A node's cell and the ray's parameters across it, in the mirrored frame.
 #[derive(Clone, Copy)]

@@ -1,7 +1,7 @@
 //! `oavm-bench SCENE...`: the OAVM paper's comparison, on our code and the same rays: a uniform
 //! grid, the SAH KD-tree, the classic octree, a binned-SAH BVH and OAVM, built from the same
 //! triangles, traced with the same primary, random and shadow rays, every answer checked against
-//! OAVM's. The measuring is `oavm::compare::bench`; this is its command line.
+//! OAVM's. The measuring is `oavm_compare::bench`; this is its command line.
 
 use std::path::PathBuf;
 
@@ -10,10 +10,10 @@ use oavm::pack::{self, BuildOptions};
 mod cli;
 
 use cli::{LeafArg, main_with};
-use oavm::compare::bench::{self, Options, Report, SceneResult};
-use oavm::compare::kdtree::ShadowParams;
-use oavm::compare::shadow::{self, LightKind, ShadowOptions, ShadowVariant, ViewOverride};
 use oavm::{Error, rays};
+use oavm_compare::bench::{self, Options, Report, SceneResult};
+use oavm_compare::kdtree::ShadowParams;
+use oavm_compare::shadow::{self, LightKind, ShadowOptions, ShadowVariant, ViewOverride};
 
 /// Builds the structures of the OAVM paper's comparison over each scene and traces the same rays
 /// through all of them.
