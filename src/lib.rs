@@ -27,7 +27,6 @@
 #[allow(unsafe_code)]
 pub mod os;
 
-pub mod compare;
 pub mod error;
 pub mod geom;
 pub mod logical;

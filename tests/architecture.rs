@@ -8,9 +8,9 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 /// The stack, bottom first: a module may import those before it.
-const STACK: [&str; 13] = [
+const STACK: [&str; 12] = [
     "os", "error", "progress", "output", "geom", "rays", "mesh", "physical", "mapping", "pack",
-    "logical", "render", "compare",
+    "logical", "render",
 ];
 
 /// The files of `logical`, bottom first: each may import those before it. The walks (`trace`)

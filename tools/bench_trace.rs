@@ -42,7 +42,6 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{Parser, ValueEnum};
-use oavm::compare::bench::RaySet;
 use oavm::pack::LeafKind;
 use oavm::physical::AlignedBytes;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
@@ -52,6 +51,15 @@ use peers::EmbreeScene;
 use peers::{BVH_TRAVERSAL, BvhCrateScene, OBVHS_PRESET, ObvhsScene, Tracer};
 use rayon::prelude::*;
 use serde_json::{Value, json};
+
+/// One set of rays every tracer is measured on (the shape of `oavm_compare::bench::RaySet`; this
+/// benchmark of the product does not depend on the comparison crate).
+struct RaySet {
+    name: &'static str,
+    rays: Vec<Ray>,
+    /// Any-hit queries (shadow rays), else closest hit.
+    any: bool,
+}
 
 /// Thread counts every ray set is traced with.
 const THREADS: [usize; 2] = [1, 2];

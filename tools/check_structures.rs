@@ -2,12 +2,12 @@
 //! octree, BVH and OAVM, every one against brute force, on the same rays.
 //!
 //! ```text
-//! cargo run --release --example check_structures -- [MESH]... [--random N] [--width W --height H]
+//! cargo run --release -p oavm-compare --example check_structures -- [MESH]... [--random N] [--width W --height H]
 //!     [--brute N] [--judge N] [--structure LIST]
 //! ```
 //!
 //! Default meshes: the bunny and the dragon from `../shared/scenes`. For each, every structure of
-//! `oavm::compare::STRUCTURES` (or of `--structure`, names as `oavm-bench` takes them, the
+//! `oavm_compare::STRUCTURES` (or of `--structure`, names as `oavm-bench` takes them, the
 //! traversal variants included: `kdtree:restart`, ..., `oavm:ropes`; `oavm` is always added, its
 //! primary hits start the shadow rays) is built from the same triangles and traces three sets: `random`
 //! (`--random` rays, default 10^6, closest hit), `primary` (`--width` x `--height`, default
@@ -29,10 +29,10 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use oavm::compare::{self, Accelerator, STRUCTURES, Triangles};
 use oavm::geom::reference;
 use oavm::rays::{Bounds, Camera, default_light, random_rays, shadow_rays};
 use oavm::{BuildOptions, Hit, Ray};
+use oavm_compare::{Accelerator, STRUCTURES, Triangles};
 use rayon::prelude::*;
 
 const REQUIRED: f64 = 0.9999;
@@ -77,7 +77,7 @@ fn parse_args() -> Result<Config, String> {
                     .map(str::to_string)
                     .collect();
                 c.structures =
-                    oavm::compare::bench::parse_structures(&list).map_err(|e| e.to_string())?;
+                    oavm_compare::bench::parse_structures(&list).map_err(|e| e.to_string())?;
                 if !c.structures.contains(&"oavm") {
                     c.structures.push("oavm");
                 }
@@ -87,7 +87,7 @@ fn parse_args() -> Result<Config, String> {
         }
     }
     if c.meshes.is_empty() {
-        let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
+        let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes");
         c.meshes.push(shared.join("bunny/bun_zipper.ply"));
         c.meshes.push(shared.join("dragon/dragon_vrip.ply"));
     }
@@ -112,11 +112,11 @@ fn agree(a: Answer, b: Answer, diag: f64) -> bool {
 fn answers(acc: &dyn Accelerator, rays: &[Ray], any: bool) -> Vec<Answer> {
     if any {
         let mut out = vec![0u8; rays.len()];
-        compare::occluded_batch(acc, rays, &mut out);
+        oavm_compare::occluded_batch(acc, rays, &mut out);
         out.into_iter().map(|o| Answer::Any(o == 1)).collect()
     } else {
         let mut out = vec![Hit::MISS; rays.len()];
-        compare::intersect_batch(acc, rays, &mut out);
+        oavm_compare::intersect_batch(acc, rays, &mut out);
         out.into_iter().map(Answer::Closest).collect()
     }
 }
@@ -148,7 +148,9 @@ fn run(c: &Config) -> Result<bool, String> {
         let accs: Vec<Box<dyn Accelerator>> = c
             .structures
             .iter()
-            .map(|s| compare::build_structure(s, &mesh, &tris, &opts).map_err(|e| e.to_string()))
+            .map(|s| {
+                oavm_compare::build_structure(s, &mesh, &tris, &opts).map_err(|e| e.to_string())
+            })
             .collect::<Result<_, _>>()?;
         let oavm = accs
             .iter()
@@ -156,7 +158,7 @@ fn run(c: &Config) -> Result<bool, String> {
             .ok_or("no oavm structure")?;
         let primary = Camera::framing(&b).primary_rays(c.width, c.height);
         let mut primary_hits = vec![Hit::MISS; primary.len()];
-        compare::intersect_batch(accs[oavm].as_ref(), &primary, &mut primary_hits);
+        oavm_compare::intersect_batch(accs[oavm].as_ref(), &primary, &mut primary_hits);
         let shadow = shadow_rays(&primary, &primary_hits, default_light(&b));
         let sets: [(&str, Vec<Ray>, bool); 3] = [
             ("random", random_rays(&b, c.random, 1), false),

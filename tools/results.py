@@ -212,11 +212,11 @@ could not be obtained here (only its abstract, which gives the two averages -54.
 "paper" column holds averages only, and each of our structures is our own reading of it:
 
 - **Uniform grid**: 3D-DDA (Amanatides & Woo 1987), resolution by the heuristic in
-  `src/compare/grid.rs`. **KD-tree**: the SAH with an empty-space bonus (pbrt's constants) and
-  stack traversal, `src/compare/kdtree.rs`. **Classic octree**: exactly OAVM's subdivision (same
+  `crates/oavm-compare/src/grid/`. **KD-tree**: the SAH with an empty-space bonus (pbrt's constants) and
+  stack traversal, `crates/oavm-compare/src/kdtree/`. **Classic octree**: exactly OAVM's subdivision (same
   leaf size K and depth D, the same triangle-box test), no merging, 8 child pointers per inner
-  node, parametric top-down traversal (Revelles et al. 2000), `src/compare/octree.rs`.
-  **BVH**: binned SAH, pbrt-v4's flattened layout and traversal, `src/compare/bvh.rs`; the
+  node, parametric top-down traversal (Revelles et al. 2000), `crates/oavm-compare/src/octree/`.
+  **BVH**: binned SAH, pbrt-v4's flattened layout and traversal, `crates/oavm-compare/src/bvh/`; the
   paper has no BVH, it is here as the modern reference.
 - **Pointers.** For the classic octree: 8 child pointers per internal node plus one
   triangle-list pointer per non-empty leaf. For OAVM: its rank-directory entries plus one offset
@@ -337,7 +337,7 @@ def stackless_section(w, data, lists, commit):
       f"light from every primary hit; best of "
       f"{data['reps']} runs, at {' and '.join(map(str, threads))} threads), and again with "
       f"OAVM's leaves as lists (`--leaf list`, OAVM only). Every variant's answers are checked "
-      f"against OAVM's in the same run (the last column); tests/compare_gridkd.rs checks the "
+      f"against OAVM's in the same run (the last column); crates/oavm-compare/tests/compare_gridkd.rs checks the "
       f"KD-tree's variants against the stack walk, ray by ray, and tests/ropes.rs OAVM's rope "
       f"walk against its Morton walk and brute force.\n")
     w("The source (Jiao, Chen and Zhang) traced the kitchen on a GTX 260 at 139.8 Mrays/s with "
@@ -916,7 +916,7 @@ def main():
       f"D = {opts['max_depth']}). Every answer of every structure is checked against OAVM's in "
       f"the same run (same hit or miss, t within 1e-4 of the scene diagonal); the last column of "
       f"each time table counts disagreements.\n")
-    w("What the paper's terms mean here (the module docs of `src/compare/` give the details):\n")
+    w("What the paper's terms mean here (the module docs of `crates/oavm-compare/src/` give the details):\n")
     w("- **creation time**: building the structure in memory from the triangle list, parsing "
       "excluded; for OAVM, building and encoding its file bytes;")
     w("- **nodes**: grid cells; KD-tree inner nodes and leaves; octree nodes (inner and leaves); "

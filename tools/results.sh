@@ -5,7 +5,8 @@
 #   tools/results.sh --shadow-only [--reps N] ...  # only the shadow-ray runs (below)
 #   tools/results.sh --anim-only                   # only the animation runs (Table 3, below)
 #
-# Runs `oavm-bench --json` over the seven scenes (all five structures, 1 and 2 threads), with
+# Runs `oavm-bench --json` (the binary of the workspace crate oavm-compare, crates/oavm-compare,
+# at target/release/oavm-bench) over the seven scenes (all five structures, 1 and 2 threads), with
 # OAVM's leaves as lists (the paper's structure) and as clusters (the default), then
 # over the dragon's decimations for build-time scaling, the shadow-ray walks (standard, SATO,
 # multi-index tree) over four scenes, renders the kitchen from its own viewpoint, and writes the
@@ -38,7 +39,7 @@ set -- ${ARGS[@]+"${ARGS[@]}"}
 mkdir -p "$OUT"
 BIN=target/release
 commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
-git diff --quiet HEAD -- src Cargo.toml 2>/dev/null || commit="$commit-dirty"
+git diff --quiet HEAD -- src crates Cargo.toml 2>/dev/null || commit="$commit-dirty"
 
 # Whether flag $1 is among the rest (as `--flag value` or `--flag=value`).
 given() {
@@ -144,7 +145,7 @@ if ((ANIM_ONLY)); then
 fi
 
 if ((SHADOW_ONLY)); then
-  cargo build --release --bin oavm-bench
+  cargo build --release -p oavm-compare --bin oavm-bench
   shadow_runs "$@"
   python3 tools/results.py --shadow "$OUT/shadow.json" --commit "$commit" > "$OUT/shadow.md.tmp"
   mv "$OUT/shadow.md.tmp" "$OUT/shadow.md"
@@ -153,7 +154,8 @@ if ((SHADOW_ONLY)); then
 fi
 
 mkdir -p docs
-cargo build --release --bin oavm-bench --bin oavm-pack --bin oavm-trace
+cargo build --release -p oavm-compare --bin oavm-bench
+cargo build --release -p oavm --bin oavm-pack --bin oavm-trace
 
 SCENES=(
   "$S/bunny/bun_zipper.ply"

@@ -1,7 +1,7 @@
 //! What ropes cost to build and store, for the KD-tree's rope walks and for OAVM (issue 14):
 //!
 //! ```text
-//! cargo run --release --example rope_cost -- [MESH]   # default: the dragon
+//! cargo run --release -p oavm-compare --example rope_cost -- [MESH]   # default: the dragon
 //! ```
 //!
 //! For the KD-tree: the tree's build, then each rope walk's ropes built on a fresh tree
@@ -12,16 +12,16 @@
 
 use std::time::Instant;
 
-use oavm::compare::kdtree::{KdTraversal, KdTree};
-use oavm::compare::{Accelerator, Triangles};
 use oavm::pack::{BuildOptions, LeafKind};
 use oavm::physical::OavmFile;
+use oavm_compare::kdtree::{KdTraversal, KdTree};
+use oavm_compare::{Accelerator, Triangles};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = std::env::args().nth(1).unwrap_or_else(|| {
         concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../shared/scenes/dragon/dragon_vrip.ply"
+            "/../../../shared/scenes/dragon/dragon_vrip.ply"
         )
         .into()
     });

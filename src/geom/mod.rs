@@ -10,7 +10,7 @@ pub mod group;
 pub mod ray;
 pub mod reference;
 pub mod triangle;
-pub(crate) mod tribox;
+pub mod tribox;
 pub mod wide_box;
 
 pub use group::TriGroupView;

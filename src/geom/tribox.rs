@@ -8,6 +8,11 @@
 //!
 //! The builder uses this to put a triangle only into the cells it really overlaps, not every cell
 //! its bounding box touches (issue 2, item 3).
+//!
+//! Public for the comparison structures of `oavm-compare` (`crates/oavm-compare`): its uniform
+//! grid bins triangles by [`triangle_overlaps_box`] and its KD-tree clips them at its splits by
+//! [`clipped_bounds`], the same exact tests as OAVM's builder, so that no structure of the
+//! comparison wins or loses by a different overlap test.
 
 /// Whether triangle `tri` overlaps the closed box with centre `c` and half-extents `h`.
 pub fn triangle_overlaps_box(tri: &[[f64; 3]; 3], c: [f64; 3], h: [f64; 3]) -> bool {

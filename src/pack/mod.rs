@@ -25,7 +25,7 @@ mod run;
 mod spill;
 mod stats;
 mod streaming;
-pub(crate) mod subdivide;
+pub mod subdivide;
 mod subtree;
 pub mod update;
 mod write;

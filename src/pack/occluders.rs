@@ -3,7 +3,7 @@
 //! their block above their leaves; a shadow ray's top-down walk tests them when it enters the
 //! node and stops there if one is hit, instead of descending to the leaf that holds it.
 //!
-//! **Choice** (the comparison KD-tree's, `compare::kdtree`'s shadow module, on the octree):
+//! **Choice** (the comparison KD-tree's, `oavm_compare::kdtree`'s shadow module, on the octree):
 //! candidates are the triangles whose box's surface area exceeds `candidate_ratio` times the
 //! mean over the file's distinct triangles. For each, and each internal node of its block from
 //! the lowest holding all of its leaves under one root up to that root, the subtree's cost with

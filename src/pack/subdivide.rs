@@ -6,6 +6,11 @@
 //! The tree is built one level at a time: the children of a level's internal nodes, taken in
 //! order and 8 at a time in octant order, *are* the next level in Morton order (format-spec
 //! §4), so no sorting is needed and the result does not depend on how rayon splits the work.
+//!
+//! Public for the classic octree of `oavm-compare` (`crates/oavm-compare`), which calls
+//! [`subdivide`] to have exactly OAVM's subdivision (the same `K`, `D` and triangle–cell
+//! test), so that the comparison measures what merging and the pointerless mapping change, not
+//! a different tree.
 
 use rayon::prelude::*;
 
