@@ -10,10 +10,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::Parser;
-use oavm::logical::{
-    Answered, FrameOptions, IO_THREADS_PER_CORE, Order, SceneInfo, SceneOptions, SetReport,
-    VerifyReport,
-};
+use cli::Pool;
+use oavm::logical::{Answered, FrameOptions, Order, SceneInfo, SetReport, VerifyReport};
 use oavm::mesh::AffScene;
 use oavm::output::Output;
 use oavm::rays::{self, Bounds, Camera};
@@ -315,39 +313,14 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         _ => {}
     }
     let t = Instant::now();
-    let mut scene = Scene::open_with(
-        &args.file,
-        &SceneOptions {
-            mem_budget: args.trace.mem_budget,
-            threads: args
-                .trace
-                .threads
-                .unwrap_or(cli::cores() * IO_THREADS_PER_CORE),
-            check_blocks: !args.trace.no_block_checks,
-            block_reads: args.trace.block_reads.into(),
-            walk: args.trace.walk.into(),
-        },
-    )?;
+    let mut scene = Scene::open_with(&args.file, &args.trace.scene_options(Pool::AfterOpen))?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
     // Streamed batches draw their rays done and blocks read (on a terminal, after a second).
     let bar = std::sync::Arc::new(oavm::progress::Bar::new(std::io::IsTerminal::is_terminal(
         &std::io::stderr(),
     )));
     scene.set_progress(Some(bar.clone()));
-    let threads = match args.trace.threads {
-        Some(n) if n > scene.threads() => {
-            eprintln!(
-                "oavm-trace: note: --threads {n} lowered to {}: a memory budget of {} bytes holds \
-                 two of this file's largest blocks ({} bytes) per thread and one more",
-                scene.threads(),
-                scene.budget(),
-                scene.file().header().max_block_raw_len
-            );
-            scene.threads()
-        }
-        Some(n) => n.max(1),
-        None => scene.default_threads(cli::cores()),
-    };
+    let threads = args.trace.threads_after_open(&scene, "oavm-trace");
     let order = args.trace.order.unwrap_or_else(|| scene.default_order());
     let mut ctx = Run {
         args,
@@ -420,7 +393,6 @@ fn frames(args: &Args, out_dir: &Path, range: std::ops::Range<u64>) -> Result<()
         Some(pattern) => Animation::with_meshes(view, pattern, range)?,
         None => Animation::new(view, range)?,
     };
-    let threads = args.trace.threads.unwrap_or_else(cli::cores).max(1);
     let opts = AnimateOptions {
         mode: if args.rebuild {
             animate::Mode::Rebuild
@@ -437,17 +409,11 @@ fn frames(args: &Args, out_dir: &Path, range: std::ops::Range<u64>) -> Result<()
             CameraChoice::View
         },
         light: args.camera.light,
-        scene: SceneOptions {
-            mem_budget: args.trace.mem_budget,
-            threads,
-            check_blocks: !args.trace.no_block_checks,
-            block_reads: args.trace.block_reads.into(),
-            walk: args.trace.walk.into(),
-        },
+        scene: args.trace.scene_options(Pool::BeforeOpen),
         order: args.trace.order,
         ..AnimateOptions::default()
     };
-    cli::with_threads(threads, || {
+    cli::with_threads(opts.scene.threads, || {
         let first = match args.pack {
             true => {
                 let p = anim.pack_first(&args.file, &opts.pack)?;
