@@ -8,6 +8,7 @@
 
 use oavm::Error;
 use oavm::logical::{IO_THREADS_PER_CORE, Order, SceneOptions};
+use oavm::render::ShotSpec;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -56,6 +57,11 @@ pub fn with_threads<T: Send>(
         .build()
         .map_err(|e| Error::Invalid(format!("cannot start {threads} threads: {e}")))?;
     pool.install(f)
+}
+
+/// The progress bar of long runs, drawn on stderr when it is a terminal.
+pub fn progress_bar() -> oavm::progress::Bar {
+    oavm::progress::Bar::new(std::io::IsTerminal::is_terminal(&std::io::stderr()))
 }
 
 /// The cores of this machine.
@@ -231,6 +237,25 @@ pub struct CameraArgs {
     /// in front of the model).
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
     pub light: Option<[f64; 3]>,
+}
+
+impl CameraArgs {
+    /// The shot these options ask for, the view scene posed at `time`, the image `width` x
+    /// `height` (each `None`: the view scene's resolution, or the default).
+    pub fn spec(&self, time: Option<f64>, width: Option<u32>, height: Option<u32>) -> ShotSpec {
+        ShotSpec {
+            view: self.view.clone(),
+            time,
+            camera_path: self.camera_path,
+            eye: self.eye,
+            target: self.target,
+            up: self.up,
+            fov: self.fov,
+            light: self.light,
+            width,
+            height,
+        }
+    }
 }
 
 /// Parses a byte size: a number with an optional binary unit, `K`, `M`, `G` or `T` (powers of
