@@ -74,8 +74,8 @@ impl Output {
                         && (m.dev(), m.ino()) == (meta.dev(), meta.ino())
                     {
                         return Err(err(format!(
-                            "is the input {}: writing it would destroy it; choose another \
-                             output path",
+                            "is the input {}; writing it would destroy the input: choose \
+                             another output path",
                             input.display()
                         )));
                     }

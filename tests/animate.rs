@@ -22,6 +22,7 @@ use oavm::pack::{PackOptions, Quiet};
 use oavm::rays::Camera;
 use oavm::render::animate::{
     AnimateOptions, Animation, AnimationReport, CameraChoice, Mode, animate, frame_image_name,
+    parse_frames,
 };
 use oavm::render::{Look, ShadedOptions, render_shaded};
 use oavm::{Error, Scene};
@@ -461,4 +462,25 @@ fn oavm_trace_frames() {
         &stderr,
         &["oavm-trace: error", "no primitive table", "--updatable"],
     );
+}
+
+#[test]
+fn frame_ranges_parse_as_oavm_trace_reads_them() {
+    assert_eq!(parse_frames("3..7").unwrap(), 3..7);
+    assert_eq!(parse_frames("3..=7").unwrap(), 3..8);
+    assert_eq!(parse_frames(" 5 ").unwrap(), 5..6);
+    let too_far = format!("0..={}", u64::MAX);
+    for bad in [
+        "7..3",
+        "4..4",
+        "a..3",
+        "",
+        "1..b",
+        &too_far,
+        &u64::MAX.to_string(),
+    ] {
+        assert!(parse_frames(bad).is_err(), "{bad:?}");
+    }
+    let e = parse_frames("7..3").unwrap_err().to_string();
+    assert!(e.contains("the range is empty"), "{e}");
 }

@@ -16,8 +16,8 @@ use oavm::mesh::{AffScene, parse_aff};
 use oavm::physical::AlignedBytes;
 use oavm::rays::{Bounds, Camera, SHADOW_EPSILON, default_light};
 use oavm::render::{
-    DEFAULT_MAX_DEPTH, Image, Look, MAX_DEPTH_LIMIT, OFFSET, PointLight, ShadedOptions,
-    ShadedStats, render_shaded,
+    DEFAULT_MAX_DEPTH, DEFAULT_SIZE, Image, Look, MAX_DEPTH_LIMIT, OFFSET, PointLight,
+    ShadedOptions, ShadedShot, ShadedStats, Shot, ShotSpec, render_shaded,
 };
 use oavm::{BuildOptions, Mesh, Ray, Scene};
 
@@ -601,4 +601,85 @@ fn oavm_trace_shades_a_scene_as_the_library_does() {
         let (o, _, err) = run(bin("oavm-trace").arg(&file).args(args));
         assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
     }
+}
+
+#[test]
+fn a_shot_takes_the_view_scene_or_frames_the_model() {
+    let bounds = Bounds {
+        min: [-1.0; 3],
+        max: [1.0; 3],
+    };
+    // Framing the model: the default size and light, adjusted as asked.
+    let shot = Shot::new(&ShotSpec::default(), &bounds).unwrap();
+    assert_eq!((shot.width, shot.height), DEFAULT_SIZE);
+    assert_eq!(shot.light, default_light(&bounds));
+    assert_eq!(shot.camera.eye, Camera::framing(&bounds).eye);
+    let spec = ShotSpec {
+        light: Some([1.0, 2.0, 3.0]),
+        width: Some(64),
+        fov: Some(30.0),
+        eye: Some([0.0, 0.0, 9.0]),
+        ..ShotSpec::default()
+    };
+    let shot = Shot::new(&spec, &bounds).unwrap();
+    assert_eq!((shot.width, shot.height), (64, DEFAULT_SIZE.1));
+    assert_eq!(shot.light, [1.0, 2.0, 3.0]);
+    assert_eq!(
+        (shot.camera.fov_y, shot.camera.eye),
+        (30.0, [0.0, 0.0, 9.0])
+    );
+    for bad in [
+        ShotSpec {
+            fov: Some(180.0),
+            ..ShotSpec::default()
+        },
+        ShotSpec {
+            eye: Some([0.0; 3]),
+            target: Some([0.0; 3]),
+            ..ShotSpec::default()
+        },
+    ] {
+        let e = Shot::new(&bad, &bounds).unwrap_err().to_string();
+        assert!(e.contains("--fov") && e.contains("--eye"), "{e}");
+    }
+    // A view scene: its camera, first light and resolution; the light and size overridable.
+    let s = aff(MIRROR);
+    let view = ShotSpec {
+        view: Some("mirror.aff".into()),
+        ..ShotSpec::default()
+    };
+    let shot = Shot::with_view(&view, Some(&s), &bounds).unwrap();
+    assert_eq!((shot.width, shot.height), (160, 120));
+    assert_eq!(shot.light, [0.0, 0.0, 1.0]);
+    assert_eq!(shot.camera.eye, view_camera(&s).eye);
+    let path = ShotSpec {
+        camera_path: true,
+        ..view.clone()
+    };
+    let e = Shot::with_view(&path, Some(&s), &bounds).unwrap_err();
+    assert!(e.to_string().contains("no camera path"), "{e}");
+
+    // Shaded: the scene's look, its triangles matched to the file's; a light given replaces
+    // the scene's lights by one white light.
+    let scene = build_scene(&s.mesh, &BuildOptions::default());
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("mirror.aff");
+    std::fs::write(&file, MIRROR).unwrap();
+    let lit = ShotSpec {
+        view: Some(file),
+        light: Some([0.0, 1.0, 0.0]),
+        ..ShotSpec::default()
+    };
+    let shaded = ShadedShot::new(&scene, &lit, Some(1), Order::None).unwrap();
+    assert_eq!(shaded.options.max_depth, 1);
+    assert_eq!(shaded.look.materials, Look::from_aff(&s).materials);
+    assert_eq!(
+        shaded.look.lights,
+        vec![PointLight {
+            position: [0.0, 1.0, 0.0],
+            colour: [1.0; 3]
+        }]
+    );
+    let (_, st) = shaded.render(&scene).unwrap();
+    assert_eq!((st.width, st.height), (160, 120));
 }

@@ -88,10 +88,27 @@ fn run(args: &Args) -> Result<(), Error> {
     }
 }
 
-/// The human-readable report.
+/// The human-readable report: the header, the sections, the top tree, the blocks and, with
+/// --levels, the whole tree.
 fn text(args: &Args, i: &Inspection) -> String {
-    let h = &i.header;
     let mut t = String::new();
+    header(&mut t, args, i);
+    sections(&mut t, i);
+    top_tree(&mut t, i);
+    blocks(&mut t, i);
+    whole_tree(&mut t, i);
+    t
+}
+
+/// Whether the file holds clusters: a block's `triangles` then count group lanes, not triangle
+/// records (spec §8.2).
+fn clusters(i: &Inspection) -> bool {
+    i.header.flags & oavm::physical::format::FLAG_CLUSTERS != 0
+}
+
+/// The header: the file, its format, the root cube, the mesh, the tree.
+fn header(t: &mut String, args: &Args, i: &Inspection) {
+    let h = &i.header;
     let mut line = |k: &str, v: String| {
         let _ = writeln!(t, "{k:<20} {v}");
     };
@@ -123,7 +140,7 @@ fn text(args: &Args, i: &Inspection) -> String {
             h.input_triangles,
             h.stored_triangles,
             h.block_triangles,
-            if h.flags & oavm::physical::format::FLAG_CLUSTERS != 0 {
+            if clusters(i) {
                 "group lanes"
             } else {
                 "records"
@@ -137,6 +154,10 @@ fn text(args: &Args, i: &Inspection) -> String {
             h.level_count, h.max_depth, h.leaf_size, h.solid_leaves, h.empty_leaves
         ),
     );
+}
+
+/// Every section's place, size and checksum.
+fn sections(t: &mut String, i: &Inspection) {
     let _ = writeln!(t, "\nsections:");
     for s in &i.sections {
         let e = &s.entry;
@@ -146,6 +167,10 @@ fn text(args: &Args, i: &Inspection) -> String {
             s.name, e.offset, e.length, e.count, e.checksum
         );
     }
+}
+
+/// The top tree's nodes per level.
+fn top_tree(t: &mut String, i: &Inspection) {
     let _ = writeln!(t, "\ntop tree:");
     for l in &i.top_levels {
         let _ = writeln!(
@@ -163,6 +188,10 @@ fn text(args: &Args, i: &Inspection) -> String {
             }
         );
     }
+}
+
+/// The block directory's totals, its roots per level and, with --blocks, every block.
+fn blocks(t: &mut String, i: &Inspection) {
     let d = &i.directory;
     let _ = writeln!(
         t,
@@ -176,7 +205,7 @@ fn text(args: &Args, i: &Inspection) -> String {
         d.smallest_decoded,
         d.triangle_records,
         // Spec §8.2: what a block's `triangles` count.
-        if h.flags & oavm::physical::format::FLAG_CLUSTERS != 0 {
+        if clusters(i) {
             "group lanes"
         } else {
             "triangle records"
@@ -185,39 +214,40 @@ fn text(args: &Args, i: &Inspection) -> String {
     for (level, n) in &d.root_levels {
         let _ = writeln!(t, "  roots at level {level:>2}: {n} blocks");
     }
-    if let Some(blocks) = &i.blocks {
+    let Some(blocks) = &i.blocks else { return };
+    let _ = writeln!(
+        t,
+        "\n  {:>8} {:>14} {:>10} {:>10} {:>5} {:>5} {:>6} {:>8}",
+        "block", "offset", "stored", "decoded", "codec", "level", "roots", "tris"
+    );
+    for (b, e) in blocks.iter().enumerate() {
         let _ = writeln!(
             t,
-            "\n  {:>8} {:>14} {:>10} {:>10} {:>5} {:>5} {:>6} {:>8}",
-            "block", "offset", "stored", "decoded", "codec", "level", "roots", "tris"
+            "  {b:>8} {:>14} {:>10} {:>10} {:>5} {:>5} {:>6} {:>8}",
+            e.offset,
+            e.stored_len,
+            e.raw_len,
+            match e.codec {
+                oavm::physical::format::CODEC_RAW => "raw",
+                oavm::physical::format::CODEC_ZSTD => "zstd",
+                _ => "?",
+            },
+            e.root_level,
+            e.root_count,
+            e.triangles
         );
-        for (b, e) in blocks.iter().enumerate() {
-            let _ = writeln!(
-                t,
-                "  {b:>8} {:>14} {:>10} {:>10} {:>5} {:>5} {:>6} {:>8}",
-                e.offset,
-                e.stored_len,
-                e.raw_len,
-                match e.codec {
-                    oavm::physical::format::CODEC_RAW => "raw",
-                    oavm::physical::format::CODEC_ZSTD => "zstd",
-                    _ => "?",
-                },
-                e.root_level,
-                e.root_count,
-                e.triangles
-            );
-        }
     }
-    if let Some(levels) = &i.tree_levels {
-        let _ = writeln!(t, "\nwhole tree:");
-        for l in levels {
-            let _ = writeln!(
-                t,
-                "  level {:>2}: {:>10} nodes ({} internal, {} solid, {} empty)",
-                l.level, l.nodes, l.internal, l.solid, l.empty
-            );
-        }
+}
+
+/// With --levels, the whole tree's nodes per level.
+fn whole_tree(t: &mut String, i: &Inspection) {
+    let Some(levels) = &i.tree_levels else { return };
+    let _ = writeln!(t, "\nwhole tree:");
+    for l in levels {
+        let _ = writeln!(
+            t,
+            "  level {:>2}: {:>10} nodes ({} internal, {} solid, {} empty)",
+            l.level, l.nodes, l.internal, l.solid, l.empty
+        );
     }
-    t
 }

@@ -2,7 +2,6 @@
 
 mod cli;
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -113,7 +112,7 @@ fn main() -> ExitCode {
             updatable: args.updatable,
             bounds: args.bounds,
         };
-        let progress = oavm::progress::Bar::new(std::io::stderr().is_terminal());
+        let progress = cli::progress_bar();
         let report = cli::with_threads(args.threads, || {
             pack::pack(&args.mesh, &args.out, &opts, &progress)
         })?;
@@ -141,26 +140,60 @@ fn parse_box(s: &str) -> Result<([f32; 3], [f32; 3]), String> {
     Ok((f(lo), f(hi)))
 }
 
+/// The text report of a pack, a line a figure: the mesh, the tree, the file, the optional
+/// passes and the times.
 fn human(r: &PackReport) -> String {
-    let s = &r.stats;
-    let p = &s.pointers;
-    let mut t = String::new();
-    let mut line = |k: &str, v: String| t.push_str(&format!("{k:<22} {v}\n"));
-    line(
+    let mut t = Lines::default();
+    t.line(
         "mesh",
         format!("{} ({:.1} MB)", r.mesh, r.mesh_bytes as f64 / 1e6),
     );
     if let Some(time) = r.time {
-        line("scene time", time.to_string());
+        t.line("scene time", time);
     }
-    line(
+    tree(&mut t, r);
+    file(&mut t, r);
+    passes(&mut t, r);
+    let s = &r.stats;
+    t.line(
+        "time",
+        format!(
+            "parse {:.3} s ({:.0} MB/s), build {:.3} s, merge {:.3} s, layout {:.3} s, write {:.3} s; total {:.3} s",
+            r.parse_seconds,
+            r.parse_mb_per_s,
+            s.build_seconds,
+            s.merge_seconds,
+            s.layout_seconds,
+            r.write_seconds,
+            r.total_seconds
+        ),
+    );
+    t.0
+}
+
+/// A text report: a line a figure, `key value`, the values aligned.
+#[derive(Default)]
+struct Lines(String);
+
+impl Lines {
+    fn line(&mut self, key: &str, value: impl std::fmt::Display) {
+        self.0.push_str(&format!("{key:<22} {value}\n"));
+    }
+}
+
+/// The tree built: its triangles, options, nodes, leaves, merged volumes, references and the
+/// pointers it stores (against a pointer octree's).
+fn tree(t: &mut Lines, r: &PackReport) {
+    let s = &r.stats;
+    let p = &s.pointers;
+    t.line(
         "triangles",
         format!(
             "{} ({} stored, {} degenerate dropped)",
             s.input_triangles, s.triangles, s.degenerate_triangles
         ),
     );
-    line(
+    t.line(
         "options",
         format!(
             "max depth {}, leaf size {}, merging {}",
@@ -169,35 +202,29 @@ fn human(r: &PackReport) -> String {
             if r.options.merge { "on" } else { "off" }
         ),
     );
-    line("depth", s.depth.to_string());
-    line(
-        "nodes per level",
-        s.nodes_per_level
-            .iter()
-            .map(|n| n.to_string())
-            .collect::<Vec<_>>()
-            .join(" "),
-    );
-    line(
+    t.line("depth", s.depth);
+    let per_level: Vec<String> = s.nodes_per_level.iter().map(|n| n.to_string()).collect();
+    t.line("nodes per level", per_level.join(" "));
+    t.line(
         "nodes",
         format!("{} ({} internal)", s.nodes, s.internal_nodes),
     );
-    line(
+    t.line(
         "leaves",
         format!("{} solid, {} empty", s.solid_leaves, s.empty_leaves),
     );
-    line(
+    t.line(
         "merged volumes",
         format!(
             "{} ({:.2} empty leaves per volume)",
             s.volumes, s.empty_leaves_per_volume
         ),
     );
-    line(
+    t.line(
         "triangle references",
         format!("{} ({:.2} per triangle)", s.refs, s.refs_per_triangle),
     );
-    line(
+    t.line(
         "stored pointers",
         format!(
             "{} (0 child pointers, {} rank entries, {} leaf offsets); a pointer octree: {} ({} child, {} leaf)",
@@ -209,14 +236,18 @@ fn human(r: &PackReport) -> String {
             p.pointer_octree_leaf_offsets
         ),
     );
-    line(
+}
+
+/// The file written: its size, its blocks and, for a streaming pack, the chunks.
+fn file(t: &mut Lines, r: &PackReport) {
+    t.line(
         "file",
         format!(
             "{} ({} bytes, {:.1} bytes per triangle)",
             r.output, r.file_bytes, r.bytes_per_triangle
         ),
     );
-    line(
+    t.line(
         "blocks",
         format!(
             "{} of about {} KiB, {}",
@@ -229,7 +260,7 @@ fn human(r: &PackReport) -> String {
         ),
     );
     if let Some(st) = &r.streaming {
-        line(
+        t.line(
             "streaming",
             format!(
                 "budget {} MiB: {} chunks of at most ~{} triangles (largest ~{}), {:.1} MB spilled",
@@ -241,8 +272,12 @@ fn human(r: &PackReport) -> String {
             ),
         );
     }
+}
+
+/// The optional passes: occluders and ropes.
+fn passes(t: &mut Lines, r: &PackReport) {
     if let Some(o) = &r.occluders {
-        line(
+        t.line(
             "occluders",
             format!(
                 "{} triangles at {} internal nodes, of {} candidates; {:.1} MB of records \
@@ -258,7 +293,7 @@ fn human(r: &PackReport) -> String {
         );
     }
     if let Some(rp) = &r.ropes {
-        line(
+        t.line(
             "ropes",
             format!(
                 "{} on {} leaves and links ({} out of the root, {} from a block to the top tree), \
@@ -274,18 +309,4 @@ fn human(r: &PackReport) -> String {
             ),
         );
     }
-    line(
-        "time",
-        format!(
-            "parse {:.3} s ({:.0} MB/s), build {:.3} s, merge {:.3} s, layout {:.3} s, write {:.3} s; total {:.3} s",
-            r.parse_seconds,
-            r.parse_mb_per_s,
-            s.build_seconds,
-            s.merge_seconds,
-            s.layout_seconds,
-            r.write_seconds,
-            r.total_seconds
-        ),
-    );
-    t
 }

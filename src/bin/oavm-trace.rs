@@ -1,29 +1,25 @@
 //! `oavm-trace FILE.oavm`: traces rays through a packed file, memory-mapped, with no rebuild.
 //! Renders an image by default; traces ray files in batch mode, or rays it makes itself in
-//! benchmark mode; verifies files. Glue: the arguments become a typed [`Mode`], the library
-//! does the work, this prints what it reports.
+//! benchmark mode; verifies files; renders the frames of an animation. Glue: the arguments
+//! become a typed [`Mode`], the library does the work (the shot of a render,
+//! `oavm::render::Shot`; the benchmark's frame, `oavm::logical::FrameFigures`; the animation,
+//! `oavm::render::animate`), this prints what it reports.
 
 mod cli;
 
+use std::fmt::Display;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::Parser;
-use oavm::logical::{
-    Answered, FrameOptions, IO_THREADS_PER_CORE, Order, SceneInfo, SceneOptions, SetReport,
-    VerifyReport,
-};
-use oavm::mesh::AffScene;
+use cli::Pool;
+use oavm::logical::{FrameOptions, PageReport, Query, RaySet, TraceRun, Verification};
 use oavm::output::Output;
-use oavm::rays::{self, Bounds, Camera};
-use oavm::render::animate::{
-    self, AnimateOptions, Animation, AnimationReport, CameraChoice, FirstPack, FrameReport,
-};
-use oavm::render::{
-    self, Look, PointLight, RenderOptions, RenderStats, ShadedOptions, ShadedStats,
-};
-use oavm::{Error, Hit, Scene};
+use oavm::rays;
+use oavm::render::animate::{self, AnimateOptions, Animation, AnimationRun, CameraChoice};
+use oavm::render::{self, RenderReport, RenderTotal, ShadedReport, ShadedShot, Shot, ShotSpec};
+use oavm::{Error, Scene};
 use serde::Serialize;
 
 /// Traces rays through an .oavm file made by oavm-pack.
@@ -111,7 +107,7 @@ struct Args {
     /// --shade does (the frame's lights and materials, shadows, reflection and refraction to
     /// --depth) and write OUT_DIR/frame_NNNNN.png (-o, required). The camera is the --view
     /// scene's `v` block, or its camera path with --camera-path.
-    #[arg(long, value_name = "A..B", value_parser = parse_frames, requires = "view",
+    #[arg(long, value_name = "A..B", value_parser = animate::parse_frames, requires = "view",
           conflicts_with_all = ["rays", "random", "primary", "verify"])]
     frames: Option<std::ops::Range<u64>>,
     /// With --frames: read frame f's triangles from PATTERN, its {} replaced by f padded to
@@ -146,6 +142,7 @@ enum Mode {
     Batch {
         rays: PathBuf,
         query: Query,
+        out: PathBuf,
     },
     Bench {
         set: RaySet,
@@ -159,23 +156,6 @@ enum Mode {
     },
 }
 
-#[derive(Debug)]
-enum Query {
-    /// Closest hits, to a HITS file.
-    Closest(PathBuf),
-    /// Any hit, to an OCCL file.
-    Any(PathBuf),
-}
-
-/// A camera, its light and its image size.
-type Shot = (Camera, [f32; 3], (u32, u32));
-
-#[derive(Clone, Copy, Debug)]
-enum RaySet {
-    Random { count: u64, seed: u64 },
-    Primary { width: u32, height: u32 },
-}
-
 /// Rays per wave by default (`--wave`).
 const DEFAULT_WAVE: usize = 65536;
 
@@ -183,57 +163,33 @@ impl Args {
     /// An option given where its mode is not (clap's `requires` does not fire when the mode's
     /// own option is refused by a conflict of its own): a usage error, never ignored.
     fn misplaced(&self) -> Option<String> {
-        let given = |o: bool, name: &str, needs: &str| {
-            o.then(|| format!("{name} needs {needs}; it was given without"))
-        };
         let bench = self.random.is_some() || self.primary.is_some();
-        given(
+        let frames = self.frames.is_some();
+        // Each group of options, given without what it needs (in the order checked)...
+        let given = [
             (self.hits.is_some() || self.occluded.is_some()) && self.rays.is_none(),
-            "--hits/--occluded",
-            "--rays (batch mode)",
-        )
-        .or_else(|| {
-            given(
-                self.seed.is_some() && self.random.is_none(),
-                "--seed",
-                "--random N",
-            )
-        })
-        .or_else(|| {
-            given(
-                (self.shadow || self.wave.is_some()) && !bench,
-                "--shadow/--wave",
-                "--random N or --primary WxH",
-            )
-        })
-        .or_else(|| {
-            given(
-                self.depth.is_some() && !self.shade && self.frames.is_none(),
-                "--depth",
-                "--shade or --frames",
-            )
-        })
-        .or_else(|| {
-            given(
-                self.frames.is_some() && self.output.is_none(),
+            self.seed.is_some() && self.random.is_none(),
+            (self.shadow || self.wave.is_some()) && !bench,
+            self.depth.is_some() && !self.shade && !frames,
+            frames && self.output.is_none(),
+            (self.frame_meshes.is_some() || self.rebuild || self.pack) && !frames,
+            self.time.is_some() && self.camera.view.is_none(),
+        ];
+        // ...and what it needs.
+        const NEEDS: [(&str, &str); 7] = [
+            ("--hits/--occluded", "--rays (batch mode)"),
+            ("--seed", "--random N"),
+            ("--shadow/--wave", "--random N or --primary WxH"),
+            ("--depth", "--shade or --frames"),
+            (
                 "--frames",
                 "-o OUT_DIR (the directory of the frames' images)",
-            )
-        })
-        .or_else(|| {
-            given(
-                (self.frame_meshes.is_some() || self.rebuild || self.pack) && self.frames.is_none(),
-                "--frame-meshes/--rebuild/--pack",
-                "--frames A..B",
-            )
-        })
-        .or_else(|| {
-            given(
-                self.time.is_some() && self.camera.view.is_none(),
-                "--time",
-                "--view SCENE.aff",
-            )
-        })
+            ),
+            ("--frame-meshes/--rebuild/--pack", "--frames A..B"),
+            ("--time", "--view SCENE.aff"),
+        ];
+        let (_, (name, needs)) = given.into_iter().zip(NEEDS).find(|g| g.0)?;
+        Some(format!("{name} needs {needs}; it was given without"))
     }
 
     /// The mode the arguments ask for (clap has already refused the combinations that ask for
@@ -248,50 +204,40 @@ impl Args {
                     "--frames needs -o OUT_DIR, the directory the frames' images go to".into(),
                 )
             })?;
-            return Ok(Mode::Frames {
-                out_dir,
-                range: range.clone(),
-            });
+            let range = range.clone();
+            return Ok(Mode::Frames { out_dir, range });
         }
-        if let Some(rays) = &self.rays {
-            let query = match (&self.hits, &self.occluded) {
-                (Some(h), None) => Query::Closest(h.clone()),
-                (None, Some(o)) => Query::Any(o.clone()),
+        if let Some(rays) = self.rays.clone() {
+            let (query, out) = match (&self.hits, &self.occluded) {
+                (Some(h), None) => (Query::Closest, h.clone()),
+                (None, Some(o)) => (Query::Any, o.clone()),
                 _ => {
                     return Err(Error::Invalid(
                         "--rays needs --hits (closest hit) or --occluded (any hit)".into(),
                     ));
                 }
             };
-            return Ok(Mode::Batch {
-                rays: rays.clone(),
-                query,
-            });
+            return Ok(Mode::Batch { rays, query, out });
         }
         let set = match (self.random, self.primary) {
-            (Some(count), _) => Some(RaySet::Random {
+            (Some(count), _) => RaySet::Random {
                 count,
                 seed: self.seed.unwrap_or(1),
-            }),
-            (None, Some((width, height))) => Some(RaySet::Primary { width, height }),
-            (None, None) => None,
+            },
+            (None, Some((width, height))) => RaySet::Primary { width, height },
+            (None, None) if self.shadow => {
+                return Err(Error::Invalid(
+                    "--shadow needs --random N or --primary WxH".into(),
+                ));
+            }
+            (None, None) => {
+                let image = self.output.clone();
+                let image = image.unwrap_or_else(|| self.file.with_extension("png"));
+                return Ok(Mode::Render { image });
+            }
         };
-        match set {
-            Some(set) => Ok(Mode::Bench {
-                set,
-                shadow: self.shadow,
-                wave: self.wave.unwrap_or(DEFAULT_WAVE),
-            }),
-            None if self.shadow => Err(Error::Invalid(
-                "--shadow needs --random N or --primary WxH".into(),
-            )),
-            None => Ok(Mode::Render {
-                image: self
-                    .output
-                    .clone()
-                    .unwrap_or_else(|| self.file.with_extension("png")),
-            }),
-        }
+        let (shadow, wave) = (self.shadow, self.wave.unwrap_or(DEFAULT_WAVE));
+        Ok(Mode::Bench { set, shadow, wave })
     }
 }
 
@@ -315,101 +261,45 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
         _ => {}
     }
     let t = Instant::now();
-    let mut scene = Scene::open_with(
-        &args.file,
-        &SceneOptions {
-            mem_budget: args.trace.mem_budget,
-            threads: args
-                .trace
-                .threads
-                .unwrap_or(cli::cores() * IO_THREADS_PER_CORE),
-            check_blocks: !args.trace.no_block_checks,
-            block_reads: args.trace.block_reads.into(),
-            walk: args.trace.walk.into(),
-        },
-    )?;
+    let opts = args.trace.scene_options(Pool::AfterOpen);
+    let mut scene = Scene::open_with(&args.file, &opts)?;
     let open_ms = t.elapsed().as_secs_f64() * 1e3;
     // Streamed batches draw their rays done and blocks read (on a terminal, after a second).
-    let bar = std::sync::Arc::new(oavm::progress::Bar::new(std::io::IsTerminal::is_terminal(
-        &std::io::stderr(),
-    )));
-    scene.set_progress(Some(bar.clone()));
-    let threads = match args.trace.threads {
-        Some(n) if n > scene.threads() => {
-            eprintln!(
-                "oavm-trace: note: --threads {n} lowered to {}: a memory budget of {} bytes holds \
-                 two of this file's largest blocks ({} bytes) per thread and one more",
-                scene.threads(),
-                scene.budget(),
-                scene.file().header().max_block_raw_len
-            );
-            scene.threads()
-        }
-        Some(n) => n.max(1),
-        None => scene.default_threads(cli::cores()),
-    };
+    scene.set_progress(Some(std::sync::Arc::new(cli::progress_bar())));
+    let threads = args.trace.threads_after_open(&scene, "oavm-trace");
     let order = args.trace.order.unwrap_or_else(|| scene.default_order());
     let mut ctx = Run {
+        run: TraceRun::new(start, open_ms, threads, order, &opts),
+        spec: args.camera.spec(args.time, args.width, args.height),
         args,
         scene: &scene,
-        start,
-        open_ms,
-        threads,
-        order,
-        first_ray_ms: 0.0,
-        io_before: None,
     };
     cli::with_threads(threads, || match mode {
+        Mode::Render { image } if args.shade => ctx.render_shaded(&image),
         Mode::Render { image } => ctx.render(&image),
-        Mode::Batch { rays, query } => ctx.batch(&rays, &query),
+        Mode::Batch { rays, query, out } => ctx.batch(&rays, query, &out),
         Mode::Bench { set, shadow, wave } => ctx.bench(set, shadow, wave),
         Mode::Verify | Mode::Frames { .. } => Ok(()),
     })
 }
 
-/// `--verify`: every byte, checksum and invariant.
+/// `--verify`: every byte, checksum and invariant; each defect on stderr.
 fn verify(args: &Args) -> Result<(), Error> {
-    let t = Instant::now();
-    let scene = Scene::open(&args.file)?;
-    let report = scene.verify()?;
-    let seconds = t.elapsed().as_secs_f64();
+    let v = Verification::run(&args.file)?;
     if args.json {
-        #[derive(Serialize)]
-        struct Verified<'a> {
-            file: &'a Path,
-            ok: bool,
-            seconds: f64,
-            report: &'a VerifyReport,
-        }
-        cli::print_json(&Verified {
-            file: &args.file,
-            ok: report.is_ok(),
-            seconds,
-            report: &report,
-        })?;
-    } else if report.is_ok() {
-        cli::print_text(&format!(
-            "{}: ok ({} bytes, {} sections, every checksum and invariant holds; {seconds:.3} s)\n",
-            args.file.display(),
-            report.bytes_checked,
-            report.sections_checked,
-        ))?;
+        cli::print_json(&v)?;
+    } else if v.ok {
+        cli::print_text(&format!("{v}\n"))?;
     }
-    if !report.is_ok() {
-        for d in &report.defects {
-            eprintln!("oavm-trace: {}: {d}", args.file.display());
-        }
-        return Err(Error::Invalid(format!(
-            "{}: verification failed ({} defects)",
-            args.file.display(),
-            report.defects.len()
-        )));
+    for d in &v.report.defects {
+        eprintln!("oavm-trace: {}: {d}", args.file.display());
     }
-    Ok(())
+    v.result()
 }
 
 /// `--frames A..B`: an animation, each frame updated into the file (or packed whole, with
-/// --rebuild) and rendered (`oavm::render::animate`).
+/// --rebuild) and rendered (`oavm::render::animate`), on a pool sized before any frame's scene
+/// is opened ([`Pool::BeforeOpen`]).
 fn frames(args: &Args, out_dir: &Path, range: std::ops::Range<u64>) -> Result<(), Error> {
     let view = args
         .camera
@@ -420,449 +310,124 @@ fn frames(args: &Args, out_dir: &Path, range: std::ops::Range<u64>) -> Result<()
         Some(pattern) => Animation::with_meshes(view, pattern, range)?,
         None => Animation::new(view, range)?,
     };
-    let threads = args.trace.threads.unwrap_or_else(cli::cores).max(1);
     let opts = AnimateOptions {
-        mode: if args.rebuild {
-            animate::Mode::Rebuild
-        } else {
-            animate::Mode::Update
+        mode: match args.rebuild {
+            true => animate::Mode::Rebuild,
+            false => animate::Mode::Update,
         },
         out_dir: Some(out_dir.to_owned()),
         width: args.width,
         height: args.height,
         max_depth: args.depth.unwrap_or(render::DEFAULT_MAX_DEPTH),
-        camera: if args.camera.camera_path {
-            CameraChoice::Path
-        } else {
-            CameraChoice::View
+        camera: match args.camera.camera_path {
+            true => CameraChoice::Path,
+            false => CameraChoice::View,
         },
         light: args.camera.light,
-        scene: SceneOptions {
-            mem_budget: args.trace.mem_budget,
-            threads,
-            check_blocks: !args.trace.no_block_checks,
-            block_reads: args.trace.block_reads.into(),
-            walk: args.trace.walk.into(),
-        },
+        scene: args.trace.scene_options(Pool::BeforeOpen),
         order: args.trace.order,
         ..AnimateOptions::default()
     };
-    cli::with_threads(threads, || {
-        let first = match args.pack {
-            true => {
-                let p = anim.pack_first(&args.file, &opts.pack)?;
-                if !args.json {
-                    cli::print_text(&format!(
-                        "packed {} from frame {} ({} triangles, {} bytes, {:.3} s), root cube \
-                         around {:?}..{:?}\n",
-                        args.file.display(),
-                        p.frame,
-                        p.pack.stats.input_triangles,
-                        p.pack.file_bytes,
-                        p.pack.total_seconds,
-                        p.bounds.0,
-                        p.bounds.1
-                    ))?;
-                }
-                Some(p)
-            }
+    // Each line as it happens, unless the run reports in JSON at its end.
+    let line = |what: &dyn std::fmt::Display| match args.json {
+        true => Ok(()),
+        false => cli::print_text(&format!("{what}\n")),
+    };
+    cli::with_threads(opts.scene.threads, || {
+        let packed = match args.pack {
+            true => Some(anim.pack_first(&args.file, &opts.pack)?),
             false => None,
         };
+        packed.as_ref().map_or(Ok(()), |p| line(p))?;
         let mut printed = Ok(());
-        let report = animate::animate(&anim, &args.file, &opts, &mut |r| {
-            if !args.json && printed.is_ok() {
-                printed = cli::print_text(&frame_line(r));
+        let animation = animate::animate(&anim, &args.file, &opts, &mut |r| {
+            if printed.is_ok() {
+                printed = line(r);
             }
         })?;
         printed?;
-        if args.json {
-            #[derive(Serialize)]
-            struct Frames<'a> {
-                #[serde(skip_serializing_if = "Option::is_none")]
-                packed: Option<FirstPack>,
-                #[serde(flatten)]
-                animation: &'a AnimationReport,
-            }
-            return cli::print_json(&Frames {
-                packed: first,
-                animation: &report,
-            });
+        match args.json {
+            true => cli::print_json(&AnimationRun { packed, animation }),
+            false => line(&animation),
         }
-        cli::print_text(&format!(
-            "{} frames ({}x{}, {}, depth {}) on {} threads: {:.2} frames/s ({:.3} s a frame: \
-             {} {:.3} s, open {:.3} s, render {:.3} s); {:.2} Mrays/s; {} bytes written, file \
-             {} bytes\n",
-            report.frames,
-            report.width,
-            report.height,
-            match report.mode {
-                animate::Mode::Update => "updated",
-                animate::Mode::Rebuild => "rebuilt",
-            },
-            report.max_depth,
-            report.threads,
-            report.fps,
-            report.frame_seconds / report.frames.max(1) as f64,
-            match report.mode {
-                animate::Mode::Update => "update",
-                animate::Mode::Rebuild => "pack",
-            },
-            report.update_seconds / report.frames.max(1) as f64,
-            report.open_seconds / report.frames.max(1) as f64,
-            report.render_seconds / report.frames.max(1) as f64,
-            report.mrays_per_s,
-            report.bytes_written,
-            report.file_bytes,
-        ))
     })
 }
 
-/// One frame of `--frames`, as a line of text.
-fn frame_line(r: &FrameReport) -> String {
-    let how = match (&r.update, &r.pack) {
-        (Some(u), _) => format!(
-            "update {:.3} s ({} moved, {} inserted, {} removed; {} of {} blocks rebuilt; {} \
-             bytes written)",
-            r.update_seconds,
-            u.moved,
-            u.inserted,
-            u.removed,
-            u.blocks_rebuilt,
-            u.blocks_before,
-            u.bytes_written
-        ),
-        (_, Some(p)) => format!(
-            "pack {:.3} s ({} blocks, {} bytes)",
-            r.update_seconds, p.block_count, p.file_bytes
-        ),
-        _ => format!("no change ({:.3} s)", r.update_seconds),
-    };
-    let image = r
-        .image
-        .as_ref()
-        .map_or(String::new(), |p| format!(" -> {}", p.display()));
-    format!(
-        "frame {} (time {}): {how}; render {:.3} s ({} rays, {:.2} Mrays/s){image}\n",
-        r.frame, r.time, r.render_seconds, r.render.rays, r.render.mrays_per_s
-    )
-}
-
-/// Parses `--frames`: `A..B` (A to B-1), `A..=B` (A to B) or `A` (one frame).
-fn parse_frames(text: &str) -> Result<std::ops::Range<u64>, String> {
-    let number = |s: &str| {
-        s.trim()
-            .parse::<u64>()
-            .map_err(|e| format!("{s:?} is not a frame number: {e}"))
-    };
-    let (a, b) = if let Some((a, b)) = text.split_once("..=") {
-        let b = number(b)?;
-        (
-            number(a)?,
-            b.checked_add(1).ok_or("the range is too large")?,
-        )
-    } else if let Some((a, b)) = text.split_once("..") {
-        (number(a)?, number(b)?)
-    } else {
-        let a = number(text)?;
-        (a, a.checked_add(1).ok_or("the frame is too large")?)
-    };
-    if a >= b {
-        return Err(format!(
-            "{text:?}: the range is empty (A..B renders frames A to B-1; A..=B, or one frame A)"
-        ));
-    }
-    Ok(a..b)
-}
-
-/// One tracing run: the scene and what every mode reports besides its rays.
+/// One tracing run: the arguments, the scene, the run's figures besides its rays, and the
+/// camera, light and image size the arguments ask for.
 struct Run<'a> {
     args: &'a Args,
     scene: &'a Scene,
-    /// `main`'s entry (the time before it, exec and loading, is not counted).
-    start: Instant,
-    open_ms: f64,
-    threads: usize,
-    order: Order,
-    first_ray_ms: f64,
-    /// The process's `read_bytes` just before the first ray.
-    io_before: Option<u64>,
-}
-
-/// The figures every tracing mode reports with `--json`, around the mode's own (`body`).
-#[derive(Serialize)]
-struct Report<'a, T: Serialize> {
-    file: &'a Path,
-    #[serde(flatten)]
-    scene: SceneInfo,
-    threads: usize,
-    order: Order,
-    open_ms: f64,
-    start_to_first_ray_ms: f64,
-    /// The budget asked for (`None`: the default, see `pager_budget`).
-    mem_budget: Option<u64>,
-    block_checks: bool,
-    peak_rss_bytes: Option<u64>,
-    disk_read_bytes_before_trace: Option<u64>,
-    disk_read_bytes_trace: Option<u64>,
-    #[serde(flatten)]
-    body: T,
+    run: TraceRun,
+    spec: ShotSpec,
 }
 
 impl Run<'_> {
-    /// Marks the moment the first ray is ready to be traced.
-    fn first_ray(&mut self) {
-        self.first_ray_ms = self.start.elapsed().as_secs_f64() * 1e3;
-        self.io_before = oavm::os::read_bytes();
+    /// The pager's figures of `page`, as the clause that ends a line of text.
+    fn pager(&self, page: &PageReport) -> String {
+        page.clause(self.scene.peak_resident_bytes(), self.scene.budget())
     }
 
-    fn report<T: Serialize>(&self, body: T) -> Report<'_, T> {
-        let io_after = oavm::os::read_bytes();
-        Report {
-            file: &self.args.file,
-            scene: self.scene.info(),
-            threads: self.threads,
-            order: self.order,
-            open_ms: self.open_ms,
-            start_to_first_ray_ms: self.first_ray_ms,
-            mem_budget: self.args.trace.mem_budget,
-            block_checks: !self.args.trace.no_block_checks,
-            peak_rss_bytes: oavm::os::peak_rss_bytes(),
-            disk_read_bytes_before_trace: self.io_before,
-            disk_read_bytes_trace: io_after
-                .zip(self.io_before)
-                .map(|(a, b)| a.saturating_sub(b)),
-            body,
+    /// Prints a render's report: as JSON in the run's envelope, or as its line of text, the
+    /// rate of its rays (`total`) and the pager's figures.
+    fn rendered<T: Serialize + Display>(
+        &self,
+        report: &T,
+        total: &RenderTotal,
+    ) -> Result<(), Error> {
+        if self.args.json {
+            return cli::print_json(&self.run.report(self.scene, report));
         }
-    }
-
-    /// The pager's figures for a set, as a clause of the text report.
-    fn paging_text(&self, s: &SetReport) -> String {
-        let p = &s.page;
-        format!(
-            "; pager: {} blocks asked, {} misses ({:.1} % hits), {:.1} MB read ({:.0} B/ray), \
-             peak {:.1} MB resident of {:.1} MB",
-            p.counters.requested,
-            p.counters.misses,
-            100.0 * p.hit_rate,
-            p.counters.bytes_read as f64 / 1e6,
-            p.bytes_read_per_ray,
-            self.scene.peak_resident_bytes() as f64 / 1e6,
-            self.scene.budget() as f64 / 1e6,
-        )
-    }
-
-    /// The most rays a run may hold: what half of the available memory holds.
-    fn max_rays(&self) -> u64 {
-        let avail = oavm::os::available_memory().unwrap_or(oavm::logical::FALLBACK_MEM_BUDGET);
-        oavm::logical::max_rays(avail / 2)
+        let rate = self.run.rate(total.mrays_per_s);
+        cli::print_text(&format!("{report}, {rate}{}\n", self.pager(&total.page)))
     }
 
     /// Render mode: the image, written only once every pixel is traced.
     fn render(&mut self, image: &Path) -> Result<(), Error> {
-        if self.args.shade {
-            return self.render_shaded(image);
-        }
         let out = Output::create(image, &[&self.args.file])?;
-        let (camera, light, (width, height)) = self.shot()?;
-        let opts = RenderOptions {
-            width: self.args.width.unwrap_or(width),
-            height: self.args.height.unwrap_or(height),
-            camera,
-            light,
-            order: self.order,
-        };
-        self.first_ray();
+        let opts = Shot::new(&self.spec, &self.scene.bounds())?.render_options(self.run.order);
+        self.run.first_ray();
         let (img, stats) = render::render(self.scene, &opts)?;
         render::write_png(out, &img)?;
-        let all = stats.primary + stats.shadow;
-        let total = SetReport::new(&all, stats.seconds, Answered::Mixed);
-        if self.args.json {
-            #[derive(Serialize)]
-            struct Rendered<'a> {
-                image: &'a Path,
-                rays: u64,
-                seconds: f64,
-                mrays_per_s: f64,
-                page: oavm::logical::PageReport,
-                render: RenderStats,
-            }
-            return cli::print_json(&self.report(Rendered {
-                image,
-                rays: total.rays,
-                seconds: total.seconds,
-                mrays_per_s: total.mrays_per_s,
-                page: total.page,
-                render: stats,
-            }));
-        }
-        cli::print_text(&format!(
-            "wrote {} ({}x{}): {} primary rays ({} hit), {} shadow rays ({} shadowed), {:.3} s, \
-             {:.2} Mrays/s on {} threads (open {:.3} ms){}\n",
-            image.display(),
-            stats.width,
-            stats.height,
-            stats.primary.rays,
-            stats.hits,
-            stats.shadow.rays,
-            stats.shadowed,
-            stats.seconds,
-            total.mrays_per_s,
-            self.threads,
-            self.open_ms,
-            self.paging_text(&total),
-        ))
+        let report = RenderReport::new(image, stats);
+        self.rendered(&report, &report.total)
     }
 
     /// Render mode with --shade: the scene's materials and lights (the --view scene's, posed
     /// at --time, which must be the scene the file was packed from), Whitted-style.
     fn render_shaded(&mut self, image: &Path) -> Result<(), Error> {
         let out = Output::create(image, &[&self.args.file])?;
-        let aff = self.view_scene()?;
-        let (camera, light, (width, height)) = self.shot_of(aff.as_ref())?;
-        let mut look = match &aff {
-            Some(aff) => {
-                let packed = self.scene.file().header().input_triangles;
-                if aff.mesh.triangles.len() as u64 != packed {
-                    return Err(Error::Invalid(format!(
-                        "{}: posed at time {}, the scene has {} triangles, but {} was packed \
-                         from {packed}: its materials cannot be matched to the file's triangles \
-                         (give --time the time given to oavm-pack, or pack this scene)",
-                        self.args
-                            .camera
-                            .view
-                            .as_deref()
-                            .unwrap_or(Path::new(""))
-                            .display(),
-                        aff.time,
-                        aff.mesh.triangles.len(),
-                        self.args.file.display(),
-                    )));
-                }
-                Look::from_aff(aff)
-            }
-            None => Look::plain(&self.bounds()),
-        };
-        if aff.is_none() || self.args.camera.light.is_some() {
-            look.lights = vec![PointLight {
-                position: light.map(f64::from),
-                colour: [1.0; 3],
-            }];
-        }
-        let mut opts = ShadedOptions::new(
-            self.args.width.unwrap_or(width),
-            self.args.height.unwrap_or(height),
-            camera,
-        );
-        opts.order = self.order;
-        if let Some(depth) = self.args.depth {
-            opts.max_depth = depth;
-        }
-        self.first_ray();
-        let (img, stats) = render::render_shaded(self.scene, &opts, &look)?;
+        let shot = ShadedShot::new(self.scene, &self.spec, self.args.depth, self.run.order)?;
+        self.run.first_ray();
+        let (img, stats) = shot.render(self.scene)?;
         render::write_png(out, &img)?;
-        let all = stats.primary + stats.shadow + stats.reflection + stats.refraction;
-        let total = SetReport::new(&all, stats.seconds, Answered::Mixed);
-        if self.args.json {
-            #[derive(Serialize)]
-            struct Shaded<'a> {
-                image: &'a Path,
-                shading: &'static str,
-                max_depth: u32,
-                lights: usize,
-                materials: usize,
-                rays: u64,
-                seconds: f64,
-                mrays_per_s: f64,
-                page: oavm::logical::PageReport,
-                render: ShadedStats,
-            }
-            return cli::print_json(&self.report(Shaded {
-                image,
-                shading: "whitted",
-                max_depth: opts.max_depth,
-                lights: look.lights.len(),
-                materials: look.materials.len(),
-                rays: total.rays,
-                seconds: total.seconds,
-                mrays_per_s: total.mrays_per_s,
-                page: total.page,
-                render: stats,
-            }));
-        }
-        cli::print_text(&format!(
-            "wrote {} ({}x{}, Whitted, depth {}, {} lights, {} materials): {} primary rays ({} \
-             hit), {} shadow rays ({} shadowed), {} reflection rays, {} refraction rays, {:.3} s, \
-             {:.2} Mrays/s on {} threads (open {:.3} ms){}\n",
-            image.display(),
-            stats.width,
-            stats.height,
-            opts.max_depth,
-            look.lights.len(),
-            look.materials.len(),
-            stats.primary.rays,
-            stats.hits,
-            stats.shadow.rays,
-            stats.shadowed,
-            stats.reflection.rays,
-            stats.refraction.rays,
-            stats.seconds,
-            total.mrays_per_s,
-            self.threads,
-            self.open_ms,
-            self.paging_text(&total),
-        ))
+        let report = ShadedReport::new(image, &shot, stats);
+        self.rendered(&report, &report.total)
     }
 
-    /// Batch mode: traces a RAYS file and writes the answers (only once every ray is answered;
-    /// the output's place is checked before the trace).
-    fn batch(&mut self, rays_path: &Path, query: &Query) -> Result<(), Error> {
-        let (out_path, closest) = match query {
-            Query::Closest(p) => (p, true),
-            Query::Any(p) => (p, false),
-        };
-        let out = Output::create(out_path, &[&self.args.file, rays_path])?;
-        let rays = rays::read_rays(rays_path, self.max_rays())?;
-        self.first_ray();
-        let t = Instant::now();
-        let set = if closest {
-            let mut hits = vec![Hit::MISS; rays.len()];
-            let c = self
-                .scene
-                .intersect_batch_ordered(&rays, &mut hits, self.order)?;
-            let seconds = t.elapsed().as_secs_f64();
-            rays::write_into(out, &hits)?;
-            let n = hits.iter().filter(|h| h.is_hit()).count() as u64;
-            SetReport::new(&c, seconds, Answered::Hits(n))
-        } else {
-            let mut occ = vec![0u8; rays.len()];
-            let c = self
-                .scene
-                .occluded_batch_ordered(&rays, &mut occ, self.order)?;
-            let seconds = t.elapsed().as_secs_f64();
-            rays::write_into(out, &occ)?;
-            let n = occ.iter().filter(|&&o| o == 1).count() as u64;
-            SetReport::new(&c, seconds, Answered::Occluded(n))
-        };
+    /// Batch mode: traces a RAYS file and writes the answers to `out` (only once every ray
+    /// is answered; the output's place is checked before the trace).
+    fn batch(&mut self, rays_path: &Path, query: Query, out: &Path) -> Result<(), Error> {
+        let output = Output::create(out, &[&self.args.file, rays_path])?;
+        let rays = rays::read_rays(rays_path, oavm::logical::max_rays_in_memory())?;
+        self.run.first_ray();
+        let (answers, set) = self.scene.answer(&rays, query, self.run.order)?;
+        answers.write(output)?;
         if self.args.json {
-            return cli::print_json(&self.report(&set));
+            return cli::print_json(&self.run.report(self.scene, &set));
         }
-        let (n, label) = match (set.hits, set.occluded) {
-            (Some(n), _) => (n, "hits"),
-            (_, n) => (n.unwrap_or(0), "occluded"),
-        };
         cli::print_text(&format!(
-            "{} rays, {n} {label}, {:.3} s, {:.2} Mrays/s on {} threads (open {:.3} ms); per \
-             ray: {:.1} nodes, {:.1} volumes, {:.1} triangles{}; wrote {}\n",
+            "{} rays, {}, {:.3} s, {}; per ray: {:.1} nodes, {:.1} volumes, {:.1} triangles{}; \
+             wrote {}\n",
             set.rays,
+            set.answered(),
             set.seconds,
-            set.mrays_per_s,
-            self.threads,
-            self.open_ms,
+            self.run.rate(set.mrays_per_s),
             set.nodes_visited_per_ray,
             set.volumes_crossed_per_ray,
             set.triangles_tested_per_ray,
-            self.paging_text(&set),
-            out_path.display()
+            self.pager(&set.page),
+            out.display()
         ))
     }
 
@@ -870,177 +435,26 @@ impl Run<'_> {
     /// shadow ray from every hit (in waves, --wave); reports each set and the total, writes
     /// nothing.
     fn bench(&mut self, set: RaySet, shadow: bool, wave: usize) -> Result<(), Error> {
-        let (camera, light, _) = self.shot()?;
-        let count = match set {
-            RaySet::Random { count, .. } => count,
-            RaySet::Primary { width, height } => width as u64 * height as u64,
-        };
-        let max = self.max_rays();
-        if count > max {
-            return Err(Error::Invalid(format!(
-                "{count} rays: at most {max} fit in half of the available memory \
-                 ({} bytes a ray); trace them in several runs",
-                oavm::logical::BYTES_PER_RAY
-            )));
-        }
-        let (name, rays) = match set {
-            RaySet::Random { count, seed } => (
-                "random",
-                rays::random_rays(&self.bounds(), count as usize, seed),
-            ),
-            RaySet::Primary { width, height } => ("primary", camera.primary_rays(width, height)),
-        };
-        self.first_ray();
-        let frame = self.scene.trace_frame(
-            &rays,
-            &FrameOptions {
-                light: shadow.then_some(light),
-                wave,
-                order: self.order,
-            },
-        )?;
-
-        /// One set's figures, with a digest of its answers.
-        #[derive(Serialize)]
-        struct Set {
-            set: &'static str,
-            /// xxh3-64 of the set's answers (closest hits as their HITS records, or the OCCL
-            /// bytes): runs that agree ray for ray have the same digest.
-            answers_xxh3: String,
-            #[serde(flatten)]
-            report: SetReport,
-        }
-        let digest = |bytes: &[u8]| format!("{:016x}", xxhash_rust::xxh3::xxh3_64(bytes));
-        let hits = frame.hits.iter().filter(|h| h.is_hit()).count() as u64;
-        let mut sets = vec![Set {
-            set: name,
-            answers_xxh3: digest(bytemuck::cast_slice(&frame.hits)),
-            report: SetReport::new(
-                &frame.primary.counters,
-                frame.primary.seconds,
-                Answered::Hits(hits),
-            ),
-        }];
-        if shadow {
-            let n = frame.occluded.iter().filter(|&&o| o == 1).count() as u64;
-            sets.push(Set {
-                set: "shadow",
-                answers_xxh3: digest(&frame.occluded),
-                report: SetReport::new(
-                    &frame.shadow.counters,
-                    frame.shadow.seconds,
-                    Answered::Occluded(n),
-                ),
-            });
-        }
-        let total = SetReport::new(
-            &(frame.primary.counters + frame.shadow.counters),
-            frame.primary.seconds + frame.shadow.seconds,
-            Answered::Mixed,
-        );
+        let bounds = self.scene.bounds();
+        let shot = Shot::new(&self.spec, &bounds)?;
+        let rays = set.rays(&bounds, &shot.camera)?;
+        self.run.first_ray();
+        let light = shadow.then_some(shot.light);
+        let order = self.run.order;
+        let frame = (self.scene).trace_frame(&rays, &FrameOptions { light, wave, order })?;
+        let figures = frame.figures(set.name(), shadow);
         if self.args.json {
-            #[derive(Serialize)]
-            struct Bench {
-                #[serde(flatten)]
-                total: SetReport,
-                sets: Vec<Set>,
-            }
-            return cli::print_json(&self.report(Bench { total, sets }));
+            return cli::print_json(&self.run.report(self.scene, &figures));
         }
         let mut text = String::new();
-        for s in &sets {
-            let (n, label) = match (s.report.hits, s.report.occluded) {
-                (Some(n), _) => (n, "hits"),
-                (_, n) => (n.unwrap_or(0), "occluded"),
-            };
-            text += &format!(
-                "{}: {} rays, {n} {label}, {:.3} s, {:.2} Mrays/s{}\n",
-                s.set,
-                s.report.rays,
-                s.report.seconds,
-                s.report.mrays_per_s,
-                self.paging_text(&s.report)
-            );
+        for s in &figures.sets {
+            text += &format!("{s}{}\n", self.pager(&s.report.page));
         }
+        let r = &self.run;
         text += &format!(
             "{} threads, order {}, open {:.3} ms, first ray {:.3} ms after start\n",
-            self.threads, self.order, self.open_ms, self.first_ray_ms
+            r.threads, r.order, r.open_ms, r.first_ray_ms
         );
         cli::print_text(&text)
-    }
-
-    /// The model's bounds, from the header.
-    fn bounds(&self) -> Bounds {
-        let h = self.scene.file().header();
-        Bounds {
-            min: h.mesh_min,
-            max: h.mesh_max,
-        }
-    }
-
-    /// The camera, light and image size of the render and of --primary: from --view, or
-    /// framing the model and adjusted by --eye, --target, --up, --fov; the light from --light,
-    /// else the scene's, else the default.
-    fn shot(&self) -> Result<Shot, Error> {
-        self.shot_of(self.view_scene()?.as_ref())
-    }
-
-    /// The --view scene posed at --time, if there is one.
-    fn view_scene(&self) -> Result<Option<AffScene>, Error> {
-        match &self.args.camera.view {
-            Some(path) => Ok(Some(oavm::mesh::load_aff(path, self.args.time)?)),
-            None => Ok(None),
-        }
-    }
-
-    /// [`Self::shot`] with the --view scene `aff` already read.
-    fn shot_of(&self, aff: Option<&AffScene>) -> Result<Shot, Error> {
-        let c = &self.args.camera;
-        let bounds = self.bounds();
-        let view = c.view.as_ref().zip(aff);
-        let (camera, scene_light, size) = if let Some((view_path, aff)) = view {
-            let v = if c.camera_path {
-                aff.camera_path.ok_or_else(|| {
-                    Error::Invalid(format!(
-                        "{}: the scene has no camera path (`k camera` and a `v` block) for \
-                         --camera-path",
-                        view_path.display()
-                    ))
-                })?
-            } else {
-                aff.view.ok_or_else(|| {
-                    Error::Invalid(format!(
-                        "{}: the scene has no viewpoint (`v` block) for --view",
-                        view_path.display()
-                    ))
-                })?
-            };
-            let camera = Camera::look_at(v.from, v.at, v.up, v.angle_deg)
-                .map_err(|e| Error::Invalid(format!("{}: viewpoint: {e}", view_path.display())))?;
-            let light = aff.lights.first().copied().unwrap_or(v.from);
-            (camera, Some(light), v.resolution)
-        } else {
-            let mut camera = Camera::framing(&bounds);
-            if let Some(target) = c.target {
-                camera.target = target;
-            }
-            if let Some(eye) = c.eye {
-                camera.eye = eye;
-            }
-            camera.up = c.up.unwrap_or([0.0, 1.0, 0.0]);
-            camera.fov_y = c.fov.unwrap_or(40.0);
-            if !(camera.fov_y > 0.0 && camera.fov_y < 180.0) || camera.eye == camera.target {
-                return Err(Error::Invalid(
-                    "the camera needs 0 < --fov < 180 and --eye apart from --target".into(),
-                ));
-            }
-            (camera, None, (1024, 768))
-        };
-        let light = c
-            .light
-            .or(scene_light)
-            .map(|l| l.map(|x| x as f32))
-            .unwrap_or_else(|| rays::default_light(&bounds));
-        Ok((camera, light, size))
     }
 }

@@ -1,6 +1,77 @@
-//! Handing a batch's work to the threads.
+//! Handing a batch's work to the threads; a batch of rays asking one [`Query`] of each, its
+//! [`Answers`] and figures ([`Scene::answer`]).
+
+use std::time::Instant;
 
 use rayon::prelude::*;
+
+use super::order::Order;
+use super::pager::BlockSource;
+use super::report::{Answered, SetReport};
+use super::scene::Scene;
+use crate::error::Error;
+use crate::geom::{Hit, Ray};
+use crate::output::Output;
+use crate::rays::write_into;
+
+/// What a batch asks of each ray.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Query {
+    /// Its closest hit ([`Scene::intersect_batch_ordered`]).
+    Closest,
+    /// Whether anything occludes it ([`Scene::occluded_batch_ordered`]).
+    Any,
+}
+
+/// A batch's answers, in the order of its rays.
+#[derive(Clone, Debug)]
+pub enum Answers {
+    /// Closest hits ([`Query::Closest`]).
+    Hits(Vec<Hit>),
+    /// 1: occluded, 0: not ([`Query::Any`]).
+    Occluded(Vec<u8>),
+}
+
+impl Answers {
+    /// Writes them to `out`: a HITS file, or an OCCL file (`RAYS.md`).
+    pub fn write(&self, out: Output) -> Result<(), Error> {
+        match self {
+            Answers::Hits(hits) => write_into(out, hits),
+            Answers::Occluded(occ) => write_into(out, occ),
+        }
+    }
+}
+
+impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
+    /// Answers `query` for every ray of `rays`, traced in `order`: the answers, and the set's
+    /// figures (how many hit, or were occluded; the time is the trace's).
+    pub fn answer(
+        &self,
+        rays: &[Ray],
+        query: Query,
+        order: Order,
+    ) -> Result<(Answers, SetReport), Error> {
+        let t = Instant::now();
+        match query {
+            Query::Closest => {
+                let mut hits = vec![Hit::MISS; rays.len()];
+                let c = self.intersect_batch_ordered(rays, &mut hits, order)?;
+                let seconds = t.elapsed().as_secs_f64();
+                let n = hits.iter().filter(|h| h.is_hit()).count() as u64;
+                let set = SetReport::new(&c, seconds, Answered::Hits(n));
+                Ok((Answers::Hits(hits), set))
+            }
+            Query::Any => {
+                let mut occ = vec![0u8; rays.len()];
+                let c = self.occluded_batch_ordered(rays, &mut occ, order)?;
+                let seconds = t.elapsed().as_secs_f64();
+                let n = occ.iter().filter(|&&o| o == 1).count() as u64;
+                let set = SetReport::new(&c, seconds, Answered::Occluded(n));
+                Ok((Answers::Occluded(occ), set))
+            }
+        }
+    }
+}
 
 /// Rays per chunk handed to a thread: large enough to amortise the hand-out, small enough to
 /// balance.

@@ -1,6 +1,8 @@
 //! A frame as a renderer traces it: primary rays (closest hit), then a shadow ray from every
 //! hit toward a light (any hit), in *waves*: each wave's shadow rays right after its primary
-//! rays, while the blocks they start in are still in memory.
+//! rays, while the blocks they start in are still in memory. The primary rays of a benchmark
+//! frame are a [`RaySet`]: random rays around the model or a camera's; a frame's figures are
+//! [`Frame::figures`].
 
 use std::time::Instant;
 
@@ -8,11 +10,55 @@ use serde::Serialize;
 
 use super::order::Order;
 use super::pager::BlockSource;
-use super::scene::Scene;
+use super::scene::{BYTES_PER_RAY, Scene, max_rays_in_memory};
 use super::trace::Counters;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
-use crate::rays::shadow_ray;
+use crate::rays::{Bounds, Camera, random_rays, shadow_ray};
+
+/// The primary rays of a benchmark frame (`oavm-trace --random N` or `--primary WxH`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RaySet {
+    /// `count` rays from `seed`, their origins around the model and their directions uniform
+    /// ([`random_rays`]: the sets of `cargo run --example rays`).
+    Random { count: u64, seed: u64 },
+    /// A camera's `width` x `height` primary rays ([`Camera::primary_rays`]).
+    Primary { width: u32, height: u32 },
+}
+
+impl RaySet {
+    /// The number of rays.
+    pub fn count(&self) -> u64 {
+        match *self {
+            RaySet::Random { count, .. } => count,
+            RaySet::Primary { width, height } => width as u64 * height as u64,
+        }
+    }
+
+    /// The set's name in reports: `random` or `primary`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            RaySet::Random { .. } => "random",
+            RaySet::Primary { .. } => "primary",
+        }
+    }
+
+    /// The rays, around a model within `bounds` or from `camera`. An error, before any is made,
+    /// if there are more than half of the memory available holds ([`max_rays_in_memory`]).
+    pub fn rays(&self, bounds: &Bounds, camera: &Camera) -> Result<Vec<Ray>, Error> {
+        let (count, max) = (self.count(), max_rays_in_memory());
+        if count > max {
+            return Err(Error::Invalid(format!(
+                "{count} rays: at most {max} fit in half of the available memory \
+                 ({BYTES_PER_RAY} bytes a ray); trace them in several runs"
+            )));
+        }
+        Ok(match *self {
+            RaySet::Random { count, seed } => random_rays(bounds, count as usize, seed),
+            RaySet::Primary { width, height } => camera.primary_rays(width, height),
+        })
+    }
+}
 
 /// How [`Scene::trace_frame`] traces a frame.
 #[derive(Clone, Copy, Debug)]

@@ -1,8 +1,9 @@
 //! The logical layer (OAVM paper §2.3-2.5): the octree with merged empty volumes as the tracer
 //! sees it. It owns the tracer ([`Tree`]), the pager that brings blocks in within a memory
 //! budget (a cache policy), an opened file ready to trace ([`Scene`]: budget, threads, batch
-//! calls in an [`Order`]), a frame of primary and shadow rays ([`Scene::trace_frame`]) and the
-//! structural part of full verification.
+//! calls in an [`Order`]), a frame of primary and shadow rays ([`Scene::trace_frame`], of a
+//! [`RaySet`]), what traced rays report ([`SetReport`], [`FrameFigures`]) and the structural
+//! part of full verification.
 
 mod batch;
 mod frame;
@@ -17,13 +18,16 @@ mod trace;
 mod verify;
 
 pub(crate) use batch::in_order;
-pub use frame::{Frame, FrameOptions, SetStats};
+pub use batch::{Answers, Query};
+pub use frame::{Frame, FrameOptions, RaySet, SetStats};
 pub use order::{COARSE_BITS, KEY_BITS, Order, RayKeys};
 pub use pager::{BlockSource, PageCounters};
-pub use report::{Answered, PageReport, SetReport};
+pub use report::{
+    Answered, AnsweredSet, FrameFigures, PageReport, RunReport, SetReport, TraceRun, Verification,
+};
 pub use scene::{
     BYTES_PER_RAY, BlockReads, FALLBACK_MEM_BUDGET, IO_THREADS_PER_CORE, Scene, SceneInfo,
-    SceneOptions, default_mem_budget, max_rays,
+    SceneOptions, default_mem_budget, max_rays, max_rays_in_memory,
 };
 pub use trace::{Counters, HitInfo, TraceError, Tree, Walk};
 pub use verify::VerifyReport;

@@ -22,6 +22,7 @@ use crate::os::MappedFile;
 use crate::physical::format::{FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_ROPES, SectionKind};
 use crate::physical::{BlockReader, OavmFile};
 use crate::progress::Progress;
+use crate::rays::Bounds;
 
 /// How an opened file is traced.
 #[derive(Clone, Copy, Debug)]
@@ -114,6 +115,13 @@ pub const BYTES_PER_RAY: u64 = 64;
 /// index): callers refuse larger batches with a clear error rather than fail to allocate.
 pub fn max_rays(budget: u64) -> u64 {
     (budget / BYTES_PER_RAY).min(u32::MAX as u64)
+}
+
+/// The most rays a run may hold: [`max_rays`] of half of the memory available
+/// ([`crate::os::available_memory`], or [`FALLBACK_MEM_BUDGET`] where that cannot be read), the
+/// other half left to the pager's default budget ([`default_mem_budget`]).
+pub fn max_rays_in_memory() -> u64 {
+    max_rays(crate::os::available_memory().unwrap_or(FALLBACK_MEM_BUDGET) / 2)
 }
 
 /// An opened `.oavm` file, ready to trace. Opening reads the header, section table and top
@@ -364,6 +372,15 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             .saturating_mul(IO_THREADS_PER_CORE)
             .min(quarter.max(cores))
             .min(self.threads)
+    }
+
+    /// The model's bounds: the box of its triangles, as the header records it.
+    pub fn bounds(&self) -> Bounds {
+        let h = self.file.header();
+        Bounds {
+            min: h.mesh_min,
+            max: h.mesh_max,
+        }
     }
 
     /// What the scene is and holds.

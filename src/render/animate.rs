@@ -52,7 +52,15 @@
 //! (opening the file for tracing), `render_seconds` (the render) and `write_seconds` (encoding
 //! and writing the PNG, not counted). A frame's time is `update + open + render`; frames a
 //! second are frames over the sum of those ([`AnimationReport::fps`]).
+//!
+//! # Reports
+//!
+//! A frame range is parsed from text by [`parse_frames`] (`A..B`, `A..=B` or `A`). The reports
+//! print as the lines `oavm-trace --frames` writes ([`FirstPack`], [`FrameReport`] and
+//! [`AnimationReport`] implement [`Display`](fmt::Display)), and serialize as its `--json`
+//! object ([`AnimationRun`]: the first pack, if any, and the animation).
 
+use std::fmt;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -93,6 +101,35 @@ pub fn frame_mesh_path(pattern: &str, frame: u64) -> PathBuf {
     PathBuf::from(pattern.replace(FRAME_PLACEHOLDER, &format!("{frame:0FRAME_DIGITS$}")))
 }
 
+/// Parses a range of frames: `A..B` (frames A to B-1), `A..=B` (A to B) or `A` (frame A alone).
+/// An error for an empty range.
+pub fn parse_frames(text: &str) -> Result<Range<u64>, Error> {
+    let number = |s: &str| {
+        s.trim()
+            .parse::<u64>()
+            .map_err(|e| Error::Invalid(format!("{s:?} is not a frame number: {e}")))
+    };
+    let too_large = |what: &str| Error::Invalid(format!("the {what} is too large"));
+    let (a, b) = if let Some((a, b)) = text.split_once("..=") {
+        let b = number(b)?;
+        (
+            number(a)?,
+            b.checked_add(1).ok_or_else(|| too_large("range"))?,
+        )
+    } else if let Some((a, b)) = text.split_once("..") {
+        (number(a)?, number(b)?)
+    } else {
+        let a = number(text)?;
+        (a, a.checked_add(1).ok_or_else(|| too_large("frame"))?)
+    };
+    if a >= b {
+        return Err(Error::Invalid(format!(
+            "{text:?}: the range is empty (A..B renders frames A to B-1; A..=B, or one frame A)"
+        )));
+    }
+    Ok(a..b)
+}
+
 /// Where the camera comes from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -116,6 +153,24 @@ pub enum Mode {
     Update,
     /// A full pack of the frame, replacing the file ([`pack_mesh`]).
     Rebuild,
+}
+
+impl Mode {
+    /// What brings the file to a frame, as a noun: `update` or `pack`.
+    pub fn step(self) -> &'static str {
+        match self {
+            Mode::Update => "update",
+            Mode::Rebuild => "pack",
+        }
+    }
+
+    /// What was done to the frames, as a participle: `updated` or `rebuilt`.
+    pub fn done(self) -> &'static str {
+        match self {
+            Mode::Update => "updated",
+            Mode::Rebuild => "rebuilt",
+        }
+    }
 }
 
 /// An animation: the view scene, where each frame's geometry comes from, and the frames to
@@ -321,6 +376,7 @@ impl Animation {
             )
             .map_err(|e| at_frame(start, e))?;
         Ok(FirstPack {
+            file: file.to_owned(),
             frame: self.frames.start,
             bounds: opts.bounds.unwrap_or_default(),
             bounds_seconds,
@@ -379,6 +435,9 @@ impl Animation {
 /// What [`Animation::pack_first`] did.
 #[derive(Clone, Debug, Serialize)]
 pub struct FirstPack {
+    /// The file packed (not serialized: the report around it names it).
+    #[serde(skip)]
+    pub file: PathBuf,
     pub frame: u64,
     /// The box the root cube holds.
     pub bounds: ([f32; 3], [f32; 3]),
@@ -514,6 +573,102 @@ pub struct AnimationReport {
     /// Wall seconds of the whole run.
     pub total_seconds: f64,
     pub per_frame: Vec<FrameReport>,
+}
+
+/// What `oavm-trace --frames` reports with `--json`: the first pack, when the file was packed
+/// first ([`Animation::pack_first`]), and the animation's report.
+#[derive(Clone, Debug, Serialize)]
+pub struct AnimationRun {
+    /// The first pack ([`Animation::pack_first`]), when the file was packed first.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub packed: Option<FirstPack>,
+    /// The frames ([`animate`]), flattened into the same object.
+    #[serde(flatten)]
+    pub animation: AnimationReport,
+}
+
+/// `packed FILE from frame A (N triangles, B bytes, S s), root cube around LO..HI`.
+impl fmt::Display for FirstPack {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "packed {} from frame {} ({} triangles, {} bytes, {:.3} s), root cube around \
+             {:?}..{:?}",
+            self.file.display(),
+            self.frame,
+            self.pack.stats.input_triangles,
+            self.pack.file_bytes,
+            self.pack.total_seconds,
+            self.bounds.0,
+            self.bounds.1
+        )
+    }
+}
+
+/// `frame F (time T): HOW; render S s (N rays, M Mrays/s) -> IMAGE`, where HOW is the update
+/// (what moved and what it rebuilt and wrote), the pack, or `no change`.
+impl fmt::Display for FrameReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "frame {} (time {}): ", self.frame, self.time)?;
+        match (&self.update, &self.pack) {
+            (Some(u), _) => write!(
+                f,
+                "update {:.3} s ({} moved, {} inserted, {} removed; {} of {} blocks rebuilt; \
+                 {} bytes written)",
+                self.update_seconds,
+                u.moved,
+                u.inserted,
+                u.removed,
+                u.blocks_rebuilt,
+                u.blocks_before,
+                u.bytes_written
+            )?,
+            (_, Some(p)) => write!(
+                f,
+                "pack {:.3} s ({} blocks, {} bytes)",
+                self.update_seconds, p.block_count, p.file_bytes
+            )?,
+            _ => write!(f, "no change ({:.3} s)", self.update_seconds)?,
+        }
+        write!(
+            f,
+            "; render {:.3} s ({} rays, {:.2} Mrays/s)",
+            self.render_seconds, self.render.rays, self.render.mrays_per_s
+        )?;
+        match &self.image {
+            Some(p) => write!(f, " -> {}", p.display()),
+            None => Ok(()),
+        }
+    }
+}
+
+/// `N frames (WxH, MODE, depth D) on T threads: F frames/s (S s a frame: ...); M Mrays/s; B
+/// bytes written, file B bytes`, the times a frame's means.
+impl fmt::Display for AnimationReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mean = |s: f64| s / self.frames.max(1) as f64;
+        write!(
+            f,
+            "{} frames ({}x{}, {}, depth {}) on {} threads: {:.2} frames/s ({:.3} s a frame: {} \
+             {:.3} s, open {:.3} s, render {:.3} s); {:.2} Mrays/s; {} bytes written, file {} \
+             bytes",
+            self.frames,
+            self.width,
+            self.height,
+            self.mode.done(),
+            self.max_depth,
+            self.threads,
+            self.fps,
+            mean(self.frame_seconds),
+            self.mode.step(),
+            mean(self.update_seconds),
+            mean(self.open_seconds),
+            mean(self.render_seconds),
+            self.mrays_per_s,
+            self.bytes_written,
+            self.file_bytes,
+        )
+    }
 }
 
 /// An error of frame `frame`, saying so.

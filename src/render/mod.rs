@@ -9,12 +9,22 @@
 //!
 //! Both trace tile by tile ([`TILE`]) on at most [`Scene::threads`] threads, and both give the
 //! same image, byte for byte, whatever the number of threads and the order of the tiles.
+//!
+//! What they render is a [`Shot`]: the camera, light and image size that a [`ShotSpec`] asks
+//! for (a BART scene's viewpoint, or a camera framing the model), as `oavm-trace` chooses them;
+//! [`ShadedShot`] sets up a Whitted render of a shot with its scene's materials and lights.
+//! What a render did is a [`RenderReport`] or a [`ShadedReport`]. [`animate`] renders the frames
+//! of an animation, the file updated to each.
 
 pub mod animate;
 mod look;
+mod report;
+mod shot;
 mod whitted;
 
 pub use look::{Look, PLAIN_AMBIENT, PLAIN_BACKGROUND, PointLight};
+pub use report::{RenderReport, RenderTotal, ShadedReport};
+pub use shot::{DEFAULT_FOV, DEFAULT_SIZE, ShadedShot, Shot, ShotSpec};
 pub use whitted::{
     DEFAULT_MAX_DEPTH, DEFAULT_MIN_WEIGHT, MAX_DEPTH_LIMIT, OFFSET, ShadedOptions, ShadedStats,
     render_shaded,

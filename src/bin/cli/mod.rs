@@ -7,7 +7,8 @@
 #![allow(dead_code)]
 
 use oavm::Error;
-use oavm::logical::Order;
+use oavm::logical::{IO_THREADS_PER_CORE, Order, SceneOptions};
+use oavm::render::ShotSpec;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -56,6 +57,11 @@ pub fn with_threads<T: Send>(
         .build()
         .map_err(|e| Error::Invalid(format!("cannot start {threads} threads: {e}")))?;
     pool.install(f)
+}
+
+/// The progress bar of long runs, drawn on stderr when it is a terminal.
+pub fn progress_bar() -> oavm::progress::Bar {
+    oavm::progress::Bar::new(std::io::IsTerminal::is_terminal(&std::io::stderr()))
 }
 
 /// The cores of this machine.
@@ -110,6 +116,59 @@ pub struct TraceArgs {
     /// what the budget holds.
     #[arg(long)]
     pub threads: Option<usize>,
+}
+
+/// When the rayon pool a file is traced on is sized, which decides what
+/// [`SceneOptions::threads`] means ([`TraceArgs::scene_options`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pool {
+    /// After the scene is opened, from what its budget holds (`--threads` lowered to
+    /// [`oavm::Scene::threads`], else [`oavm::Scene::default_threads`]), as the tracing modes
+    /// (render, batch, benchmark) do. The scene is opened for the most threads that may then
+    /// trace, so that the pager keeps a block's room for each: `--threads`, else
+    /// [`IO_THREADS_PER_CORE`] per core, the most `default_threads` chooses.
+    AfterOpen,
+    /// Before any scene is opened, as `--frames` does (the library opens a scene per frame and
+    /// renders it on the pool it is given): the pool is `--threads` (at least one), else one
+    /// per core, and each scene is opened for as many.
+    BeforeOpen,
+}
+
+impl TraceArgs {
+    /// How the file is opened: the memory budget, block checks, block reads and walk asked for,
+    /// and the threads of `pool`'s rule.
+    pub fn scene_options(&self, pool: Pool) -> SceneOptions {
+        SceneOptions {
+            mem_budget: self.mem_budget,
+            threads: match pool {
+                Pool::AfterOpen => self.threads.unwrap_or(cores() * IO_THREADS_PER_CORE),
+                Pool::BeforeOpen => self.threads.unwrap_or_else(cores).max(1),
+            },
+            check_blocks: !self.no_block_checks,
+            block_reads: self.block_reads.into(),
+            walk: self.walk.into(),
+        }
+    }
+
+    /// The pool's threads once `scene` is opened with [`Pool::AfterOpen`]'s options:
+    /// `--threads`, lowered to what the budget holds (with a note on stderr, `program` naming
+    /// who writes it), else the scene's default for this machine's cores.
+    pub fn threads_after_open(&self, scene: &oavm::Scene, program: &str) -> usize {
+        match self.threads {
+            Some(n) if n > scene.threads() => {
+                eprintln!(
+                    "{program}: note: --threads {n} lowered to {}: a memory budget of {} bytes \
+                     holds two of this file's largest blocks ({} bytes) per thread and one more",
+                    scene.threads(),
+                    scene.budget(),
+                    scene.file().header().max_block_raw_len
+                );
+                scene.threads()
+            }
+            Some(n) => n.max(1),
+            None => scene.default_threads(cores()),
+        }
+    }
 }
 
 /// `--block-reads`.
@@ -178,6 +237,25 @@ pub struct CameraArgs {
     /// in front of the model).
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3)]
     pub light: Option<[f64; 3]>,
+}
+
+impl CameraArgs {
+    /// The shot these options ask for, the view scene posed at `time`, the image `width` x
+    /// `height` (each `None`: the view scene's resolution, or the default).
+    pub fn spec(&self, time: Option<f64>, width: Option<u32>, height: Option<u32>) -> ShotSpec {
+        ShotSpec {
+            view: self.view.clone(),
+            time,
+            camera_path: self.camera_path,
+            eye: self.eye,
+            target: self.target,
+            up: self.up,
+            fov: self.fov,
+            light: self.light,
+            width,
+            height,
+        }
+    }
 }
 
 /// Parses a byte size: a number with an optional binary unit, `K`, `M`, `G` or `T` (powers of
