@@ -78,8 +78,6 @@ pub struct SetReport {
     pub cluster_nodes_visited: u64,
     pub boxes_tested: u64,
     pub groups_tested: u64,
-    /// Walks begun again from above (comparison KD-tree variants; 0 elsewhere).
-    pub restarts: u64,
     /// Ropes followed (`--walk ropes`, spec §8.4; 0 elsewhere).
     pub ropes_followed: u64,
     pub nodes_visited_per_ray: f64,
@@ -90,7 +88,6 @@ pub struct SetReport {
     pub cluster_nodes_visited_per_ray: f64,
     pub boxes_tested_per_ray: f64,
     pub groups_tested_per_ray: f64,
-    pub restarts_per_ray: f64,
     pub ropes_followed_per_ray: f64,
     /// Streamed sets ([`super::Order::Stream`]): walks parked at a block and resumed, times a
     /// block's queue was served, and the most bytes the parked walks took at once.
@@ -142,7 +139,6 @@ impl SetReport {
             cluster_nodes_visited: c.cluster_nodes_visited,
             boxes_tested: c.boxes_tested,
             groups_tested: c.groups_tested,
-            restarts: c.restarts,
             ropes_followed: c.ropes_followed,
             nodes_visited_per_ray: per_ray(c.nodes_visited),
             leaves_visited_per_ray: per_ray(c.leaves_visited),
@@ -152,7 +148,6 @@ impl SetReport {
             cluster_nodes_visited_per_ray: per_ray(c.cluster_nodes_visited),
             boxes_tested_per_ray: per_ray(c.boxes_tested),
             groups_tested_per_ray: per_ray(c.groups_tested),
-            restarts_per_ray: per_ray(c.restarts),
             ropes_followed_per_ray: per_ray(c.ropes_followed),
             stream: (c.blocks_served > 0).then(|| StreamReport {
                 walks_parked: c.walks_parked,

@@ -89,12 +89,7 @@ pub struct Counters {
     pub boxes_tested: u64,
     /// Triangle groups (spec §7.2) tested.
     pub groups_tested: u64,
-    /// Walks begun again from a node above the last one (the comparison KD-tree's kd-restart,
-    /// push-down and short-stack traversals: each time the rest of the ray is walked down
-    /// again).
-    pub restarts: u64,
-    /// Ropes followed by the leaf-to-leaf walk of [`Walk::Ropes`] (spec §8.4). (The comparison
-    /// KD-tree's rope walks count theirs in `restarts`.)
+    /// Ropes followed by the leaf-to-leaf walk of [`Walk::Ropes`] (spec §8.4).
     pub ropes_followed: u64,
     /// Occluders tested at inner nodes by the shadow-ray walk of a primitive index (the
     /// multi-index tree of Liang and Huang; also counted in `triangles_tested`).
@@ -121,7 +116,6 @@ impl std::ops::AddAssign for Counters {
         self.top_nodes_culled += o.top_nodes_culled;
         self.triangles_tested += o.triangles_tested;
         self.clusters_entered += o.clusters_entered;
-        self.restarts += o.restarts;
         self.ropes_followed += o.ropes_followed;
         self.promoted_tested += o.promoted_tested;
         self.cluster_nodes_visited += o.cluster_nodes_visited;
