@@ -15,7 +15,7 @@ const STACK: [&str; 12] = [
 
 /// The files of `logical`, bottom first: each may import those before it. The walks (`trace`)
 /// know neither the stream that parks them nor the scene that runs them.
-const LOGICAL: [&str; 11] = [
+const LOGICAL: [&str; 12] = [
     "held",
     "top_bounds",
     "pager",
@@ -27,6 +27,19 @@ const LOGICAL: [&str; 11] = [
     "verify",
     "scene",
     "frame",
+    "run",
+];
+
+/// The modules of the comparison crate (`crates/oavm-compare`), by level, bottom first: a module
+/// imports only modules of lower levels. The structures of the comparison are peers (none
+/// builds on another), the benchmark runs them all, the shadow-ray variants use the benchmark's
+/// scenes.
+const COMPARE: [&[&str]; 5] = [
+    &["counters", "leaf"],
+    &["aabb", "test_util"],
+    &["grid", "kdtree", "octree", "bvh", "oavm_accel"],
+    &["bench"],
+    &["shadow"],
 ];
 
 /// The module that may hold `unsafe` code (`#![deny(unsafe_code)]` elsewhere).
@@ -48,9 +61,14 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// The module path of a file under `src/`: `src/a/b.rs` and `src/a/b/mod.rs` are `[a, b]`.
-fn module_path(file: &Path) -> Vec<String> {
-    let rel = file.strip_prefix(src()).expect("under src");
+/// The sources of the comparison crate (research code apart from the library).
+fn compare_src() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("crates/oavm-compare/src")
+}
+
+/// The module path of a file under `root`: `a/b.rs` and `a/b/mod.rs` are `[a, b]`.
+fn module_path(root: &Path, file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(root).expect("under the sources");
     let mut parts: Vec<String> = rel
         .iter()
         .map(|c| c.to_string_lossy().into_owned())
@@ -264,20 +282,21 @@ fn violations(files: &[(Vec<String>, String, String)]) -> Vec<(String, String, S
 }
 
 fn sources() -> Vec<(Vec<String>, String, String)> {
+    sources_in(&src())
+}
+
+/// `(module path, file, code)` of every file of a crate's sources but its binaries.
+fn sources_in(root: &Path) -> Vec<(Vec<String>, String, String)> {
     let mut files = Vec::new();
-    rust_files(&src(), &mut files);
+    rust_files(root, &mut files);
     files.sort();
     files
         .into_iter()
-        .filter(|f| !f.starts_with(src().join("bin")))
+        .filter(|f| !f.starts_with(root.join("bin")))
         .map(|f| {
             let code = code_only(&std::fs::read_to_string(&f).expect("read"));
-            let name = f
-                .strip_prefix(src())
-                .unwrap()
-                .to_string_lossy()
-                .into_owned();
-            (module_path(&f), name, code)
+            let name = f.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+            (module_path(root, &f), name, code)
         })
         .collect()
 }
@@ -488,6 +507,120 @@ fn the_checker_catches_circles_inside_logical() {
     for c in &fine {
         assert!(
             logical_violations(std::slice::from_ref(c)).is_empty(),
+            "{}",
+            c.2
+        );
+    }
+}
+
+/// Imports of the comparison crate's modules against [`COMPARE`]: `(file, module, imported)`.
+fn compare_violations(files: &[(Vec<String>, String, String)]) -> Vec<(String, String, String)> {
+    let level = |m: &str| COMPARE.iter().position(|l| l.contains(&m));
+    let mut bad = Vec::new();
+    for (path, file, code) in files {
+        let Some(top) = path.first() else { continue };
+        for name in imports(path, code) {
+            match (level(top), level(&name)) {
+                (Some(a), Some(b)) if b < a => {}
+                (_, None) => {} // an item of the crate's root (the Accelerator trait, re-exports)
+                _ if name == *top => {}
+                _ => bad.push((file.clone(), top.clone(), name)),
+            }
+        }
+    }
+    bad
+}
+
+/// Research code apart from the product: the library names nothing of the comparison crate
+/// (nor depends on it), the comparison crate reaches the library only through its public API
+/// (the compiler sees to that), has no `unsafe` code, and its own modules keep to [`COMPARE`].
+#[test]
+fn the_comparison_crate_stands_apart_and_keeps_its_own_stack() {
+    let manifest =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/Cargo.toml")).unwrap();
+    let deps = manifest
+        .split("\n[")
+        .filter(|t| t.contains("dependencies]"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    assert!(
+        !deps.contains("oavm-compare"),
+        "oavm depends on the comparison crate"
+    );
+    for (_, file, code) in sources() {
+        assert!(
+            !code.contains("oavm_compare"),
+            "src/{file} names the comparison crate"
+        );
+    }
+    let files = sources_in(&compare_src());
+    assert!(
+        files.len() > 20,
+        "the comparison crate's sources: {} files",
+        files.len()
+    );
+    let tops: BTreeSet<String> = files
+        .iter()
+        .filter_map(|(p, ..)| p.first().cloned())
+        .collect();
+    let unplaced: Vec<&String> = tops
+        .iter()
+        .filter(|t| !COMPARE.iter().any(|l| l.contains(&t.as_str())))
+        .collect();
+    assert!(
+        unplaced.is_empty(),
+        "modules of oavm-compare not in its stack: {unplaced:?}"
+    );
+    let bad = compare_violations(&files);
+    assert!(
+        bad.is_empty(),
+        "imports against oavm-compare's stack:\n{}",
+        bad.iter()
+            .map(|(f, m, n)| format!("  {f}: {m} imports {n}"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+    for (_, file, code) in &files {
+        let unsafe_word = code
+            .split(|c: char| !(c.is_alphanumeric() || c == '_'))
+            .any(|w| w == "unsafe");
+        assert!(
+            !unsafe_word,
+            "crates/oavm-compare/src/{file} has unsafe code"
+        );
+    }
+}
+
+#[test]
+fn the_checker_catches_structures_leaning_on_each_other() {
+    let cases = [
+        file("grid/build", "use crate::kdtree::KdTree;"),
+        file("kdtree/shadow", "use super::super::bench::BenchScene;"),
+        file("leaf", "use crate::{Counters, aabb::Aabb};"),
+        file("bench", "use crate::shadow::run;"),
+    ];
+    for c in &cases {
+        assert_eq!(
+            compare_violations(std::slice::from_ref(c)).len(),
+            1,
+            "{}",
+            c.2
+        );
+    }
+    let fine = [
+        file(
+            "grid/build",
+            "use crate::aabb::Aabb; use crate::leaf::Tri; use super::node;",
+        ),
+        file(
+            "shadow",
+            "use super::bench::BenchScene; use super::{Accelerator, OavmAccel};",
+        ),
+        file("bench", "use crate::bvh::Bvh; use crate::test_util::rays;"),
+    ];
+    for c in &fine {
+        assert!(
+            compare_violations(std::slice::from_ref(c)).is_empty(),
             "{}",
             c.2
         );

@@ -11,6 +11,7 @@ mod held;
 mod order;
 mod pager;
 mod report;
+mod run;
 mod scene;
 mod stream;
 mod top_bounds;
@@ -18,13 +19,11 @@ mod trace;
 mod verify;
 
 pub(crate) use batch::in_order;
-pub use batch::{Answers, Query};
 pub use frame::{Frame, FrameOptions, RaySet, SetStats};
 pub use order::{COARSE_BITS, KEY_BITS, Order, RayKeys};
 pub use pager::{BlockSource, PageCounters};
-pub use report::{
-    Answered, AnsweredSet, FrameFigures, PageReport, RunReport, SetReport, TraceRun, Verification,
-};
+pub use report::{Answered, PageReport, SetReport};
+pub use run::{AnsweredSet, Answers, FrameFigures, Query, RunReport, TraceRun, Verification};
 pub use scene::{
     BYTES_PER_RAY, BlockReads, FALLBACK_MEM_BUDGET, IO_THREADS_PER_CORE, Scene, SceneInfo,
     SceneOptions, default_mem_budget, max_rays, max_rays_in_memory,
