@@ -131,6 +131,39 @@ pub struct UpdateReport {
 /// An update of one file: open it, say what changes (by primitive id, or a whole new mesh),
 /// then [`Updater::commit`]. The file is locked against other updaters from open to commit;
 /// readers are not locked out (they read the generation they opened).
+///
+/// ```
+/// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// use oavm::pack::update::{UpdateOptions, Updater};
+/// use oavm::pack::{PackOptions, Quiet, pack};
+/// use oavm::{Hit, Ray, Scene};
+/// # let dir = tempfile::tempdir()?;
+/// # let path = dir.path().join("bunny.oavm");
+/// // The bunny, packed updatable, with room in front of it (z up to 1) for what comes.
+/// let room = ([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]);
+/// let opts = PackOptions { updatable: true, bounds: Some(room), ..Default::default() };
+/// pack("data/bunny.ply".as_ref(), &path, &opts, &Quiet)?;
+/// let ray = Ray::new([-0.02, 0.1, 10.0], [0.0, 0.0, -1.0], 0.0, f32::INFINITY);
+/// let trace = |ray: &Ray| -> Result<Hit, oavm::Error> {
+///     let mut hit = [Hit::MISS];
+///     Scene::open(&path)?.intersect_batch(std::slice::from_ref(ray), &mut hit)?;
+///     Ok(hit[0])
+/// };
+/// let before = trace(&ray)?;
+/// assert!(before.is_hit());
+///
+/// // Remove the triangle the ray hit, and put a new one across the ray in front of the bunny.
+/// let mut update = Updater::open(&path)?;
+/// update.remove(before.prim)?;
+/// let wall = update.insert([[-0.5, -0.5, 0.5], [0.5, -0.5, 0.5], [0.0, 0.5, 0.5]])?;
+/// let report = update.commit(&UpdateOptions::default())?;
+/// assert_eq!((report.removed, report.inserted), (1, 1));
+///
+/// // A new generation of the file answers with the new triangle.
+/// let after = trace(&ray)?;
+/// assert_eq!((after.prim, after.t), (wall, 9.5));
+/// # Ok(()) }
+/// ```
 pub struct Updater {
     path: PathBuf,
     /// The file, open for writing and locked.
