@@ -1,11 +1,10 @@
 //! Fixtures shared by the integration tests: the shared scenes (a missing `../shared` is a
 //! failure, never a skip), scenes built in memory, the f64 reference and the comparison with it
 //! (which requires hits: a comparison that passes with none proves nothing), and helpers to run
-//! the binaries; `layout`, the format's byte layout as the spec gives it, and `corrupt`, what the
-//! `corrupt_*` tests share (fixtures damaged and the harness that judges them).
+//! the binaries; `layout`, the format's byte layout as the spec gives it (which the corruption
+//! tests, `tests/corruption/`, also use).
 #![allow(dead_code)]
 
-pub mod corrupt;
 pub mod layout;
 
 use std::path::{Path, PathBuf};

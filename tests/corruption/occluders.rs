@@ -1,12 +1,11 @@
 //! Corrupted `.oavm` files (format-spec.md §11): damage to occluders (§8.5): the occluder
 //! entries and occluders of a block, its header's counts, the header's `OCCLUDERS` flag.
 //!
-//! What must hold, the files damaged and how the runs report are in `tests/common/corrupt`
+//! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-mod common;
 
-use common::corrupt::*;
+use crate::fixtures::*;
 
 /// §4, §8.1, §8.3: the level and Morton code of each node record of block `blk`, in record
 /// order: its roots' from the links to them (in root order), each internal node's children

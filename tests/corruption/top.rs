@@ -1,12 +1,11 @@
 //! Corrupted `.oavm` files (format-spec.md §11): damage to the top tree's links (§8.1) and to
 //! ropes (§8.4), in the top tree's ropes section and in a block.
 //!
-//! What must hold, the files damaged and how the runs report are in `tests/common/corrupt`
+//! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-mod common;
 
-use common::corrupt::*;
+use crate::fixtures::*;
 
 /// Links of the top tree (§8.1) rewritten, checksums recomputed: to a block past the
 /// directory, to a root past its block's roots, to a block whose roots are at another level,

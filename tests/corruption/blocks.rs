@@ -4,15 +4,14 @@
 //! blocks, the tree's records inside them (§4.3 rank words, in the top tree too; §7.1–§7.2
 //! cluster nodes and triangle groups, cycles among them) and the padding between their parts.
 //!
-//! What must hold, the files damaged and how the runs report are in `tests/common/corrupt`
+//! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-mod common;
 
 use oavm::Scene;
 use oavm::physical::AlignedBytes;
 
-use common::corrupt::*;
+use crate::fixtures::*;
 
 // ---------------------------------------------------------------------------------------------
 // The block directory (§8.2)
@@ -629,7 +628,7 @@ fn huge_rank_in_a_rank_word_is_an_error_not_a_panic() {
 // ---------------------------------------------------------------------------------------------
 // Library bugs these runs found, one small reproduction each, kept as regression tests now
 //    that they are fixed (the mutation runs no longer skip them: see `known_bug`,
-//    corrupt_anywhere.rs).
+//    anywhere.rs).
 
 /// Was a bug (verify missed a defect): format-spec.md §8.3 lays a block's parts out "each at the next
 /// multiple of 64 bytes from the block's start, zero padding between them", but verify checks

@@ -3,12 +3,11 @@
 //! detailed blocks, each part, the padding, the primitive chunks, the bytes a generation does not
 //! cover): one bit flipped, and regions rewritten with their checksums recomputed (inside
 //! compressed blocks too: decoded, changed, recompressed). Also the long run, ignored by
-//! default: `cargo test --release --test corrupt_anywhere -- --ignored --nocapture`.
+//! default: `cargo test --release --test corruption anywhere:: -- --ignored --nocapture`.
 //!
-//! What must hold, the files damaged and how the runs report are in `tests/common/corrupt`
+//! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-mod common;
 
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
@@ -17,7 +16,7 @@ use std::time::{Duration, Instant};
 use oavm::physical::BlockOptions;
 use oavm::rays::SplitMix64;
 
-use common::corrupt::*;
+use crate::fixtures::*;
 
 // ---------------------------------------------------------------------------------------------
 // One bit flipped anywhere: an error at open, or a defect from verify naming the place; a
@@ -890,7 +889,7 @@ fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8], m: &Mutat
 fn known_bug(_fix: &Fixture, _region: &Region, _m: &Mutation) -> Option<&'static str> {
     // None at present: verify's allocation by input_triangles and its blind spot for padding
     // inside blocks were fixed (see `verify_does_not_allocate_by_input_triangles` in
-    // corrupt_header.rs and `verify_checks_padding_inside_a_block` in corrupt_blocks.rs).
+    // header.rs and `verify_checks_padding_inside_a_block` in blocks.rs).
     None
 }
 
@@ -904,7 +903,7 @@ fn known_outcome_bug(_fix: &Fixture, _region: &Region, _generation: u64) -> Opti
     // None at present: a damaged level table of the newest generation opened the previous
     // one unreported; open now chooses a slot by its header and section table alone and
     // reports damage to the chosen generation's level table (see
-    // `a_damaged_level_table_of_the_newest_generation_is_reported` in corrupt_header.rs).
+    // `a_damaged_level_table_of_the_newest_generation_is_reported` in header.rs).
     None
 }
 
@@ -1266,7 +1265,7 @@ fn rewritten_updated_file_never_panics_or_hangs() {
 
 /// The long run: many more corruptions, and the whole dragon at leaf size 4 (16 levels) in
 /// default-sized blocks, raw and compressed.
-/// `cargo test --release --test corrupt_anywhere -- --ignored --nocapture`.
+/// `cargo test --release --test corruption anywhere:: -- --ignored --nocapture`.
 #[test]
 #[ignore = "long run (minutes)"]
 fn rewritten_files_long_run() {

@@ -2,14 +2,13 @@
 //! chunk directory and the primitives' records, in a file packed `--updatable` and in that file
 //! updated.
 //!
-//! What must hold, the files damaged and how the runs report are in `tests/common/corrupt`
+//! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-mod common;
 
 use std::collections::BTreeMap;
 
-use common::corrupt::*;
+use crate::fixtures::*;
 
 /// The primitive table (§8.6) rewritten, checksums recomputed (the chunk directory's section
 /// checksum, each chunk's in the directory, the header's): each field of a chunk directory

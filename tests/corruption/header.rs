@@ -6,10 +6,9 @@
 //! misaligned buffers (§1); and first, the layout the tests take from the spec checked against
 //! the code.
 //!
-//! What must hold, the files damaged and how the runs report are in `tests/common/corrupt`
+//! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-mod common;
 
 use oavm::pack::TreeParts;
 use oavm::physical::AlignedBytes;
@@ -20,7 +19,7 @@ use oavm::physical::format::{
 use oavm::{Error, FormatError, Hit, Scene};
 use xxhash_rust::xxh3::xxh3_64;
 
-use common::corrupt::*;
+use crate::fixtures::*;
 
 // ---------------------------------------------------------------------------------------------
 // The layout of the tests agrees with the code
@@ -864,7 +863,7 @@ fn wrong_magic_fails_at_open() {
     let mut b = fix.bytes.clone();
     b[..8].copy_from_slice(b"\x89PNG\r\n\x1a\n");
     cases.push(("a PNG".into(), b));
-    let ply = std::fs::read(common::shared_scene("dragon/dragon_vrip_res4.ply")).expect("ply");
+    let ply = std::fs::read(crate::common::shared_scene("dragon/dragon_vrip_res4.ply")).expect("ply");
     cases.push(("a PLY mesh".into(), ply[..4096].to_vec()));
     cases.push(("8 bytes of text".into(), b"ply\nform".to_vec()));
     cases.push(("zeros".into(), vec![0; fix.bytes.len()]));
@@ -1151,7 +1150,7 @@ fn misaligned_buffers_give_errors_not_panics() {
 // ---------------------------------------------------------------------------------------------
 // Library bugs these runs found, one small reproduction each, kept as regression tests now
 //    that they are fixed (the mutation runs no longer skip them: see `known_bug`,
-//    corrupt_anywhere.rs).
+//    anywhere.rs).
 
 /// Was a bug: `verify` sized a bit set of the distinct triangles from the header's `input_triangles`
 /// (`prims_seen` in `check_structure`, src/physical/verify.rs: `input_triangles / 64` words),
