@@ -7,7 +7,6 @@
 //! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-
 use oavm::Scene;
 use oavm::physical::AlignedBytes;
 

@@ -9,7 +9,6 @@
 //! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-
 use oavm::pack::TreeParts;
 use oavm::physical::AlignedBytes;
 use oavm::physical::format::{
@@ -863,7 +862,8 @@ fn wrong_magic_fails_at_open() {
     let mut b = fix.bytes.clone();
     b[..8].copy_from_slice(b"\x89PNG\r\n\x1a\n");
     cases.push(("a PNG".into(), b));
-    let ply = std::fs::read(crate::common::shared_scene("dragon/dragon_vrip_res4.ply")).expect("ply");
+    let ply =
+        std::fs::read(crate::common::shared_scene("dragon/dragon_vrip_res4.ply")).expect("ply");
     cases.push(("a PLY mesh".into(), ply[..4096].to_vec()));
     cases.push(("8 bytes of text".into(), b"ply\nform".to_vec()));
     cases.push(("zeros".into(), vec![0; fix.bytes.len()]));

@@ -4,7 +4,6 @@
 //! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-
 use crate::fixtures::*;
 
 /// §4, §8.1, §8.3: the level and Morton code of each node record of block `blk`, in record

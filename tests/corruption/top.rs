@@ -4,7 +4,6 @@
 //! What must hold, the files damaged and how the runs report are in `tests/corruption/fixtures`
 //! (its module doc), with the fixtures and the harness these files share.
 
-
 use crate::fixtures::*;
 
 /// Links of the top tree (§8.1) rewritten, checksums recomputed: to a block past the
