@@ -1,7 +1,7 @@
 //! The bodies of the fuzz targets: one plain function per target, taking the input bytes.
 //!
 //! Compiled into the fuzz binaries (`fuzz/fuzz_targets/*.rs`, as module `targets`) and into the
-//! stable test `tests/fuzz_corpus.rs` (`#[path = "../fuzz/targets.rs"] mod targets;`), so the
+//! stable test `tests/integration/fuzz_corpus.rs` (`#[path = "../fuzz/targets.rs"] mod targets;`), so the
 //! committed corpus and regressions are replayed through exactly the code that fuzzed them.
 //!
 //! Every input is untrusted: each function returns normally whatever the bytes are (an `Err`

@@ -42,7 +42,7 @@
 //!   includes reading the file).
 //!
 //! Both modes give the same images, byte for byte: a ray's answer depends only on the
-//! triangles, not on the tree that finds them (`tests/animate.rs` holds this).
+//! triangles, not on the tree that finds them (`tests/integration/animate.rs` holds this).
 //!
 //! # Timing
 //!

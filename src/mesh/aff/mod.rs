@@ -84,7 +84,7 @@
 //! [`AffCounts::polygons`] counts the polygon statements (`p`, `pp`, `tt`, `ttp`, and each row
 //! of a mesh's `triangles` block) before fan triangulation: the "polygons" of the BART scene
 //! headers and of the OAVM paper. Animated triangles, cones and spheres are counted apart.
-//! Measured (`tests/mesh_aff.rs`): the kitchen has 110,561 polygons (all triangles; 63,706
+//! Measured (`tests/integration/mesh_aff.rs`): the kitchen has 110,561 polygons (all triangles; 63,706
 //! vertices), the robots 71,708 (134,127 vertices), museum level 5 10,143 polygons (10,284
 //! triangles) plus 1,024 animated triangles and 8 cones (256 triangles).
 //!

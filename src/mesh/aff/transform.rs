@@ -1,7 +1,7 @@
 //! Affine maps: the `T R S` of a transform and their composition down the transform stack, in
 //! glam's `DAffine3` (`x' = M x + t`, `M` by columns).
 //!
-//! Posing must keep its bits (the BART scenes' digests in `tests/mesh_aff.rs` pin them), and
+//! Posing must keep its bits (the BART scenes' digests in `tests/integration/mesh_aff.rs` pin them), and
 //! these glam operations compute exactly what the row-by-row code before them did, in the same
 //! order: `DAffine3 * DAffine3` forms each entry as `(a0 b0 + a1 b1) + a2 b2` (then `+ t` for
 //! the translation), and `transform_point3` each coordinate as `((m0 x + m1 y) + m2 z) + t`.

@@ -90,7 +90,7 @@ fn encode(ty: &str, v: f64, enc: Enc, out: &mut Vec<u8>) {
 fn write_header(enc: Enc, elems: &[Elem]) -> Vec<u8> {
     let mut out = Vec::new();
     writeln!(out, "ply\nformat {} 1.0", enc.format()).unwrap();
-    writeln!(out, "comment written by tests/mesh_input.rs").unwrap();
+    writeln!(out, "comment written by tests/integration/mesh_input.rs").unwrap();
     writeln!(out, "obj_info nothing to see").unwrap();
     for e in elems {
         writeln!(out, "element {} {}", e.name, e.rows.len()).unwrap();

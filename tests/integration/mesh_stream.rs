@@ -69,7 +69,7 @@ fn encode(ty: &str, v: f64, enc: Enc, out: &mut Vec<u8>) {
 }
 
 fn header(format: &str, elems: &[Elem]) -> Vec<u8> {
-    let mut out = format!("ply\nformat {format} 1.0\ncomment tests/mesh_stream.rs\n");
+    let mut out = format!("ply\nformat {format} 1.0\ncomment tests/integration/mesh_stream.rs\n");
     for e in elems {
         out += &format!("element {} {}\n", e.name, e.rows.len());
         for p in &e.props {

@@ -6,9 +6,9 @@
 //!
 //! The Cornell box and the kitchen come from `../shared/scenes`; a missing file fails.
 
-mod common;
+use crate::common;
 
-use common::{bin, build_scene, run, shared_scene};
+use crate::common::{bin, build_scene, run, shared_scene};
 use oavm::geom::reference;
 use oavm::logical::{Order, SceneOptions};
 use oavm::mesh::aff::AffMaterial;

@@ -4,12 +4,10 @@
 //! binary, temporary files that never outlive a pack, bad input that leaves no output, and the
 //! writer's limits.
 
-mod common;
-
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::*;
+use crate::common::*;
 use oavm::pack::{self, PackOptions, Quiet};
 use oavm::physical::BlockOptions;
 use oavm::rays::{self, Bounds, Camera};

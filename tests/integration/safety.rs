@@ -5,15 +5,13 @@
 //! requires a clean error: exit status 1 with a message naming the file, never a signal, a
 //! panic, a hang or a file left half-written.
 
-mod common;
-
 use std::fs;
 use std::os::unix::fs::FileTypeExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use common::*;
+use crate::common::*;
 use oavm::{Hit, Ray, Scene};
 use tempfile::TempDir;
 

@@ -26,7 +26,7 @@
 //! versions: the recorded answers stay (and their sha256 in the README), so the files keep
 //! proving what version 5 answered.
 
-mod common;
+use crate::common;
 
 use std::fs;
 use std::path::{Path, PathBuf};

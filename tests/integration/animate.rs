@@ -5,19 +5,17 @@
 //! be updated give errors naming the cause.
 //!
 //! The kitchen comes from `../shared/scenes` (a missing file fails). Rain is generated here
-//! with the generator's own code (`tools/rain.rs`, compiled as a module, as `tests/rain.rs`
+//! with the generator's own code (`tools/rain.rs`, compiled as a module, as `tests/integration/rain.rs`
 //! does).
 
-mod common;
-
 #[allow(dead_code)]
-#[path = "../tools/rain.rs"]
+#[path = "../../tools/rain.rs"]
 mod rain;
 
 use std::path::{Path, PathBuf};
 
+use crate::common::{bin, run, shared_scene};
 use clap::Parser;
-use common::{bin, run, shared_scene};
 use oavm::pack::{PackOptions, Quiet};
 use oavm::rays::Camera;
 use oavm::render::animate::{

@@ -28,11 +28,10 @@
 //! Timing (the optimised test profile, 2 shared cores): about 5 s for the whole file, most of it
 //! brute force.
 
-mod common;
-#[path = "../tools/peers/mod.rs"]
+#[path = "../../tools/peers/mod.rs"]
 mod peers;
 
-use common::*;
+use crate::common::*;
 use oavm::geom::reference;
 use oavm::pack::LeafKind;
 use oavm::physical::AlignedBytes;

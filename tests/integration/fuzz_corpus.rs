@@ -9,7 +9,7 @@
 //! replayed with the others but by [`open_bugs_still_fail`], which fails once the bug is gone
 //! (then remove its entry, and the file joins the regressions that must pass).
 
-#[path = "../fuzz/targets.rs"]
+#[path = "../../fuzz/targets.rs"]
 mod targets;
 
 use std::panic::{AssertUnwindSafe, catch_unwind};

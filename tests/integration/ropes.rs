@@ -4,9 +4,9 @@
 //! agree with the f64 brute force (which shares no code with any walk); and verify catches a
 //! rope that names the wrong node.
 
-mod common;
+use crate::common;
 
-use common::{bin, compare_with_reference, load_shared, run, shared_scene};
+use crate::common::{bin, compare_with_reference, load_shared, run, shared_scene};
 use oavm::geom::Hit;
 use oavm::logical::{SceneOptions, Walk};
 use oavm::pack::{BuildOptions, LeafKind};

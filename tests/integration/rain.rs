@@ -12,7 +12,7 @@
 //! and reads it back with `oavm::mesh::load` and `load_aff`.
 
 #[allow(dead_code)]
-#[path = "../tools/rain.rs"]
+#[path = "../../tools/rain.rs"]
 mod rain;
 
 use clap::Parser;

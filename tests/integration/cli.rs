@@ -6,9 +6,9 @@
 //! Inputs: the bundled bunny (`data/bunny.ply`, 69,451 triangles), two of `../shared/scenes`,
 //! and small meshes written here. Images and ray sets are kept small so the whole file runs in
 //! seconds. Hostile inputs and outputs (files changed while read, outputs that must not be
-//! replaced, caps) are in `tests/safety.rs`.
+//! replaced, caps) are in `tests/integration/safety.rs`.
 
-mod common;
+use crate::common;
 
 use std::fs;
 use std::path::{Path, PathBuf};

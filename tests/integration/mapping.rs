@@ -1,9 +1,7 @@
 //! The mapping layer on a real tree: `(level, Morton code) -> index`, parent, child, point
 //! location and face neighbours, each checked against an answer computed independently.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use oavm::BuildOptions;
 use oavm::mapping::morton::{self, MAX_LEVEL, cell_origin, cell_size};
 use oavm::mapping::{LevelInfos, TreeMap};

@@ -10,11 +10,11 @@
 //! - what an update refuses (a file without the primitive table, geometry outside the root
 //!   cube, a second updater) leaves the file byte for byte as it was.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
-use common::{compare_with_reference, shared_scene};
+use crate::common::{compare_with_reference, shared_scene};
 use oavm::pack::update::{UpdateOptions, UpdateReport, Updater};
 use oavm::pack::{PackOptions, Quiet};
 use oavm::rays::{self, Bounds, Camera};
