@@ -9,8 +9,7 @@
 //! does).
 
 #[allow(dead_code)]
-#[path = "../../tools/rain.rs"]
-mod rain;
+use crate::rain_example as rain;
 
 use std::path::{Path, PathBuf};
 

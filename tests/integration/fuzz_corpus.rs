@@ -9,7 +9,10 @@
 //! replayed with the others but by [`open_bugs_still_fail`], which fails once the bug is gone
 //! (then remove its entry, and the file joins the regressions that must pass).
 
+// `targets.rs` includes the spec's layout (`tests/common/layout.rs`), which `common` holds too:
+// two copies of the same constants in this binary, as the fuzz crate needs its own.
 #[path = "../../fuzz/targets.rs"]
+#[allow(clippy::duplicate_mod)]
 mod targets;
 
 use std::panic::{AssertUnwindSafe, catch_unwind};

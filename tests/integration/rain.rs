@@ -12,8 +12,7 @@
 //! and reads it back with `oavm::mesh::load` and `load_aff`.
 
 #[allow(dead_code)]
-#[path = "../../tools/rain.rs"]
-mod rain;
+use crate::rain_example as rain;
 
 use clap::Parser;
 use oavm::Mesh;
