@@ -1163,7 +1163,7 @@ fn misaligned_buffers_give_errors_not_panics() {
 /// the largest `prim` seen) before allocating, and report a defect.
 #[test]
 fn verify_does_not_allocate_by_input_triangles() {
-    in_child_process("verify_does_not_allocate_by_input_triangles", || {
+    in_child_process("header::verify_does_not_allocate_by_input_triangles", || {
         let fix = default_file();
         for v in [1u64 << 61, u64::MAX] {
             let mut b = fix.bytes.clone();
