@@ -337,7 +337,7 @@ def stackless_section(w, data, lists, commit):
       f"light from every primary hit; best of "
       f"{data['reps']} runs, at {' and '.join(map(str, threads))} threads), and again with "
       f"OAVM's leaves as lists (`--leaf list`, OAVM only). Every variant's answers are checked "
-      f"against OAVM's in the same run (the last column); crates/oavm-compare/tests/structures.rs checks the "
+      f"against OAVM's in the same run (the last column); crates/oavm-compare/tests/integration/structures.rs checks the "
       f"KD-tree's variants against the stack walk, ray by ray, and tests/integration/ropes.rs OAVM's rope "
       f"walk against its Morton walk and brute force.\n")
     w("The source (Jiao, Chen and Zhang) traced the kitchen on a GTX 260 at 139.8 Mrays/s with "

@@ -1163,23 +1163,26 @@ fn misaligned_buffers_give_errors_not_panics() {
 /// the largest `prim` seen) before allocating, and report a defect.
 #[test]
 fn verify_does_not_allocate_by_input_triangles() {
-    in_child_process("header::verify_does_not_allocate_by_input_triangles", || {
-        let fix = default_file();
-        for v in [1u64 << 61, u64::MAX] {
-            let mut b = fix.bytes.clone();
-            write_u64(&mut b, 96, v);
-            fix_header_checksum(&mut b);
-            let scene = open(&b).expect("open does not check input_triangles");
-            let defects = scene
-                .verify()
-                .map(|r| r.defects)
-                .unwrap_or_else(|e| vec![e.to_string()]);
-            assert!(
-                !defects.is_empty(),
-                "input_triangles {v}: verify reports nothing"
-            );
-        }
-    });
+    in_child_process(
+        "header::verify_does_not_allocate_by_input_triangles",
+        || {
+            let fix = default_file();
+            for v in [1u64 << 61, u64::MAX] {
+                let mut b = fix.bytes.clone();
+                write_u64(&mut b, 96, v);
+                fix_header_checksum(&mut b);
+                let scene = open(&b).expect("open does not check input_triangles");
+                let defects = scene
+                    .verify()
+                    .map(|r| r.defects)
+                    .unwrap_or_else(|e| vec![e.to_string()]);
+                assert!(
+                    !defects.is_empty(),
+                    "input_triangles {v}: verify reports nothing"
+                );
+            }
+        },
+    );
 }
 
 /// Regression, found by `bit_flips_in_updated_file_are_caught`: a bit flipped in the level

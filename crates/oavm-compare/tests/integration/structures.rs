@@ -17,9 +17,7 @@
 //! question: both search `[tmin, tmax]`), except on the shadow rays, where
 //! `brute::occluded` itself is called.
 
-mod common;
-
-use common::shared_scene;
+use crate::common::shared_scene;
 use oavm::geom::reference;
 use oavm::rays::{self, Bounds, Camera, default_light, random_rays, shadow_rays};
 use oavm::{BuildOptions, Hit, Mesh, Ray};

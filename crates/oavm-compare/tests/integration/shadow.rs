@@ -5,9 +5,7 @@
 //! answers agree with the f64 brute force (which shares no code with any walk) on both
 //! outcomes; each index does the work it is for; prediction is counted from the frame before.
 
-mod common;
-
-use common::{bin, run, shared_scene};
+use crate::common::{bin, run, shared_scene};
 use oavm::BuildOptions;
 use oavm::Ray;
 use oavm::geom::reference;

@@ -5,7 +5,7 @@
 //! OAVM, the reference of the binary's own check, is itself checked against brute force
 //! (`oavm::geom::reference`, the f64 brute force) on the same rays, and so are the hit counts the binary reports.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
