@@ -429,6 +429,7 @@ fn open(
 }
 
 /// The pack options from the keyword arguments.
+#[allow(clippy::too_many_arguments)]
 fn pack_options(
     leaf: &str,
     leaf_size: Option<u32>,
