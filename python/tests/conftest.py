@@ -1,7 +1,7 @@
 """Shared fixtures: the repository, the test meshes of ../shared, the command-line tools, and
 ray files in the format of ../shared/RAYS.md.
 
-Run by `cargo test` (tests/integration/python.rs builds the extension into target/python-venv and passes
+Run by `cargo test` (python/tests/pytest.rs lays out the package with the extension cargo built, and passes
 the tools' paths in OAVM_PACK and OAVM_TRACE). Run alone, after `cargo build --release`:
 
     target/python-venv/bin/python -m pytest python/tests

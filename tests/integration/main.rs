@@ -25,7 +25,6 @@ mod mesh_aff;
 mod mesh_input;
 mod mesh_stream;
 mod paging;
-mod python;
 mod rain;
 mod render_shaded;
 mod ropes;

@@ -105,14 +105,15 @@ fn commit(u: Updater) -> UpdateReport {
     u.commit(&UpdateOptions::default()).unwrap()
 }
 
-/// The kitchen, packed at time 0 and updated frame by frame through its animation, answers as
-/// a fresh pack of each frame; each update rebuilds a few of its blocks, not all.
+/// The kitchen, packed at time 0 and updated frame by frame through its animation (forward,
+/// then back to an earlier time), answers as a fresh pack of each frame; each update rebuilds a
+/// few of its blocks, not all.
 #[test]
 fn kitchen_frames_answer_as_fresh_packs() {
     let scene = shared_scene("bart/kitchen/kitchen.aff");
     let dir = TempDir::new().unwrap();
     let file = dir.path().join("kitchen.oavm");
-    let frames = [0.0, 5.0, 7.5, 12.25, 19.0, 3.0];
+    let frames = [0.0, 7.5, 19.0, 3.0];
     let meshes: Vec<Mesh> = frames
         .iter()
         .map(|&t| oavm::mesh::load_at(&scene, Some(t)).unwrap())

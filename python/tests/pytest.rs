@@ -1,14 +1,17 @@
-//! The Python bindings' tests (`python/tests`, pytest), run by `cargo test`. The extension
-//! (`oavm-python`, a workspace member) is built by the same `cargo test` as the library, with
-//! the same dependencies; this test makes sure it is built (`cargo build --profile test`, which
-//! finds it fresh after a `cargo test` and builds it after a `cargo test --test integration`),
-//! lays the package out in a folder of its own (`python/oavm/` and the extension as
+//! The Python package's tests (`python/tests`, pytest), run by `cargo test` at the top of the
+//! workspace. Being this crate's test makes that `cargo test` build the extension (the cdylib
+//! `_native`) with the rest, against the same `oavm` the library's tests use; this runner lays
+//! the package out in a folder of its own (`python/oavm/` and the extension as
 //! `oavm/_native.abi3.so`), makes a virtual environment under the target directory
 //! (`target/python-venv`, with `python3 -m venv`, or `$OAVM_PYTHON -m venv`), installs what the
 //! tests need (`python/requirements-test.txt`, pinned), and runs pytest on the package, with the
 //! paths of this build's `oavm-pack` and `oavm-trace`, whose output files the answers must equal
-//! byte for byte. The way a user installs it, `pip install ./python` (maturin), is the ignored
-//! test below: it builds the crate a second time, with other features, for about a minute.
+//! byte for byte. Those two are the `oavm` package's binaries, which this crate cannot name: the
+//! runner asks cargo for the workspace's test build first (`cargo test --no-run`, nothing to do
+//! after a `cargo test` at the top; the whole build after `cargo test -p oavm-python`), so that
+//! they are this source's. The way a user installs the package, `pip install ./python`
+//! (maturin), is the ignored test below: it builds the crate a second time, with other features,
+//! for about a minute.
 //!
 //! Nothing here is skipped: no Python, no network for a first install, or a failing pytest is
 //! a failing test, with pip's or pytest's output.
@@ -16,12 +19,30 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// The workspace's folder (this crate is `python/` in it).
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("python/ has a parent")
+        .to_path_buf()
 }
 
+/// The folder of this build's profile (`target/debug` for `cargo test`), where cargo put this
+/// test (in `deps/`), the extension and the workspace's binaries.
+fn profile_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("the test's own path");
+    exe.parent()
+        .and_then(Path::parent)
+        .unwrap_or_else(|| panic!("{}: not in target/PROFILE/deps", exe.display()))
+        .to_path_buf()
+}
+
+/// The target directory (the profile folder's parent).
 fn target_dir() -> PathBuf {
-    std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root().join("target"), PathBuf::from)
+    profile_dir()
+        .parent()
+        .expect("the profile folder has a parent")
+        .to_path_buf()
 }
 
 /// Runs `cmd`, failing the test with its output if it fails.
@@ -55,7 +76,7 @@ fn venv() -> PathBuf {
                 "import sys; assert sys.version_info >= (3, 9), sys.version; print(sys.version)",
             ]),
         );
-        eprintln!("python.rs: making {} with {base} {version}", venv.display());
+        eprintln!("pytest.rs: making {} with {base} {version}", venv.display());
         run(
             "python -m venv",
             Command::new(&base).arg("-m").arg("venv").arg(&venv),
@@ -81,17 +102,33 @@ fn pip(python: &Path, args: &[&str]) -> String {
     )
 }
 
+/// Asks cargo for the workspace's test build (`cargo test --no-run` in this profile): nothing
+/// to do after a `cargo test` at the top, and after `cargo test -p oavm-python` it builds the
+/// `oavm` binaries the tests compare with, from this source.
+fn workspace_build() {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    // The folder's name is the profile's, but for `test` (and `dev`), whose folder is `debug`.
+    let profile = profile_dir();
+    let name = profile
+        .file_name()
+        .expect("a profile folder")
+        .to_string_lossy();
+    let name = if name == "debug" { "test".into() } else { name };
+    run(
+        "cargo test --no-run (the workspace's binaries and this extension)",
+        Command::new(cargo)
+            .args(["test", "--no-run", "--quiet", "--profile", &name])
+            .current_dir(root()),
+    );
+}
+
 /// The package `oavm` laid out in a fresh folder: its Python half (`python/oavm/`) and the
 /// extension this workspace's build made, as `oavm/_native.abi3.so`.
 fn package() -> tempfile::TempDir {
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    run(
-        "cargo build --profile test (the extension)",
-        Command::new(cargo)
-            .args(["build", "--profile", "test", "--quiet", "--lib"])
-            .current_dir(root()),
-    );
-    let built = target_dir().join("debug").join("lib_native.so");
+    let profile = profile_dir();
+    // Built for this test as a dependency, the extension stays in `deps/` (cargo copies up only
+    // what a command names).
+    let built = profile.join("deps").join("lib_native.so");
     assert!(
         built.is_file(),
         "the extension is missing: {}",
@@ -113,6 +150,13 @@ fn package() -> tempfile::TempDir {
     dir
 }
 
+/// One of the `oavm` package's binaries, built by [`package`]'s `cargo test --no-run`.
+fn binary(name: &str) -> PathBuf {
+    let path = profile_dir().join(name);
+    assert!(path.is_file(), "{} is missing", path.display());
+    path
+}
+
 /// Runs pytest on `python/tests` with `python`, the package found on `pythonpath` if given
 /// (else as installed), and requires that it ran tests and skipped none.
 fn pytest(python: &Path, pythonpath: Option<&Path>) {
@@ -132,8 +176,8 @@ fn pytest(python: &Path, pythonpath: Option<&Path>) {
         "python/tests",
     ])
     .current_dir(root())
-    .env("OAVM_PACK", env!("CARGO_BIN_EXE_oavm-pack"))
-    .env("OAVM_TRACE", env!("CARGO_BIN_EXE_oavm-trace"))
+    .env("OAVM_PACK", binary("oavm-pack"))
+    .env("OAVM_TRACE", binary("oavm-trace"))
     .env("OAVM_SHARED", &shared);
     if let Some(p) = pythonpath {
         cmd.env("PYTHONPATH", p);
@@ -151,12 +195,14 @@ fn pytest(python: &Path, pythonpath: Option<&Path>) {
 fn python_bindings_pass_their_tests() {
     let python = venv();
     pip(&python, &["-r", "python/requirements-test.txt"]);
+    workspace_build();
     let pkg = package();
     // The package the tests import is this one, not one installed in the environment before.
     let found = run(
         "import oavm",
         Command::new(&python)
             .args(["-c", "import oavm; print(oavm.__file__)"])
+            .current_dir(root())
             .env("PYTHONPATH", pkg.path()),
     );
     assert!(
@@ -173,5 +219,6 @@ fn python_package_installs_with_pip_and_passes_its_tests() {
     let python = venv();
     pip(&python, &["-r", "python/requirements-test.txt"]);
     pip(&python, &["./python"]);
+    workspace_build();
     pytest(&python, None);
 }
