@@ -6,6 +6,7 @@ use crate::test_util::{
 };
 use crate::{Accelerator, Triangles};
 use oavm::geom::{Hit, Ray};
+use rayon::prelude::*;
 
 /// Every triangle is referenced by some leaf, and the tree respects its depth limit.
 fn check_structure(kd: &KdTree, n: usize) {
@@ -200,27 +201,29 @@ fn traversal_variants_match_brute_force_and_the_stack_walk() {
                 )
             })
             .collect();
-        let mut visited = Vec::new();
-        for t in variants() {
-            let kd = KdTree::build(tris).with_traversal(t);
-            assert_eq!(kd.stats().name, t.name());
-            check(&kd, mesh, &rays, 1000);
-            let mut c = Counters::default();
-            let corners = mesh.corners();
-            for (r, w) in rays.iter().zip(&want) {
-                let got = (kd.intersect(r, &mut c), kd.occluded(r, &mut c));
-                if got != *w {
-                    assert!(
-                        oavm::geom::reference::grazes(&corners, r),
-                        "scene {s}, {t:?}, {r:?}: {got:?}, the stack walk {w:?}"
-                    );
+        let visited: Vec<(KdTraversal, u64, u64)> = variants()
+            .into_par_iter()
+            .map(|t| {
+                let kd = KdTree::build(tris).with_traversal(t);
+                assert_eq!(kd.stats().name, t.name());
+                check(&kd, mesh, &rays, 1000);
+                let mut c = Counters::default();
+                let corners = mesh.corners();
+                for (r, w) in rays.iter().zip(&want) {
+                    let got = (kd.intersect(r, &mut c), kd.occluded(r, &mut c));
+                    if got != *w {
+                        assert!(
+                            oavm::geom::reference::grazes(&corners, r),
+                            "scene {s}, {t:?}, {r:?}: {got:?}, the stack walk {w:?}"
+                        );
+                    }
                 }
-            }
-            if !matches!(t, KdTraversal::ShortStack(2..)) {
-                assert!(c.restarts > 0, "scene {s}, {t:?}: {c:?}");
-            }
-            visited.push((t, c.nodes_visited, c.restarts));
-        }
+                if !matches!(t, KdTraversal::ShortStack(2..)) {
+                    assert!(c.restarts > 0, "scene {s}, {t:?}: {c:?}");
+                }
+                (t, c.nodes_visited, c.restarts)
+            })
+            .collect();
         let nodes = |t: KdTraversal| visited.iter().find(|v| v.0 == t).unwrap().1;
         assert!(
             nodes(KdTraversal::PushDown) < nodes(KdTraversal::Restart),
