@@ -14,6 +14,7 @@ use oavm::geom::reference;
 use oavm::physical::AlignedBytes;
 use oavm::rays::Bounds;
 use oavm::{BuildOptions, Hit, Mesh, Ray, Scene};
+use rayon::prelude::*;
 
 /// A scene from `../shared/scenes`, relative to the crate. Panics (fails the test) if it is
 /// missing: the tests need `../shared` beside the checkout, as CI provides it.
@@ -119,7 +120,16 @@ pub fn compare_with_reference<D: AsRef<[u8]> + oavm::logical::BlockSource>(
     let mut occ = vec![0u8; rays.len()];
     scene.occluded_batch(rays, &mut occ).expect("trace any");
     let mut c = Comparison::default();
-    for i in (0..rays.len()).step_by(stride.max(1)) {
+    let picked: Vec<usize> = (0..rays.len()).step_by(stride.max(1)).collect();
+    // The f64 reference, most of a comparison's time, on every core.
+    let references: Vec<_> = picked
+        .par_iter()
+        .map(|&i| {
+            let want = reference::closest(&tris, &rays[i]);
+            (want, reference::occluded(&tris, &rays[i]))
+        })
+        .collect();
+    for (&i, &(want, occluded)) in picked.iter().zip(&references) {
         c.rays += 1;
         let ray = &rays[i];
         // Closest and any hit must be consistent with each other on every ray.
@@ -128,8 +138,6 @@ pub fn compare_with_reference<D: AsRef<[u8]> + oavm::logical::BlockSource>(
             occ[i] == 1,
             "closest/any disagree on ray {i} {ray:?}"
         );
-        let want = reference::closest(&tris, ray);
-        let occluded = reference::occluded(&tris, ray);
         c.reference_hits += want.is_hit() as usize;
         c.reference_occluded += occluded as usize;
         if !agree(want, hits[i], diag) {
