@@ -6,7 +6,7 @@
 #
 #   tools/ab_speed.sh OLD/oavm-trace NEW/oavm-trace FILE.oavm RAYS_PREFIX [REPS] [-- ARGS...]
 #
-# RAYS_PREFIX names the sets made by `cargo run --release --example rays -- MESH PREFIX`:
+# RAYS_PREFIX names the sets made by `cargo run --release --features tools --example rays -- MESH PREFIX`:
 # PREFIX.random.rays and PREFIX.primary.rays (closest hit), PREFIX.shadow.rays (any hit). ARGS
 # are passed to both binaries (e.g. --threads 1). Prints one line per set and a JSON summary.
 #

@@ -3,7 +3,7 @@
 //! (`Mode::Rebuild`), and ray traced with the scene's lights, shadows, reflection and
 //! refraction; and the cost of an update per frame step against a full pack.
 //!
-//!     cargo run --release --example anim_bench -- [--frames 10] [--sizes 1024x768,800x600,400x300]
+//!     cargo run --release --features tools --example anim_bench -- [--frames 10] [--sizes 1024x768,800x600,400x300]
 //!         [--depth 5] [--out DIR] [--work DIR] [--steps-only] SCENE...
 //!
 //! A SCENE is `[NAME=]PATH[@FIRST]`: a BART scene (`.aff`, posed at each frame's time, the

@@ -26,7 +26,7 @@ fi
 if [ ! -e "$big" ]; then
     mkdir -p "$(dirname "$big")"
     echo "bench_all.sh: making $big ($copies dragons)" >&2
-    cargo run --release --example make_copies -- "$big" --copies "$copies"
+    cargo run --release --features tools --example make_copies -- "$big" --copies "$copies"
 fi
 
 exec cargo bench --bench trace "${features[@]}" -- --big "$big" "$@"

@@ -3,7 +3,7 @@
 //! rays.
 //!
 //! ```text
-//! cargo run --release --example brute_big -- MESH.ply --rays RAYS (--hits HITS | --occluded OCCL)
+//! cargo run --release --features tools --example brute_big -- MESH.ply --rays RAYS (--hits HITS | --occluded OCCL)
 //!     [--brute N] [--chunk TRIANGLES] [--no-cull] [--json]
 //! ```
 //!

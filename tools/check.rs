@@ -1,7 +1,7 @@
 //! Correctness check: OAVM's answers against independent references, ray by ray.
 //!
 //! ```text
-//! cargo run --release --example check -- [--scene NAME=PATH]... [--random N]
+//! cargo run --release --features tools --example check -- [--scene NAME=PATH]... [--random N]
 //!     [--width W --height H] [--brute N] [--seed S] [--examples N]
 //!     [--leaf-size K] [--max-depth D] [--no-merge] [--json]
 //! ```

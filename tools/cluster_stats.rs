@@ -9,7 +9,7 @@
 //! (src/pack/cluster/mod.rs) quotes these figures.
 //!
 //! ```text
-//! cargo run --release --example cluster_stats -- [MESH] [--k 64,128] [--variants default,window 32] [--passes N]
+//! cargo run --release --features tools --example cluster_stats -- [MESH] [--k 64,128] [--variants default,window 32] [--passes N]
 //! ```
 //!
 //! MESH defaults to the bunny (`../shared/scenes/bunny/bun_zipper.ply`), `--k` to 64, 128,

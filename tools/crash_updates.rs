@@ -5,7 +5,7 @@
 //! the update must still answer as the previous frame.
 //!
 //!     cargo build --release --features cli --bin oavm-update
-//!     cargo run --release --example crash_updates -- [--kills N] [--seed S] [--json] SCENE...
+//!     cargo run --release --features tools --example crash_updates -- [--kills N] [--seed S] [--json] SCENE...
 //!
 //! A SCENE is `FILE.aff@T0,T1` (a BART scene posed at T0, updated to T1) or `A.ply,B.ply` (two
 //! meshes with the same primitive ids). For each, the first frame is packed `--updatable` (with

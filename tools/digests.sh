@@ -10,8 +10,8 @@
 #     diff a.txt b.txt              # empty: the same bytes and answers
 #
 # DIR holds oavm-pack, oavm-trace, oavm-update, oavm-inspect and the `rays` example (default:
-# target/release, with examples/rays; build them with `cargo build --release --bins --examples`,
-# which at the top of the workspace builds oavm-bench too, the binary of the crate oavm-compare);
+# target/release, with examples/rays; build them with
+# `cargo build --release --bins --examples --features oavm/tools`, which at the top of the workspace builds oavm-bench too, the binary of the crate oavm-compare);
 # `--compare BIN` names oavm-bench (default: DIR/oavm-bench). The meshes come from
 # ../shared/scenes (dragon, Sibenik, the BART kitchen) and data/bunny.ply (the streaming pack reads binary PLY). About five minutes on
 # two cores; the work directory takes about 1.5 GB.

@@ -23,7 +23,7 @@ rm -rf "$seeds"
 mkdir -p "$seeds"/{ply,obj,aff,rays,oavm,oavm_fixed,pack}
 python3 tools/fuzz_seeds.py meshes "$scenes" "$seeds"
 
-nice -n 19 cargo build --release --quiet --bins --example rays
+nice -n 19 cargo build --release --quiet --bins --features tools --example rays
 bin=${CARGO_TARGET_DIR:-$root/target}/release
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT

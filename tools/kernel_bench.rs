@@ -12,7 +12,7 @@
 //! trampoline of `Avx2::vectorize`), and with the loop itself inside `vectorize`, calling the
 //! `_with` kernels, as a tracer's traversal would.
 //!
-//! `cargo run --release --example kernel_bench`. Numbers for us, not for the docs.
+//! `cargo run --release --features tools --example kernel_bench`. Numbers for us, not for the docs.
 
 use std::hint::black_box;
 use std::time::Instant;

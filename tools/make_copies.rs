@@ -1,7 +1,7 @@
 //! Writes a large real mesh for the out-of-core figures: `N` randomly rotated, scaled and placed
 //! copies of a real mesh (by default the Stanford dragon), as one binary little-endian PLY.
 //!
-//!     cargo run --release --example make_copies -- OUT.ply --copies 150 [--seed 1]
+//!     cargo run --release --features tools --example make_copies -- OUT.ply --copies 150 [--seed 1]
 //!         [--mesh ../shared/scenes/dragon/dragon_vrip.ply]
 //!
 //! The same arguments give the same bytes on any machine. The copies sit in the cells of an

@@ -5,7 +5,7 @@
 //! median run are printed. Short runs, the best counts: on a machine shared with builds and
 //! benchmarks, some run goes uninterrupted.
 //!
-//! `cargo run --release --example pack_bench -- MESH [--runs N] [--threads T] [--list]`.
+//! `cargo run --release --features tools --example pack_bench -- MESH [--runs N] [--threads T] [--list]`.
 //! Numbers for us, not for the docs.
 
 use std::path::PathBuf;

@@ -6,7 +6,7 @@
 //! directory (`oavm-dragon-binary_little_endian.ply`, `...big_endian.ply`): binary PLYs for
 //! `stream_bench`.
 //!
-//! `cargo run --release --example parse_bench -- [--scenes DIR] [--runs N]`, DIR defaulting to
+//! `cargo run --release --features tools --example parse_bench -- [--scenes DIR] [--runs N]`, DIR defaulting to
 //! `../shared/scenes` beside the checkout. Numbers for us, not for the docs.
 
 use std::io::Write as _;

@@ -1,12 +1,12 @@
 //! Smoke test of the peer tracers (`tools/peers/mod.rs`): builds the obvhs and `bvh` crate peers
 //! (and Embree with the `embree` feature: `tools/embree.sh cargo run --release --example
-//! peers_smoke --features embree`) on a mesh (the Stanford bunny by default), traces seeded
+//! peers_smoke --features embree,tools`) on a mesh (the Stanford bunny by default), traces seeded
 //! random rays through them and through brute force, and checks that they agree as `../shared/RAYS.md` defines it (both miss, or both
 //! hit with `|t1 - t2| <= 1e-4 * L`, `L` the bounding-box diagonal) on at least 99.99 % of rays.
 //! Prints build times and Mrays/s, single-threaded and with rayon. Exits 1 on disagreement.
 //!
 //! ```text
-//! cargo run --release --example peers_smoke [-- [--compare] [--speed-only] [MESH.obj]]
+//! cargo run --release --features tools --example peers_smoke [-- [--compare] [--speed-only] [MESH.obj]]
 //! ```
 //!
 //! `--compare` also times every obvhs build preset and every `bvh` crate traversal, which is how

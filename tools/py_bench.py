@@ -10,7 +10,7 @@ embreex, open3d-cpu, trimesh, numpy). Not ``target/python-venv``: that one is th
 hold a debug build at any moment. The header prints where ``oavm._native`` was loaded from.
 
 For each ray set of the mesh (``PREFIX.{primary,random,shadow}.rays``, RAYS.md; made with
-``cargo run --release --example rays -- MESH PREFIX`` when missing), with its query (closest hit
+``cargo run --release --features tools --example rays -- MESH PREFIX`` when missing), with its query (closest hit
 for primary and random rays, any hit for shadow rays; ``--query both`` does both on every set):
 
 1. ``oavm-trace FILE --rays R --hits|--occluded OUT --json`` (the CLI's batch mode, a new process
@@ -428,8 +428,8 @@ def ensure_rays(mesh: Path, prefix: Path, sets: List[str]) -> Dict[str, Path]:
     missing = [p for p in paths.values() if not p.exists()]
     if missing:
         prefix.parent.mkdir(parents=True, exist_ok=True)
-        log(f"making {', '.join(map(str, missing))}: cargo run --release --example rays -- {mesh} {prefix}")
-        sh(["nice", "-n", "19", "cargo", "run", "--release", "--example", "rays", "--", str(mesh), str(prefix)])
+        log(f"making {', '.join(map(str, missing))}: cargo run --release --features tools --example rays -- {mesh} {prefix}")
+        sh(["nice", "-n", "19", "cargo", "run", "--release", "--features", "tools", "--example", "rays", "--", str(mesh), str(prefix)])
     return paths
 
 
@@ -730,7 +730,7 @@ def main() -> int:
                     help="the mesh (default ../shared/scenes/dragon/dragon_vrip.ply beside the repository)")
     ap.add_argument("--rays-prefix", type=Path, default=None,
                     help="ray files PREFIX.{primary,random,shadow}.rays (default target/py-bench/MESHSTEM);"
-                         " made with `cargo run --release --example rays` when missing")
+                         " made with `cargo run --release --features tools --example rays` when missing")
     ap.add_argument("--work", type=Path, default=ROOT / "target" / "py-bench",
                     help="where the .oavm file and the CLI's answers go (default target/py-bench)")
     ap.add_argument("--cli", type=Path, default=ROOT / "target" / "release" / "oavm-trace")

@@ -11,7 +11,7 @@
 #    reinstalled every time, so that it is the working tree's code).
 # 3. builds the CLI (cargo build --release --bin oavm-trace) from the same working tree.
 # 4. runs tools/py_bench.py with that venv's Python, which makes the ray files with
-#    `cargo run --release --example rays` if they are missing and packs the mesh.
+#    `cargo run --release --features tools --example rays` if they are missing and packs the mesh.
 #
 # Open3D's wheel links libusb-1.0, which slim Debian images lack: installed with apt-get when
 # missing and this runs as root (otherwise said, and Open3D is reported as unavailable).

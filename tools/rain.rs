@@ -2,7 +2,7 @@
 //! small falling balls), for the update benchmarks: one binary little-endian PLY per frame and an
 //! AFF view file to render them with.
 //!
-//!     cargo run --release --example rain -- --balls N --seed S --frames A..B --out DIR
+//!     cargo run --release --features tools --example rain -- --balls N --seed S --frames A..B --out DIR
 //!         [--fps 25] [--shape octahedron|icosahedron] [--radius 0.1] [--json]
 //!
 //! writes `DIR/rain.aff` and `DIR/rain_AAAAA.ply` .. `DIR/rain_{B-1}.ply` (frame numbers padded

@@ -1,7 +1,7 @@
 //! Writes the ray sets we measure with as RAYS files (`../shared/RAYS.md`), so any tracer can be
 //! given exactly the same rays:
 //!
-//!     cargo run --release --example rays -- MESH OUT_PREFIX [--random N] [--seed S] [--width W --height H]
+//!     cargo run --release --features tools --example rays -- MESH OUT_PREFIX [--random N] [--seed S] [--width W --height H]
 //!
 //! writes `OUT_PREFIX.random.rays` (N random rays, default 10^6), `OUT_PREFIX.primary.rays`
 //! (the default camera of `oavm-trace`, W x H, default 1024x768) and `OUT_PREFIX.shadow.rays`

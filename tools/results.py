@@ -763,7 +763,7 @@ def anim_section(w, table3, steps, commit, version):
     (`--steps-only`) time the updates alone."""
     w("## Dynamic scenes: the OAVM paper's Table 3\n")
     w(f"Measured at commit `{commit}`, file format version {version}, by "
-      "`cargo run --release --example anim_bench` (tools/anim_bench.rs) as tools/results.sh runs "
+      "`cargo run --release --features tools --example anim_bench` (tools/anim_bench.rs) as tools/results.sh runs "
       "it. Each scene is packed updatable (`oavm-pack --updatable`: the primitive table, a root "
       "cube that holds every frame measured) at its first frame; each later frame is brought "
       "into the file by a local update (`oavm-update`: the changed triangles found by "

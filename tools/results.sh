@@ -103,7 +103,7 @@ EOF
 # `oavm-pack --mem-budget 8G`, its time including reading the PLY: built in memory it would take
 # most of this machine's 24 GiB beside the update's file and frames).
 anim_runs() {
-  cargo build --release --example anim_bench --example rain
+  cargo build --release --features tools --example anim_bench --example rain
   local R=$OUT/rain n last
   for n in 100000:10 1000000:3 10000000:2; do
     last=${n#*:}; n=${n%:*}

@@ -4,7 +4,7 @@
 //! that the pass is not optimised away), both passes in MiB/s of file, and the process's peak
 //! resident memory against the positions' size.
 //!
-//! `cargo run --release --example stream_bench -- BIG.ply`, a binary PLY (`make_copies` writes
+//! `cargo run --release --features tools --example stream_bench -- BIG.ply`, a binary PLY (`make_copies` writes
 //! big ones; `parse_bench` leaves the dragon's in the temporary directory). One run: the first
 //! pass may read the file from disk, later runs from the page cache. Numbers for us, not for the
 //! docs.

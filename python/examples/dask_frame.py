@@ -11,7 +11,7 @@ answers (t, primitive ids, grey levels) must be identical, bit for bit.
 
 The README's figures for the 130-million-triangle mesh come from:
 
-    cargo run --release --example make_copies -- ../shared/scenes/dragon/dragon_vrip.ply 150 big.ply
+    cargo run --release --features tools --example make_copies -- ../shared/scenes/dragon/dragon_vrip.ply 150 big.ply
     cargo run --release --bin oavm-pack -- big.ply big.oavm --mem-budget 4G
     python python/examples/dask_frame.py big.oavm --check
 """

@@ -20,7 +20,7 @@ use crate::rays::{Bounds, Camera, random_rays, shadow_ray};
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RaySet {
     /// `count` rays from `seed`, their origins around the model and their directions uniform
-    /// ([`random_rays`]: the sets of `cargo run --example rays`).
+    /// ([`random_rays`]: the sets of `cargo run --features tools --example rays`).
     Random { count: u64, seed: u64 },
     /// A camera's `width` x `height` primary rays ([`Camera::primary_rays`]).
     Primary { width: u32, height: u32 },

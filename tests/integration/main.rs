@@ -7,7 +7,7 @@
 
 #[path = "../common/mod.rs"]
 mod common;
-/// The Rain generator (`cargo run --example rain`), whose functions `rain` and `animate` call.
+/// The Rain generator (`cargo run --features tools --example rain`), whose functions `rain` and `animate` call.
 #[path = "../../tools/rain.rs"]
 #[allow(dead_code)]
 mod rain_example;

@@ -41,7 +41,7 @@ pub(crate) struct Args {
     #[arg(long, value_name = "OCCL", requires = "rays")]
     pub(crate) occluded: Option<PathBuf>,
     /// Benchmark mode: trace N random rays (origins around the model, directions uniform; the
-    /// ray sets of `cargo run --example rays`), closest hit; nothing is written. At most what
+    /// ray sets of `cargo run --features tools --example rays`), closest hit; nothing is written. At most what
     /// half of the available memory holds (64 bytes a ray).
     #[arg(long, value_name = "N", conflicts_with_all = ["primary", "verify"])]
     pub(crate) random: Option<u64>,
@@ -99,7 +99,7 @@ pub(crate) struct Args {
           conflicts_with_all = ["rays", "random", "primary", "verify"])]
     pub(crate) frames: Option<std::ops::Range<u64>>,
     /// With --frames: read frame f's triangles from PATTERN, its {} replaced by f padded to
-    /// five digits (e.g. DIR/rain_{}.ply of `cargo run --example rain`), triangle i being
+    /// five digits (e.g. DIR/rain_{}.ply of `cargo run --features tools --example rain`), triangle i being
     /// primitive i, instead of posing the --view scene, which gives the camera, lights and
     /// materials.
     #[arg(long, value_name = "PATTERN", requires = "frames")]
