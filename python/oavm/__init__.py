@@ -343,7 +343,8 @@ def open(path: PathLike, *, mem_budget: Union[None, int, str] = None,  # noqa: A
     tree: its cost does not grow with the file. ``mem_budget`` (bytes, or a string like
     ``"4G"``): the most decoded blocks kept in memory (default: half of the memory available);
     a file larger than it is traced by paging blocks in and out. ``walk``: ``"auto"`` (the
-    fastest for the file), ``"topdown"`` (files of clusters), ``"neighbours"`` (the OAVM paper's
+    fastest for the file), ``"wide"`` or ``"topdown"`` (files of clusters: the 8-wide nodes, or
+    the octree's records), ``"neighbours"`` (the OAVM paper's
     leaf-to-leaf walk) or ``"ropes"`` (the same, following the ropes of a file packed with
     ``ropes=True``); the answers are the same."""
     return Scene(path, mem_budget=mem_budget, walk=walk)

@@ -401,12 +401,13 @@ fn open(
 ) -> PyResult<NativeScene> {
     let walk = match walk {
         "auto" => Walk::Auto,
+        "wide" => Walk::Wide,
         "topdown" => Walk::TopDown,
         "neighbours" => Walk::Neighbours,
         "ropes" => Walk::Ropes,
         other => {
             return Err(PyValueError::new_err(format!(
-                "walk must be 'auto', 'topdown', 'neighbours' or 'ropes', not {other:?}"
+                "walk must be 'auto', 'wide', 'topdown', 'neighbours' or 'ropes', not {other:?}"
             )));
         }
     };

@@ -216,9 +216,9 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                     path.display()
                 )));
             }
-            Walk::TopDown if flags & FLAG_CLUSTERS == 0 => {
+            Walk::TopDown | Walk::Wide if flags & FLAG_CLUSTERS == 0 => {
                 return Err(Error::Invalid(format!(
-                    "{}: the top-down walk needs a file of clusters (`oavm-pack --leaf cluster`); \
+                    "{}: the wide and top-down walks need a file of clusters (`oavm-pack --leaf cluster`); \
                      this one holds leaf lists",
                     path.display()
                 )));
@@ -419,6 +419,10 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 ready,
             }),
             h,
+        )
+        .with_wide(
+            self.file.records(SectionKind::WideNodes),
+            self.file.records(SectionKind::WideLinks),
         )
         .walking(self.walk, self.file.records(SectionKind::Ropes))
     }

@@ -969,9 +969,31 @@ fn open_generation(
                 .collect()
         })
         .collect();
+    // The wide nodes' boxes of the roots kept (spec §8.7), from the wide links.
+    let links: std::collections::HashMap<(u32, u32), crate::physical::wide::WorldBox> = u
+        .file
+        .records::<crate::physical::format::WideLink>(SectionKind::WideLinks)
+        .iter()
+        .map(|w| ((w.block, w.root), (w.lo, w.hi)))
+        .collect();
+    let mut boxes: Vec<Vec<crate::physical::wide::WorldBox>> = dir
+        .iter()
+        .enumerate()
+        .map(|(b, e)| {
+            (0..if e.is_free() { 0 } else { e.root_count })
+                // A root with no wide link (never written) gets a box no grid holds: the
+                // top tree's wide nodes then fail to build, and the update with them.
+                .map(|r| {
+                    let none = ([f32::NAN; 3], [f32::NAN; 3]);
+                    links.get(&(b as u32, r)).copied().unwrap_or(none)
+                })
+                .collect()
+        })
+        .collect();
     for &b in blocks {
         dir[b as usize] = BlockEntry::zeroed();
         bounds[b as usize].clear();
+        boxes[b as usize].clear();
     }
     let start = std::fs::metadata(path)
         .map_err(|e| Error::io(path, e))?
@@ -990,6 +1012,7 @@ fn open_generation(
         generation,
         dir,
         bounds,
+        boxes,
         Some(chunks),
     )
     .map_err(io)?;

@@ -427,6 +427,16 @@ fn read_section_table(
                 s.count, header.block_count
             )));
         }
+        if kind == SectionKind::WideNodes || kind == SectionKind::WideLinks {
+            // At most one wide node per internal node, one wide link per link (spec §8.7).
+            let nodes = sections[SectionKind::Nodes as usize - 1].count;
+            if s.count > nodes {
+                return Err(table_err(format!(
+                    "{name}: {} records, more than the top tree's {nodes} nodes",
+                    s.count
+                )));
+            }
+        }
         if kind == SectionKind::LinkBounds || kind == SectionKind::Ropes {
             let nodes = sections[SectionKind::Nodes as usize - 1].count;
             if s.count != nodes {

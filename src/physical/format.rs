@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 pub const MAGIC: [u8; 8] = *b"\x89OAVM\r\n\x1a";
 
 /// Spec §12: the format version this code reads and writes.
-pub const VERSION: u32 = 5;
+pub const VERSION: u32 = 6;
 
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
@@ -137,12 +137,20 @@ pub enum SectionKind {
     /// The primitive table's chunk directory (spec §8.6), one [`PrimChunk`] per
     /// [`PRIM_CHUNK`] primitives; only in a file with [`FLAG_PRIMS`].
     Prims = 9,
+    /// The top tree's wide nodes (spec §8.7), one [`ClusterNode`] per internal node of the
+    /// top tree that has a child; only in a file with [`FLAG_CLUSTERS`].
+    WideNodes = 10,
+    /// The links of the top tree's wide nodes (spec §8.7), one [`WideLink`] per link; only in
+    /// a file with [`FLAG_CLUSTERS`].
+    WideLinks = 11,
 }
 
 impl SectionKind {
-    /// Every kind, in file order. A file has the first [`Self::BASE`], then [`Self::Ropes`]
-    /// with [`FLAG_ROPES`] and [`Self::Prims`] with [`FLAG_PRIMS`], in this order.
-    pub const ALL: [SectionKind; 9] = [
+    /// Every kind, in file order. A file has the first [`Self::BASE`], then the wide nodes
+    /// and links with [`FLAG_CLUSTERS`], [`Self::Ropes`] with [`FLAG_ROPES`] and
+    /// [`Self::Prims`] with [`FLAG_PRIMS`], in this order. (A kind's index in a table of
+    /// sections is `kind - 1`, not its place in this order.)
+    pub const ALL: [SectionKind; 11] = [
         SectionKind::Blocks,
         SectionKind::Directory,
         SectionKind::Levels,
@@ -150,6 +158,8 @@ impl SectionKind {
         SectionKind::Ranks,
         SectionKind::Volumes,
         SectionKind::LinkBounds,
+        SectionKind::WideNodes,
+        SectionKind::WideLinks,
         SectionKind::Ropes,
         SectionKind::Prims,
     ];
@@ -161,6 +171,7 @@ impl SectionKind {
         match self {
             SectionKind::Ropes => flags & FLAG_ROPES != 0,
             SectionKind::Prims => flags & FLAG_PRIMS != 0,
+            SectionKind::WideNodes | SectionKind::WideLinks => flags & FLAG_CLUSTERS != 0,
             _ => true,
         }
     }
@@ -192,6 +203,8 @@ impl SectionKind {
             SectionKind::LinkBounds => "link bounds",
             SectionKind::Ropes => "ropes",
             SectionKind::Prims => "primitive table",
+            SectionKind::WideNodes => "wide nodes",
+            SectionKind::WideLinks => "wide links",
         }
     }
 
@@ -208,6 +221,8 @@ impl SectionKind {
             SectionKind::LinkBounds => std::mem::size_of::<LinkBounds>(),
             SectionKind::Ropes => std::mem::size_of::<RopeRecord>(),
             SectionKind::Prims => std::mem::size_of::<PrimChunk>(),
+            SectionKind::WideNodes => std::mem::size_of::<ClusterNode>(),
+            SectionKind::WideLinks => std::mem::size_of::<WideLink>(),
         };
         Some(size as u64)
     }
@@ -282,6 +297,20 @@ pub struct SectionEntry {
     pub checksum: u64,
 }
 const _: () = assert!(std::mem::size_of::<SectionEntry>() == 48);
+
+/// Spec §8.7: a link of the top tree's wide nodes (32 bytes): root `root` of block `block`,
+/// which is node `root` of the block's wide nodes, and that node's box in world units (the
+/// union of its children's boxes, exact f32 faces), from which the parent's quantised box is
+/// made and an update remakes the top tree without reading the block.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct WideLink {
+    pub block: u32,
+    pub root: u32,
+    pub lo: [f32; 3],
+    pub hi: [f32; 3],
+}
+const _: () = assert!(std::mem::size_of::<WideLink>() == 32);
 
 /// Spec §8.1: the bounds of a link's subtree, in 256ths of the link's cell per axis: the box
 /// `[lo, hi + 1) / 256` of the cell contains the tight bounds of every solid leaf below the
@@ -676,7 +705,7 @@ pub const MAX_CLUSTER_DEPTH: usize = 16;
 /// Spec §7.1: the range of a cluster node's grid exponents. `2^exp` and every box face
 /// `origin + q * 2^exp` (`q <= 255`) are then normal, finite f32 values for any origin the
 /// builder writes.
-pub const CLUSTER_EXP_RANGE: std::ops::RangeInclusive<i8> = -100..=100;
+pub const CLUSTER_EXP_RANGE: std::ops::RangeInclusive<i8> = -64..=63;
 
 /// Spec §7.1: one node of a cluster's wide BVH (80 bytes): up to eight children, each an inner
 /// node or a leaf (one triangle group), with boxes quantised to 8 bits per face on a per-axis

@@ -16,6 +16,7 @@ mod file;
 pub mod format;
 mod inspect;
 pub(crate) mod verify;
+pub mod wide;
 pub(crate) mod writer;
 
 pub use block::{BlockError, BlockReader, BlockView, ReadBlock};

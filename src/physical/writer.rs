@@ -149,6 +149,9 @@ pub struct StoredBlock {
     pub root_bounds: Vec<LinkBounds>,
     /// Whether it carries ropes (spec §8.4; all blocks of a file do, or none).
     pub ropes: bool,
+    /// The box of each of its roots' wide nodes (spec §8.7; empty in a file of lists), for the
+    /// top tree's wide links.
+    pub root_boxes: Vec<super::wide::WorldBox>,
 }
 
 /// Whether a block of `raw_len` bytes whose zstd frame is `z_len` bytes is stored compressed:
@@ -257,6 +260,25 @@ fn store_block_within(
             unit.nodes.len()
         )));
     }
+    // A block of clusters gets its wide nodes (spec §8.7): the octree's, the clusters' roots
+    // among them, renumbered.
+    let wide = if unit.cluster_nodes.is_empty() {
+        None
+    } else {
+        Some(
+            super::wide::lay_block(unit.levels, unit.nodes, unit.cluster_nodes)
+                .map_err(|e| Error::Build(format!("block {id}: wide nodes: {e}")))?,
+        )
+    };
+    let unit = match &wide {
+        Some(w) => UnitRef {
+            nodes: &w.records,
+            cluster_nodes: &w.nodes,
+            ..unit
+        },
+        None => unit,
+    };
+    let root_boxes = wide.as_ref().map_or(Vec::new(), |w| w.roots.clone());
     let raw_len = block_layout(&block_header(unit, root_level, id)).map_or(u64::MAX, |(_, n)| n);
     if raw_len > limit {
         let largest = largest_leaf(unit);
@@ -299,6 +321,7 @@ fn store_block_within(
         entry_id: id,
         root_bounds,
         ropes: !unit.ropes.is_empty(),
+        root_boxes,
     })
 }
 
@@ -378,6 +401,9 @@ pub struct FileWriter<S: Sink> {
     directory: Vec<BlockEntry>,
     /// The roots' bounds of every block, by block id (a free entry has none).
     bounds: Vec<Vec<LinkBounds>>,
+    /// The boxes of every block's roots' wide nodes (spec §8.7), by block id (empty in a file
+    /// of lists and for a free entry).
+    boxes: Vec<Vec<super::wide::WorldBox>>,
     /// Whether the blocks written carry ropes (`None` before the first).
     ropes: Option<bool>,
     /// The primitive table's chunks (spec §8.6), if any.
@@ -400,6 +426,7 @@ impl<S: Sink> FileWriter<S> {
             blocks_start,
             directory: Vec::new(),
             bounds: Vec::new(),
+            boxes: Vec::new(),
             ropes: None,
             prims: None,
             generation: FIRST_GENERATION,
@@ -410,7 +437,7 @@ impl<S: Sink> FileWriter<S> {
     /// Writes generation `generation` of a file whose bytes end at `at` (a multiple of
     /// [`RAW_BLOCK_ALIGN`]; the sink appends there): `directory` is the previous generation's
     /// (free entries where blocks were removed, spec §8.2) with `bounds`, each live block's
-    /// roots' link bounds; `prims` its primitive chunks (changed ones are replaced with
+    /// roots' link bounds, and `boxes`, their wide nodes' boxes (spec §8.7); `prims` its primitive chunks (changed ones are replaced with
     /// [`Self::replace_prim_chunk`]). Ropes are not carried over (a file that has them is not
     /// updated).
     pub fn resume(
@@ -419,6 +446,7 @@ impl<S: Sink> FileWriter<S> {
         generation: u64,
         directory: Vec<BlockEntry>,
         bounds: Vec<Vec<LinkBounds>>,
+        boxes: Vec<Vec<super::wide::WorldBox>>,
         prims: Option<Vec<PrimChunk>>,
     ) -> std::io::Result<FileWriter<S>> {
         if !at.is_multiple_of(RAW_BLOCK_ALIGN) || at < DATA_START || generation <= FIRST_GENERATION
@@ -427,9 +455,9 @@ impl<S: Sink> FileWriter<S> {
                 "generation {generation} cannot start at offset {at}"
             )));
         }
-        if bounds.len() != directory.len() {
+        if bounds.len() != directory.len() || boxes.len() != directory.len() {
             return Err(std::io::Error::other(
-                "one bounds list per directory entry expected",
+                "one bounds list and one box list per directory entry expected",
             ));
         }
         Ok(FileWriter {
@@ -438,6 +466,7 @@ impl<S: Sink> FileWriter<S> {
             blocks_start: DATA_START,
             directory,
             bounds,
+            boxes,
             ropes: Some(false),
             prims,
             generation,
@@ -470,6 +499,7 @@ impl<S: Sink> FileWriter<S> {
         }
         self.directory.push(BlockEntry::zeroed());
         self.bounds.push(Vec::new());
+        self.boxes.push(Vec::new());
         self.store(block)
     }
 
@@ -515,6 +545,7 @@ impl<S: Sink> FileWriter<S> {
         let id = block.entry_id as usize;
         self.directory[id] = entry;
         self.bounds[id] = block.root_bounds;
+        self.boxes[id] = block.root_boxes;
         Ok(block.entry_id)
     }
 
@@ -558,6 +589,7 @@ impl<S: Sink> FileWriter<S> {
         while self.directory.last().is_some_and(|e| e.is_free()) {
             self.directory.pop();
             self.bounds.pop();
+            self.boxes.pop();
         }
     }
 
@@ -625,6 +657,14 @@ impl<S: Sink> FileWriter<S> {
             )));
         }
         let flags = file_flags(meta, &directory, ropes, prims.is_some());
+        let (wide_nodes, wide_links) = if flags & FLAG_CLUSTERS != 0 {
+            super::wide::lay_top(top.levels, top.nodes, |b, r| {
+                self.boxes.get(b as usize)?.get(r as usize).copied()
+            })
+            .map_err(|e| std::io::Error::other(format!("the top tree's wide nodes: {e}")))?
+        } else {
+            (Vec::new(), Vec::new())
+        };
         let mut entries = [SectionEntry::zeroed(); SectionKind::ALL.len()];
         entries[0] = SectionEntry {
             kind: SectionKind::Blocks as u32,
@@ -636,7 +676,8 @@ impl<S: Sink> FileWriter<S> {
             block_directory: 0,
             checksum: 0,
         };
-        let sections = top_sections(&directory, &top, &link_bounds, prims.as_deref());
+        let wide = (&wide_nodes[..], &wide_links[..]);
+        let sections = top_sections(&directory, &top, &link_bounds, wide, prims.as_deref());
         let section_count = self.write_sections(sections, flags, &mut entries)?;
         let file_size = self.at;
         let header = self.header(meta, flags, &directory, section_count);
@@ -667,7 +708,7 @@ impl<S: Sink> FileWriter<S> {
     /// section table after the blocks' (`entries[0]`); returns how many entries there are.
     fn write_sections(
         &mut self,
-        sections: [(SectionKind, &[u8], u64); 8],
+        sections: [(SectionKind, &[u8], u64); 10],
         flags: u32,
         entries: &mut [SectionEntry],
     ) -> std::io::Result<usize> {
@@ -785,14 +826,15 @@ fn file_flags(meta: &Header, directory: &[BlockEntry], ropes: bool, prims: bool)
 }
 
 /// The sections after the blocks, in file order, with their bytes and record counts: the
-/// directory, the top tree's levels, nodes, ranks, volumes, link bounds and ropes, and the
-/// primitive chunk directory (empty when absent).
+/// directory, the top tree's levels, nodes, ranks, volumes, link bounds, wide nodes and links,
+/// and ropes, and the primitive chunk directory (empty when absent).
 fn top_sections<'a>(
     directory: &'a [BlockEntry],
     top: &UnitRef<'a>,
     link_bounds: &'a [LinkBounds],
+    wide: (&'a [ClusterNode], &'a [WideLink]),
     prims: Option<&'a [PrimChunk]>,
-) -> [(SectionKind, &'a [u8], u64); 8] {
+) -> [(SectionKind, &'a [u8], u64); 10] {
     [
         (
             SectionKind::Directory,
@@ -823,6 +865,16 @@ fn top_sections<'a>(
             SectionKind::LinkBounds,
             bytemuck::cast_slice(link_bounds),
             link_bounds.len() as u64,
+        ),
+        (
+            SectionKind::WideNodes,
+            bytemuck::cast_slice(wide.0),
+            wide.0.len() as u64,
+        ),
+        (
+            SectionKind::WideLinks,
+            bytemuck::cast_slice(wide.1),
+            wide.1.len() as u64,
         ),
         (
             SectionKind::Ropes,

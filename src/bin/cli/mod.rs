@@ -92,11 +92,12 @@ pub struct TraceArgs {
     /// `auto` (read when the file is larger than the memory available, else map).
     #[arg(long, value_enum, default_value_t = BlockReadsArg::Auto)]
     pub block_reads: BlockReadsArg,
-    /// Which walk traces the rays: `topdown` (nearest child first with a stack, as a BVH is
-    /// walked; files of clusters), `neighbours` (the OAVM paper's walk, leaf to leaf across
+    /// Which walk traces the rays: `wide` (one loop over the 8-wide nodes from the root to
+    /// the triangle groups, format-spec §8.7; files of clusters), `topdown` (the octree's
+    /// records and the clusters, nearest child first with a stack), `neighbours` (the OAVM paper's walk, leaf to leaf across
     /// merged volumes, each next leaf found from its cell's Morton code), `ropes` (the same,
     /// each next leaf found from the rope of the face left; a file packed with `--ropes`) or
-    /// `auto` (topdown for a file of clusters, else neighbours). The answers are the same.
+    /// `auto` (wide for a file of clusters, else neighbours). The answers are the same.
     #[arg(long, value_enum, default_value_t = WalkArg::Auto)]
     pub walk: WalkArg,
     /// Order of tracing: stream (each ray's walk parked at every block it needs and resumed
@@ -193,6 +194,7 @@ impl From<BlockReadsArg> for oavm::logical::BlockReads {
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum WalkArg {
     Auto,
+    Wide,
     Topdown,
     Neighbours,
     Ropes,
@@ -202,6 +204,7 @@ impl From<WalkArg> for oavm::logical::Walk {
     fn from(a: WalkArg) -> Self {
         match a {
             WalkArg::Auto => Self::Auto,
+            WalkArg::Wide => Self::Wide,
             WalkArg::Topdown => Self::TopDown,
             WalkArg::Neighbours => Self::Neighbours,
             WalkArg::Ropes => Self::Ropes,

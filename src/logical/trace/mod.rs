@@ -27,6 +27,7 @@ mod ray;
 mod resume;
 mod ropes;
 mod topdown;
+mod wide;
 
 use std::sync::OnceLock;
 
@@ -39,7 +40,9 @@ use crate::geom::Ray;
 use crate::mapping::morton::LATTICE_SIZE;
 use crate::mapping::{Corruption, TreeMap};
 use crate::os::{Avx2, Simd8, WithAvx2};
-use crate::physical::format::{BlockEntry, FLAG_CLUSTERS, FLAG_OCCLUDERS, Header, RopeRecord};
+use crate::physical::format::{
+    BlockEntry, ClusterNode, FLAG_CLUSTERS, FLAG_OCCLUDERS, Header, RopeRecord, WideLink,
+};
 pub(in crate::logical) use ray::{Best, RayCtx};
 pub(in crate::logical) use topdown::Entry;
 
@@ -47,10 +50,13 @@ pub(in crate::logical) use topdown::Entry;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Walk {
-    /// The fastest for the file: [`Walk::TopDown`] for a file of clusters, else
+    /// The fastest for the file: [`Walk::Wide`] for a file of clusters, else
     /// [`Walk::Neighbours`].
     #[default]
     Auto,
+    /// One loop over the 8-wide nodes from the root to the triangle groups (format-spec §8.7;
+    /// files of clusters).
+    Wide,
     /// Top-down, nearest child first with a stack, as a BVH is walked (files of clusters).
     TopDown,
     /// The OAVM paper's walk: leaf to leaf across merged volumes, each next leaf found from the
@@ -250,6 +256,14 @@ pub struct Tree<'a> {
     occluders: bool,
     /// The CPU's AVX2, if it has it.
     avx2: Option<Avx2>,
+    /// Rays are walked by [`wide`] (clusters, [`Walk::Auto`] or [`Walk::Wide`]).
+    wide: bool,
+    /// The top tree's wide nodes and links (spec §8.7; empty in a file of lists).
+    wide_top: &'a [ClusterNode],
+    wide_links: &'a [WideLink],
+    /// A bound on the magnitude of every coordinate a wide node holds (twice the root cube's
+    /// farthest corner from 0), for the node test's eligibility (spec §8.7).
+    coord_bound: f32,
 }
 
 impl<'a> Tree<'a> {
@@ -278,17 +292,39 @@ impl<'a> Tree<'a> {
             scale: LATTICE_SIZE as f64 / header.root_size,
             clusters,
             avx2: Avx2::detect(),
+            wide: clusters,
+            wide_top: &[],
+            wide_links: &[],
+            coord_bound: {
+                let far = (0..3)
+                    .map(|k| {
+                        header.root_min[k]
+                            .abs()
+                            .max((header.root_min[k] + header.root_size).abs())
+                    })
+                    .fold(0.0, f64::max);
+                (2.0 * far) as f32
+            },
         }
+    }
+
+    /// The same tree with the top tree's wide nodes and links (spec §8.7), as the file holds
+    /// them.
+    pub(crate) fn with_wide(mut self, nodes: &'a [ClusterNode], links: &'a [WideLink]) -> Tree<'a> {
+        self.wide_top = nodes;
+        self.wide_links = links;
+        self
     }
 
     /// The same tree, walked by `walk` ([`Walk::Ropes`] follows `top_ropes` and the blocks'
     /// ropes; the scene checked at open that the file has them).
     pub(crate) fn walking(mut self, walk: Walk, top_ropes: &'a [RopeRecord]) -> Tree<'a> {
         self.top_down = match walk {
-            Walk::Auto => self.clusters,
+            Walk::Auto | Walk::Wide => self.clusters,
             Walk::TopDown => true,
             Walk::Neighbours | Walk::Ropes => false,
         };
+        self.wide = self.clusters && matches!(walk, Walk::Auto | Walk::Wide);
         self.follow_ropes = walk == Walk::Ropes;
         self.top_ropes = top_ropes;
         self
@@ -346,7 +382,9 @@ impl<'a> Tree<'a> {
             type Output = Result<Option<HitInfo>, TraceError>;
             #[inline(always)]
             fn run(self, isa: Avx2) -> Self::Output {
-                if self.tree.top_down {
+                if self.tree.wide {
+                    self.tree.wide_all::<ANY, Avx2>(isa, self.ray, self.c)
+                } else if self.tree.top_down {
                     self.tree.descend_all::<ANY, Avx2>(isa, self.ray, self.c)
                 } else {
                     self.tree.walk::<ANY, Avx2>(isa, self.ray, self.c)
@@ -355,6 +393,7 @@ impl<'a> Tree<'a> {
         }
         match self.avx2 {
             Some(isa) => isa.vectorize(Job::<ANY> { tree: self, ray, c }),
+            None if self.wide => self.wide_all::<ANY, _>(baseline(), ray, c),
             None if self.top_down => self.descend_all::<ANY, _>(baseline(), ray, c),
             None => self.walk::<ANY, _>(baseline(), ray, c),
         }

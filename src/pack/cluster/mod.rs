@@ -126,8 +126,8 @@ pub enum ClusterError {
     BadClip { lo: [f64; 3], hi: [f64; 3] },
     #[error(
         "the cluster's boxes span {lo:e}..{hi:e} along axis {axis}: beyond what an 8-bit grid \
-         with exponents in CLUSTER_EXP_RANGE can hold (coordinates must stay below 2^123 in \
-         magnitude, a node's extent below 2^107)"
+         with exponents in CLUSTER_EXP_RANGE can hold (coordinates must stay below 2^86 in \
+         magnitude, a node's extent below 2^70)"
     )]
     Range { axis: usize, lo: f32, hi: f32 },
     #[error("the cluster's node or group indices would pass 2^32")]
@@ -357,9 +357,9 @@ impl ClusterBuilder {
     }
 }
 
-/// Largest coordinate magnitude a box may have: a grid with exponent up to 100 and an origin
-/// below `2^24` steps reaches `2^124`; staying below `2^123` leaves room for a node's extent.
-const MAX_COORD: f32 = (1u128 << 123) as f32;
+/// Largest coordinate magnitude a box may have: a grid with exponent up to 63 and an origin
+/// below `2^24` steps reaches `2^87`; staying below `2^86` leaves room for a node's extent.
+const MAX_COORD: f32 = (1u128 << 86) as f32;
 
 /// How the binary tree is split and collapsed: [`Mode::Sah`] first; [`Mode::Shallow`] (median
 /// splits, tallest child opened first) if that tree is too deep.

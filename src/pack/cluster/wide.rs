@@ -5,9 +5,7 @@
 use super::binary::{BinNode, PrimRef};
 use super::group::Draft;
 use super::{ClusterError, ClusterTri, Mode, Params, fits_group, make_group};
-use crate::physical::format::{
-    CLUSTER_EXP_RANGE, CLUSTER_WIDTH, ClusterNode, GROUP_LANES, TriGroup,
-};
+use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, GROUP_LANES, TriGroup};
 
 /// What the emission reads.
 pub(super) struct Input<'a> {
@@ -187,74 +185,15 @@ pub(super) fn emit(
     Ok(())
 }
 
-/// Sets the grid and the child boxes of `node` from the children's f32 boxes (spec §7.1): per
-/// axis the smallest exponent whose grid spans the node in 255 steps from an origin that is a
-/// multiple of the step with `|origin / step| + 255 < 2^24`; faces rounded outward. All in
-/// f64, where scaling by a power of two, `floor` and `ceil` are exact.
+/// Sets the grid and the child boxes of `node` (spec §7.1; the one rule of
+/// [`crate::physical::wide::quantise`], which the octree's wide nodes use too).
 fn quantise(
     node: &mut ClusterNode,
     boxes: impl Iterator<Item = ([f32; 3], [f32; 3])> + Clone,
 ) -> Result<(), ClusterError> {
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
-    for (a, b) in boxes.clone() {
-        lo = min3(&lo, &a);
-        hi = max3(&hi, &b);
-    }
-    for k in 0..3 {
-        let (e, origin) = grid(lo[k], hi[k]).ok_or(ClusterError::Range {
-            axis: k,
-            lo: lo[k],
-            hi: hi[k],
-        })?;
-        let s = pow2(-e);
-        node.exp[k] = e as i8;
-        node.origin[k] = (origin * pow2(e)) as f32;
-        for (i, (a, b)) in boxes.clone().enumerate() {
-            let ql = (a[k] as f64 * s).floor() - origin;
-            let qh = (b[k] as f64 * s).ceil() - origin;
-            debug_assert!((0.0..=255.0).contains(&ql) && (ql..=255.0).contains(&qh));
-            node.lo[k][i] = ql as u8;
-            node.hi[k][i] = qh as u8;
-        }
-    }
-    Ok(())
-}
-
-/// `2^e` for `|e| <= 1000`, exactly.
-fn pow2(e: i32) -> f64 {
-    f64::from_bits(((1023 + e) as u64) << 52)
-}
-
-/// The grid of one axis of a node spanning `lo..=hi`: the smallest exponent `e` in
-/// [`CLUSTER_EXP_RANGE`] with `ceil(hi / 2^e) - floor(lo / 2^e) <= 255` and
-/// `|floor(lo / 2^e)| + 255 < 2^24`, and the origin in steps, `floor(lo / 2^e)`.
-pub(super) fn grid(lo: f32, hi: f32) -> Option<(i32, f64)> {
-    let (min, max) = (
-        *CLUSTER_EXP_RANGE.start() as i32,
-        *CLUSTER_EXP_RANGE.end() as i32,
-    );
-    // Start below both lower bounds: steps must cover the span in 255, and the origin needs
-    // fewer than 24 bits, i.e. e > log2|lo| - 24 (and |lo| >= |hi| / 2, else the span bound is
-    // the larger).
-    let span = hi as f64 - lo as f64;
-    let mut start = min;
-    if span > 0.0 {
-        start = start.max(floor_log2(span / 255.0) - 1);
-    }
-    let m = (lo.abs().max(hi.abs())) as f64;
-    if m > 0.0 {
-        start = start.max(floor_log2(m) - 26);
-    }
-    (start..=max).find_map(|e| {
-        let s = pow2(-e);
-        let ol = (lo as f64 * s).floor();
-        let oh = (hi as f64 * s).ceil();
-        (oh - ol <= 255.0 && ol.abs() + 255.0 < (1u32 << 24) as f64).then_some((e, ol))
+    crate::physical::wide::quantise(node, boxes).map_err(|e| ClusterError::Range {
+        axis: e.axis,
+        lo: e.lo,
+        hi: e.hi,
     })
-}
-
-/// `floor(log2(x))` for a positive normal `x`: its exponent field.
-fn floor_log2(x: f64) -> i32 {
-    ((x.to_bits() >> 52) & 0x7ff) as i32 - 1023
 }

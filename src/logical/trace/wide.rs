@@ -1,0 +1,342 @@
+//! Format 6's walk ([`super::Walk::Wide`], spec §8.7): one loop from the top tree's wide
+//! nodes through the links into the blocks' wide nodes (the octree's, then the clusters') down
+//! to the triangle groups, with one stack of 8-byte entries (a reference and the distance at
+//! which the ray enters it). No f64, no rank lookup, no per-level state: a node is an index
+//! into the wide nodes of the unit it is in (the top tree's, or the held block's).
+//!
+//! **Units.** The stack holds the top tree's entries below the held block's: a block is entered
+//! when a link is popped, and every entry pushed after that is the block's, until the stack is
+//! back below the place the link had (`floor`). A popped link to a block other than the one
+//! held ends the turn: the caller fetches that block (and lets the other go) and runs the walk
+//! on, so one block is held at a time, as in the other walks.
+//!
+//! **Bounded whatever the bytes.** Each unit's nodes are visited at most as many times as the
+//! unit has nodes plus the blocks entered have (a tree visits each once), and the stack is
+//! capped by the depth the format allows; past either, the bytes are not a tree.
+
+use super::{Counters, Held, HitInfo, TraceError, Tree};
+use crate::geom::Ray;
+use crate::geom::triangle::RayShear;
+use crate::geom::wide_box::grown_exit;
+use crate::mapping::Corruption;
+use crate::os::Simd8;
+use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, MAX_CLUSTER_DEPTH, TriGroup};
+
+/// A stack entry's reference: the index of a wide node of its unit, or with this bit a link
+/// (an index into the top tree's wide links).
+const LINK: u32 = 1 << 31;
+/// The deepest stack a valid file needs: 7 entries left per level of the octree (22) and of a
+/// cluster ([`MAX_CLUSTER_DEPTH`]), and the root.
+const STACK: usize = (CLUSTER_WIDTH - 1) * (22 + MAX_CLUSTER_DEPTH) + 1;
+
+/// What a walk carries from one block to the next.
+pub(in crate::logical) struct WideWalk {
+    pub(super) stack: Vec<(u32, f32)>,
+    /// Entries at and above this index are the held block's.
+    floor: usize,
+    /// Node visits left before the bytes are taken for something that is not a tree.
+    budget: usize,
+    pub(super) best: Option<HitInfo>,
+    pub(super) t_best: f32,
+}
+
+/// The ray's constants for the walk.
+pub(super) struct WideRay {
+    pub(super) boxes: FmaRay,
+    shear: RayShear,
+    tmin: f32,
+}
+
+thread_local! {
+    static WIDE_STACK: std::cell::Cell<Vec<(u32, f32)>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+impl Tree<'_> {
+    /// Closest hit (any hit with `ANY`) of `ray` by the wide walk; a ray the node test's bound
+    /// does not cover (spec §8.7: `tmin < 0`, a direction too small or too large for f32) is
+    /// walked top-down instead (the same answers).
+    #[inline(always)]
+    pub(super) fn wide_all<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        ray: &Ray,
+        c: &mut Counters,
+    ) -> Result<Option<HitInfo>, TraceError> {
+        let boxes = FmaRay::new(ray, self.coord_bound);
+        // The occluders and the SATO order are the top-down walk's (research variants).
+        let research = ANY && (self.occluders || self.sato);
+        if !boxes.eligible() || !ray.is_valid() || research {
+            return self.descend_all::<ANY, S>(isa, ray, c);
+        }
+        c.rays += 1;
+        if self.wide_top.is_empty() {
+            return Ok(None);
+        }
+        let r = WideRay {
+            boxes,
+            shear: RayShear::new(ray),
+            tmin: ray.tmin,
+        };
+        let mut stack = WIDE_STACK.take();
+        stack.clear();
+        stack.push((0, ray.tmin));
+        let mut w = WideWalk {
+            stack,
+            floor: usize::MAX,
+            budget: self.wide_top.len(),
+            best: None,
+            t_best: ray.tmax,
+        };
+        let mut need: Option<u32> = None;
+        let result = loop {
+            let fetched = match need.take() {
+                None => None,
+                Some(b) => match self.fetch(b, &mut c.page) {
+                    Ok(f) => Some(f),
+                    Err(e) => break Err(e),
+                },
+            };
+            let view = Self::held(&fetched);
+            match self.run_wide::<ANY, S>(isa, &r, &mut w, c, view.as_ref()) {
+                Ok(Some(b)) => need = Some(b),
+                Ok(None) => break Ok(()),
+                Err(e) => break Err(e),
+            }
+        };
+        let best = w.best;
+        WIDE_STACK.set(w.stack);
+        result.map(|()| best)
+    }
+
+    /// Pops entries until the ray is answered (`None`) or a link needs a block other than
+    /// `view` (`Some(block)`, the link left on the stack).
+    #[inline(always)]
+    fn run_wide<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        r: &WideRay,
+        w: &mut WideWalk,
+        k: &mut Counters,
+        view: Option<&Held<'_>>,
+    ) -> Result<Option<u32>, TraceError> {
+        while let Some((mut at, t)) = w.stack.pop() {
+            if t > grown_exit(w.t_best) {
+                continue;
+            }
+            if at & LINK != 0 {
+                let link = self
+                    .wide_links
+                    .get((at & !LINK) as usize)
+                    .ok_or_else(|| bad("wide link index out of range", None))?;
+                match view {
+                    Some(h) if h.id == link.block => {
+                        w.floor = w.stack.len();
+                        w.budget = w.budget.saturating_add(h.cluster_nodes.len());
+                        at = link.root;
+                    }
+                    _ => {
+                        if link.block as usize >= self.directory.len() {
+                            return Err(bad("wide link to a block the directory lacks", None));
+                        }
+                        w.stack.push((at, t));
+                        return Ok(Some(link.block));
+                    }
+                }
+            }
+            // Below the floor: the block's entries are all done with.
+            if w.stack.len() < w.floor {
+                w.floor = usize::MAX;
+            }
+            let held = if w.floor != usize::MAX { view } else { None };
+            let nodes = held.map_or(self.wide_top, |h| h.cluster_nodes);
+            let n = nodes
+                .get(at as usize)
+                .ok_or_else(|| bad("wide node index out of range", held))?;
+            if w.budget == 0 {
+                return Err(bad("wide nodes that do not form a tree", held));
+            }
+            w.budget -= 1;
+            k.nodes_visited += 1;
+            k.boxes_tested += n.child_count.min(8) as u64;
+            let (mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
+            let inner = n.inner_count.min(8) as u32;
+            let inner_bits = (1u32 << inner) - 1;
+            let leaves = mask & !inner_bits;
+            let mut push = mask & inner_bits;
+            match held {
+                Some(h) => {
+                    if leaves != 0 && self.test_leaves::<ANY, S>(isa, r, w, k, n, leaves, h)? {
+                        return Ok(None);
+                    }
+                }
+                // The top tree's leaves are links: pushed with the inner children.
+                None => push |= leaves,
+            }
+            if push != 0 {
+                push_near_first::<ANY>(&mut w.stack, push, &near, n, inner)
+                    .map_err(|what| bad(what, held))?;
+            }
+        }
+        Ok(None)
+    }
+
+    /// Tests the groups of `n`'s leaf slots in `leaves`; true if `ANY` found a hit.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn test_leaves<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        r: &WideRay,
+        w: &mut WideWalk,
+        k: &mut Counters,
+        n: &ClusterNode,
+        mut leaves: u32,
+        h: &Held<'_>,
+    ) -> Result<bool, TraceError> {
+        let inner = n.inner_count as u32;
+        while leaves != 0 {
+            let i = leaves.trailing_zeros();
+            leaves &= leaves - 1;
+            let gi = n.group_base as u64 + (i - inner) as u64;
+            let g = h
+                .groups
+                .get(gi as usize)
+                .ok_or_else(|| bad("triangle group index out of range", Some(h)))?;
+            if test_group::<ANY, S>(isa, r, w, g, k) {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+}
+
+/// Tests the lanes of group `g`, keeping the closest hit (ties to the smallest primitive id);
+/// with `ANY`, true at the first hit.
+#[inline(always)]
+fn test_group<const ANY: bool, S: Simd8>(
+    isa: S,
+    r: &WideRay,
+    w: &mut WideWalk,
+    g: &TriGroup,
+    k: &mut Counters,
+) -> bool {
+    k.groups_tested += 1;
+    k.triangles_tested += g.count.min(8) as u64;
+    let (mut hits, ts) = r
+        .shear
+        .intersect_group_with(isa, g.view(), r.tmin, w.t_best);
+    while hits != 0 {
+        let l = hits.trailing_zeros() as usize;
+        hits &= hits - 1;
+        let (t, prim) = (ts[l], g.prim[l]);
+        if ANY {
+            w.best = Some(HitInfo {
+                t,
+                prim,
+                v: g.triangle(l),
+            });
+            return true;
+        }
+        let better = match &w.best {
+            None => true,
+            Some(b) => (t, prim) < (b.t, b.prim),
+        };
+        if better {
+            w.t_best = t;
+            w.best = Some(HitInfo {
+                t,
+                prim,
+                v: g.triangle(l),
+            });
+        }
+    }
+    false
+}
+
+/// Pushes the children of `n` in `mask` (entered at `near`), inner slots as wide nodes
+/// `node_base + i`, the others (the top tree's links) as links `group_base + i - inner`: for
+/// a closest hit so that the nearest is popped first, for any hit as they come.
+#[inline(always)]
+fn push_near_first<const ANY: bool>(
+    stack: &mut Vec<(u32, f32)>,
+    mut mask: u32,
+    near: &[f32; CLUSTER_WIDTH],
+    n: &ClusterNode,
+    inner: u32,
+) -> Result<(), &'static str> {
+    let refer = |i: u32| {
+        if i < inner {
+            n.node_base.wrapping_add(i) & !LINK
+        } else {
+            n.group_base.wrapping_add(i - inner) | LINK
+        }
+    };
+    if stack.len() + CLUSTER_WIDTH > STACK {
+        return Err("wide nodes deeper than the format allows");
+    }
+    if ANY || mask & (mask - 1) == 0 {
+        while mask != 0 {
+            let i = mask.trailing_zeros();
+            mask &= mask - 1;
+            stack.push((refer(i), near[i as usize]));
+        }
+        return Ok(());
+    }
+    let mut kids: [(f32, u32); CLUSTER_WIDTH] = [(0.0, 0); CLUSTER_WIDTH];
+    let mut nk = 0;
+    while mask != 0 {
+        let i = mask.trailing_zeros();
+        mask &= mask - 1;
+        kids[nk] = (near[i as usize], refer(i));
+        nk += 1;
+    }
+    if nk == 2 {
+        if kids[0].0 < kids[1].0 {
+            kids.swap(0, 1);
+        }
+    } else {
+        // Insertion sort, farthest first.
+        for a in 1..nk {
+            let mut b = a;
+            while b > 0 && kids[b - 1].0 < kids[b].0 {
+                kids.swap(b - 1, b);
+                b -= 1;
+            }
+        }
+    }
+    for &(t, c) in &kids[..nk] {
+        stack.push((c, t));
+    }
+    Ok(())
+}
+
+/// Bytes that break the format at a wide node of `held` (or of the top tree).
+fn bad(what: &'static str, held: Option<&Held<'_>>) -> TraceError {
+    TraceError::Corrupt(Corruption {
+        what,
+        block: held.map(|h| h.id),
+        level: 0,
+        index: 0,
+    })
+}
+
+/// TEMPORARY: the FMA node test lands separately; until then the robust test stands in.
+pub(super) struct FmaRay(crate::geom::BoxRay, bool);
+impl FmaRay {
+    fn new(ray: &Ray, _coord_bound: f32) -> FmaRay {
+        FmaRay(crate::geom::BoxRay::new(ray), ray.tmin >= 0.0)
+    }
+    fn eligible(&self) -> bool {
+        self.1
+    }
+    #[inline(always)]
+    fn node_hits_with<S: Simd8>(
+        &self,
+        isa: S,
+        n: crate::geom::ClusterNodeView<'_>,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; 8]) {
+        self.0.node_hits_with(isa, n, tmin, tmax)
+    }
+}
