@@ -15,4 +15,4 @@ pub mod wide_box;
 
 pub use group::TriGroupView;
 pub use ray::{AGREEMENT_TOLERANCE, Hit, HitAttributes, Ray};
-pub use wide_box::{BoxRay, ClusterNodeView};
+pub use wide_box::{BoxRay, ClusterNodeView, FmaRay};

@@ -19,10 +19,14 @@
 //!   `RUSTFLAGS` replace the config's) use [`Portable`].
 //! - [`Portable`], eight scalars: for any architecture, and the reference the others match.
 //!
-//! The same operations in the same order give bit-identical lanes in all three: every
-//! arithmetic operation is one correctly rounded IEEE operation (no fused multiply-add, which
-//! rounds once where a multiply and an add round twice; LLVM never contracts without fast-math
-//! flags), and `min`/`max` follow the x86 rule, NaN-aware in a way the box test relies on.
+//! The same operations in the same order give bit-identical lanes in all three, with one
+//! exception: every arithmetic operation but [`Simd8::mul_add`] is one correctly rounded IEEE
+//! operation (LLVM never contracts a multiply and an add into a fused multiply-add without
+//! fast-math flags), and `min`/`max` follow the x86 rule, NaN-aware in a way the box test
+//! relies on. `mul_add` is a fused multiply-add on [`Avx2`] (one rounding) and a multiply then
+//! an add elsewhere (two roundings). Only the FMA node test (`geom::wide_box::FmaRay`) uses it:
+//! its answers (a culling mask and entries) may differ between instruction sets, and every one
+//! of them stays conservative, by a bound that covers both roundings.
 //!
 //! Loads take references to arrays (`&[f32; 8]`, `&[u8; 8]`), never raw pointers, so callers
 //! stay safe code: the crate root denies `unsafe` everywhere but here.
@@ -48,6 +52,12 @@ pub trait Simd8: Copy {
     fn sub(self, a: Self::F, b: Self::F) -> Self::F;
     fn mul(self, a: Self::F, b: Self::F) -> Self::F;
     fn div(self, a: Self::F, b: Self::F) -> Self::F;
+    /// `a * b + c` per lane, rounded once or twice depending on the instruction set: a fused
+    /// multiply-add on [`Avx2`] (`vfmadd`, one rounding), `add(mul(a, b), c)` on `Sse41` and
+    /// [`Portable`] (two roundings). The one operation whose lanes differ between tokens: a
+    /// caller must be correct under either rounding (the FMA node test's error bound covers
+    /// both), and must not expect the tokens to agree bit for bit.
+    fn mul_add(self, a: Self::F, b: Self::F, c: Self::F) -> Self::F;
     /// `a < b ? a : b` per lane (x86 `minps`): `b` where either is NaN.
     fn min(self, a: Self::F, b: Self::F) -> Self::F;
     /// `a > b ? a : b` per lane (x86 `maxps`): `b` where either is NaN.
@@ -241,6 +251,8 @@ mod x86 {
             sub(a: __m256, b: __m256) -> __m256 = _mm256_sub_ps(a, b);
             mul(a: __m256, b: __m256) -> __m256 = _mm256_mul_ps(a, b);
             div(a: __m256, b: __m256) -> __m256 = _mm256_div_ps(a, b);
+            // One rounding: the token exists only if the CPU has FMA.
+            mul_add(a: __m256, b: __m256, c: __m256) -> __m256 = _mm256_fmadd_ps(a, b, c);
             min(a: __m256, b: __m256) -> __m256 = _mm256_min_ps(a, b);
             max(a: __m256, b: __m256) -> __m256 = _mm256_max_ps(a, b);
             eq(a: __m256, b: __m256) -> __m256 = _mm256_cmp_ps::<_CMP_EQ_OQ>(a, b);
@@ -386,6 +398,11 @@ mod x86 {
                     [_mm_mul_ps(a[0], b[0]), _mm_mul_ps(a[1], b[1])];
                 div(a: [__m128; 2], b: [__m128; 2]) -> [__m128; 2] =
                     [_mm_div_ps(a[0], b[0]), _mm_div_ps(a[1], b[1])];
+                // Two roundings (SSE4.1 has no FMA): `add(mul(a, b), c)`, as `Portable`.
+                mul_add(a: [__m128; 2], b: [__m128; 2], c: [__m128; 2]) -> [__m128; 2] = [
+                    _mm_add_ps(_mm_mul_ps(a[0], b[0]), c[0]),
+                    _mm_add_ps(_mm_mul_ps(a[1], b[1]), c[1]),
+                ];
                 min(a: [__m128; 2], b: [__m128; 2]) -> [__m128; 2] =
                     [_mm_min_ps(a[0], b[0]), _mm_min_ps(a[1], b[1])];
                 max(a: [__m128; 2], b: [__m128; 2]) -> [__m128; 2] =
@@ -461,6 +478,11 @@ impl Simd8 for Portable {
     #[inline(always)]
     fn div(self, a: [f32; 8], b: [f32; 8]) -> [f32; 8] {
         lanes(|l| a[l] / b[l])
+    }
+    /// Two roundings, as `add(mul(a, b), c)` (not `f32::mul_add`, which fuses).
+    #[inline(always)]
+    fn mul_add(self, a: [f32; 8], b: [f32; 8], c: [f32; 8]) -> [f32; 8] {
+        lanes(|l| a[l] * b[l] + c[l])
     }
     #[inline(always)]
     fn min(self, a: [f32; 8], b: [f32; 8]) -> [f32; 8] {
@@ -612,6 +634,98 @@ mod tests {
             hits += gm.count_ones();
         }
         assert!(hits > 2000, "{hits}");
+    }
+
+    /// [`Simd8::mul_add`] rounds once where `fused` (the AVX2 token: `f32::mul_add`, a
+    /// correctly rounded fused multiply-add) and twice elsewhere (`a * b + c`), on special
+    /// values, random bit patterns and random near-cancelling triples; and a case where the
+    /// two differ shows which one ran.
+    fn mul_add_rounding<S: Simd8>(s: S, fused: bool) {
+        let odd = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.5,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            f32::from_bits(1),
+            f32::MAX,
+            3.25,
+        ];
+        let mut x = 0x0123_4567_89ab_cdefu64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let mut differ = 0;
+        for _ in 0..20_000 {
+            let pick = |next: &mut dyn FnMut() -> u64| match next() % 3 {
+                0 => odd[(next() % odd.len() as u64) as usize],
+                1 => f32::from_bits(next() as u32),
+                // Mantissas near 1 of either sign, scaled a little.
+                _ => {
+                    let v = f32::from_bits(0x3f80_0000 | (next() as u32 & 0x7f_ffff));
+                    let v = v * (1 << (next() % 8)) as f32;
+                    if next() & 1 == 0 { v } else { -v }
+                }
+            };
+            let a: [f32; 8] = std::array::from_fn(|_| pick(&mut next));
+            let b: [f32; 8] = std::array::from_fn(|_| pick(&mut next));
+            let mut c: [f32; 8] = std::array::from_fn(|_| pick(&mut next));
+            if next() & 1 == 0 {
+                // `c` cancelling most of the product: where one rounding and two differ.
+                c = std::array::from_fn(|l| -(a[l] * b[l]));
+            }
+            let got = s.store(s.mul_add(s.load(&a), s.load(&b), s.load(&c)));
+            for l in 0..8 {
+                let once = a[l].mul_add(b[l], c[l]);
+                let twice = a[l] * b[l] + c[l];
+                let want = if fused { once } else { twice };
+                assert!(
+                    got[l].to_bits() == want.to_bits() || got[l].is_nan() && want.is_nan(),
+                    "mul_add({}, {}, {}) = {} (fused {fused}): {} vs {}",
+                    a[l],
+                    b[l],
+                    c[l],
+                    got[l],
+                    once,
+                    twice
+                );
+                differ += (once.to_bits() != twice.to_bits() && !once.is_nan()) as u32;
+            }
+        }
+        assert!(
+            differ > 10_000,
+            "only {differ} lanes where the roundings differ"
+        );
+        // (1 + 2^-12)^2 - (1 + 2^-11) is 2^-24 exactly; the rounded product is 1 + 2^-11.
+        let a = 1.0 + 2f32.powi(-12);
+        let r = s.store(s.mul_add(s.splat(a), s.splat(a), s.splat(-(1.0 + 2f32.powi(-11)))));
+        assert_eq!(r, [if fused { 2f32.powi(-24) } else { 0.0 }; 8]);
+    }
+
+    #[test]
+    fn mul_add_rounds_once_with_avx2_twice_elsewhere() {
+        mul_add_rounding(Portable, false);
+        #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
+        mul_add_rounding(Sse41::new(), false);
+        match Avx2::detect() {
+            Some(isa) => {
+                struct Check;
+                impl WithAvx2 for Check {
+                    type Output = ();
+                    #[inline(always)]
+                    fn run(self, isa: Avx2) {
+                        mul_add_rounding(isa, true)
+                    }
+                }
+                isa.vectorize(Check)
+            }
+            None => eprintln!("AVX2 skipped: this CPU has no AVX2 and FMA"),
+        }
     }
 
     /// The scalar form of the octree cells' test, on cells whose answer is known: a ray along
