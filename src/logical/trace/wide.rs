@@ -17,7 +17,7 @@
 use super::{Counters, Held, HitInfo, TraceError, Tree};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
-use crate::geom::wide_box::grown_exit;
+use crate::geom::wide_box::{FmaRay, grown_exit};
 use crate::mapping::Corruption;
 use crate::os::Simd8;
 use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, MAX_CLUSTER_DEPTH, TriGroup};
@@ -172,6 +172,16 @@ impl Tree<'_> {
                 // The top tree's leaves are links: pushed with the inner children.
                 None => push |= leaves,
             }
+            // The inner children's records, so that their loads overlap (the nearest is popped
+            // next; the others wait).
+            let mut kids = mask & inner_bits;
+            while kids != 0 {
+                let i = kids.trailing_zeros();
+                kids &= kids - 1;
+                if let Some(c) = nodes.get(n.node_base.wrapping_add(i) as usize) {
+                    crate::os::prefetch::<_, 2>(c);
+                }
+            }
             if push != 0 {
                 push_near_first::<ANY>(&mut w.stack, push, &near, n, inner)
                     .map_err(|what| bad(what, held))?;
@@ -194,6 +204,15 @@ impl Tree<'_> {
         h: &Held<'_>,
     ) -> Result<bool, TraceError> {
         let inner = n.inner_count as u32;
+        // Every group's lines first, so that their loads overlap.
+        let mut ahead = leaves;
+        while ahead != 0 {
+            let i = ahead.trailing_zeros();
+            ahead &= ahead - 1;
+            if let Some(g) = h.groups.get(n.group_base as usize + (i - inner) as usize) {
+                crate::os::prefetch::<_, 3>(g);
+            }
+        }
         while leaves != 0 {
             let i = leaves.trailing_zeros();
             leaves &= leaves - 1;
@@ -318,25 +337,4 @@ fn bad(what: &'static str, held: Option<&Held<'_>>) -> TraceError {
         level: 0,
         index: 0,
     })
-}
-
-/// TEMPORARY: the FMA node test lands separately; until then the robust test stands in.
-pub(super) struct FmaRay(crate::geom::BoxRay, bool);
-impl FmaRay {
-    fn new(ray: &Ray, _coord_bound: f32) -> FmaRay {
-        FmaRay(crate::geom::BoxRay::new(ray), ray.tmin >= 0.0)
-    }
-    fn eligible(&self) -> bool {
-        self.1
-    }
-    #[inline(always)]
-    fn node_hits_with<S: Simd8>(
-        &self,
-        isa: S,
-        n: crate::geom::ClusterNodeView<'_>,
-        tmin: f32,
-        tmax: f32,
-    ) -> (u32, [f32; 8]) {
-        self.0.node_hits_with(isa, n, tmin, tmax)
-    }
 }
