@@ -58,7 +58,7 @@
 use crate::os::Portable;
 #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
 use crate::os::Sse41;
-use crate::os::{Avx2, Simd8, WithAvx2};
+use crate::os::{Avx2, FmaNodeFields, FmaNodeRay, Simd8, WithAvx2};
 
 use super::Ray;
 
@@ -384,6 +384,10 @@ pub struct FmaRay {
     /// Per axis: `d == ±0`, the ray stays in the plane `o[k]`.
     flat: [bool; 3],
     eligible: bool,
+    /// Some axis is flat (`d = 0`): the kernel tests it exactly, the AVX2 path does not.
+    any_flat: bool,
+    /// The constants as the AVX2 path reads them.
+    avx: FmaNodeRay,
 }
 
 impl FmaRay {
@@ -405,12 +409,19 @@ impl FmaRay {
                         && r <= FMA_MAX_INV
                         && (o[k].abs() as f64 + coord_bound as f64) * r as f64 <= FMA_MAX_REACH
             });
+        let near = d.map(|d| if d > 0.0 { 0 } else { 1 });
         FmaRay {
             origin: o,
             inv,
-            near: d.map(|d| if d > 0.0 { 0 } else { 1 }),
+            near,
             flat,
             eligible,
+            any_flat: flat.iter().any(|&f| f),
+            avx: FmaNodeRay {
+                origin: [o[0], o[1], o[2], 0.0],
+                inv: [inv[0], inv[1], inv[2], 0.0],
+                near,
+            },
         }
     }
 
@@ -505,6 +516,33 @@ impl FmaRay {
         tmin: f32,
         tmax: f32,
     ) -> (u32, [f32; 8]) {
+        self.kernel_with::<S, SLACK, true>(s, n, tmin, tmax)
+    }
+
+    /// The kernel; with `FAST`, on AVX2 for a ray with no flat axis, by
+    /// [`Avx2::fma_node`] (the same operations, the three axes' scalar terms at once; a test
+    /// compares the two paths bit for bit).
+    #[inline(always)]
+    fn kernel_with<S: Simd8, const SLACK: bool, const FAST: bool>(
+        &self,
+        s: S,
+        n: ClusterNodeView<'_>,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; 8]) {
+        if SLACK
+            && FAST
+            && !self.any_flat
+            && let Some(avx) = s.as_avx2()
+        {
+            let fields = FmaNodeFields {
+                origin: n.origin,
+                exp: n.exp,
+                rows: [n.lo, n.hi],
+                child_count: n.child_count,
+            };
+            return avx.fma_node(&self.avx, fields, tmin, tmax);
+        }
         let mut inside = s.lanes_below(n.child_count as u32);
         let mut enter = s.splat(tmin);
         let mut leave = s.splat(tmax);
@@ -1153,6 +1191,55 @@ mod tests {
                 "{isa}: too many false hits: {c:?}"
             );
         }
+    }
+
+    /// The AVX2 path of the kernel ([`Avx2::fma_node`]) gives what the generic kernel gives on
+    /// AVX2, bit for bit, masks and entries, on the random cases and their extreme scalings.
+    #[test]
+    fn fma_avx2_path_equals_the_generic_kernel() {
+        let Some(avx) = Avx2::detect() else {
+            eprintln!("AVX2 path not tested: this CPU has no AVX2 and FMA");
+            return;
+        };
+        let mut r = Rng(0x0a5c_2000_1357_9bdf);
+        let (mut compared, mut hits) = (0u64, 0u64);
+        for i in 0..200_000 {
+            let n = random_node(&mut r);
+            let mut ray = from_zero(&random_ray(&mut r, &n));
+            let mut node = n;
+            if i % 2 == 1 {
+                let (s, e) = (r.range(-40, 40) as i32, r.range(-40, 60) as i32);
+                let Some((m, scaled)) = scaled(&n, &ray, s, e) else {
+                    continue;
+                };
+                (node, ray) = (m, scaled);
+            }
+            let fr = FmaRay::new(&ray, coord_bound(&node));
+            if fr.any_flat {
+                continue;
+            }
+            struct Both<'a>(&'a FmaRay, &'a Node, f32, f32);
+            impl WithAvx2 for Both<'_> {
+                type Output = ((u32, [f32; 8]), (u32, [f32; 8]));
+                #[inline(always)]
+                fn run(self, isa: Avx2) -> Self::Output {
+                    let Both(fr, n, lo, hi) = self;
+                    (
+                        fr.kernel_with::<_, true, true>(isa, n.view(), lo, hi),
+                        fr.kernel_with::<_, true, false>(isa, n.view(), lo, hi),
+                    )
+                }
+            }
+            let (fast, generic) = avx.vectorize(Both(&fr, &node, ray.tmin, ray.tmax));
+            assert!(
+                same(fast, generic),
+                "{node:?} {ray:?}: {fast:?} {generic:?}"
+            );
+            compared += 1;
+            hits += fast.0.count_ones() as u64;
+        }
+        eprintln!("{compared} nodes compared, {hits} children hit");
+        assert!(compared > 50_000 && hits > 20_000, "{compared} {hits}");
     }
 
     /// The same cases scaled by powers of two (`scaled`), positions by `2^-58..2^61` (grid

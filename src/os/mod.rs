@@ -18,7 +18,7 @@ pub use map::{Changed, MappedFile, page_size};
 pub use proc::{available_memory, peak_rss_bytes, read_bytes};
 #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
 pub use simd::Sse41;
-pub use simd::{Avx2, Portable, Simd8, WithAvx2};
+pub use simd::{Avx2, FmaNodeFields, FmaNodeRay, Portable, Simd8, WithAvx2};
 
 /// Asks the CPU to bring the `LINES` cache lines from the start of `x` into its caches, so that
 /// a load a little later does not wait on memory: the walks prefetch the children and groups

@@ -83,6 +83,13 @@ pub trait Simd8: Copy {
     /// Lane `l` is lane `s[l] & 7` of `v`, for the `s` that `i` was prepared from.
     fn permute(self, v: Self::F, i: Self::Idx) -> Self::F;
 
+    /// This token as [`Avx2`], if it is one: lets a kernel take a path written for AVX2 (a
+    /// constant per instantiation, so the other path is compiled out).
+    #[inline(always)]
+    fn as_avx2(self) -> Option<Avx2> {
+        None
+    }
+
     /// A mask of the lanes below `n` (all eight for `n >= 8`).
     #[inline(always)]
     fn lanes_below(self, n: u32) -> Self::F {
@@ -189,6 +196,108 @@ impl Avx2 {
     }
 }
 
+/// The per-ray constants of the FMA node test (`geom::wide_box::FmaRay`) as its AVX2 kernel
+/// reads them: the origin and the reciprocal direction in the low three lanes (the fourth 0),
+/// and per axis which face row the ray enters by (0: `lo`, 1: `hi`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FmaNodeRay {
+    pub origin: [f32; 4],
+    pub inv: [f32; 4],
+    pub near: [usize; 3],
+}
+
+/// A wide node's fields as the FMA node test reads them (the record of format-spec §7.1).
+#[derive(Clone, Copy, Debug)]
+pub struct FmaNodeFields<'a> {
+    pub origin: &'a [f32; 3],
+    pub exp: &'a [i8; 3],
+    pub rows: [&'a [[u8; 8]; 3]; 2],
+    pub child_count: u8,
+}
+
+impl Avx2 {
+    /// The FMA node test of `geom::wide_box::FmaRay` for a ray that moves along every axis,
+    /// the three axes' scalar terms computed at once in one 128-bit register: the same
+    /// operations in the same order as the generic kernel (so the same answers, bit for bit:
+    /// `FmaRay`'s tests compare them), about half its instructions. The constants are the
+    /// kernel's: `exp` clamped to `-64..=63`, slack `|b| 2^-22 + |a| 2^-14 + 2^-120`, exit
+    /// grown by `1 + 2^-21`.
+    #[inline(always)]
+    pub fn fma_node(
+        self,
+        ray: &FmaNodeRay,
+        n: FmaNodeFields<'_>,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; 8]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::*;
+            // SAFETY: the token exists only if the CPU has AVX2 and FMA (`Avx2::detect`); the
+            // loads read only the arrays they are given (`_mm_loadl_epi64` the eight bytes of
+            // a row), the rest are register operations.
+            unsafe {
+                let p = _mm_set_ps(0.0, n.origin[2], n.origin[1], n.origin[0]);
+                let e = _mm_set_epi32(0, n.exp[2] as i32, n.exp[1] as i32, n.exp[0] as i32);
+                let e = _mm_min_epi32(_mm_max_epi32(e, _mm_set1_epi32(-64)), _mm_set1_epi32(63));
+                let step =
+                    _mm_castsi128_ps(_mm_slli_epi32::<23>(_mm_add_epi32(e, _mm_set1_epi32(127))));
+                let r = _mm_loadu_ps(ray.inv.as_ptr());
+                let o = _mm_loadu_ps(ray.origin.as_ptr());
+                let a = _mm_mul_ps(r, step);
+                let b = _mm_mul_ps(_mm_sub_ps(p, o), r);
+                let abs = _mm_castsi128_ps(_mm_set1_epi32(0x7fff_ffff));
+                let s = _mm_add_ps(
+                    _mm_add_ps(
+                        _mm_mul_ps(_mm_and_ps(b, abs), _mm_set1_ps(1.0 / (1u32 << 22) as f32)),
+                        _mm_mul_ps(_mm_and_ps(a, abs), _mm_set1_ps(1.0 / (1u32 << 14) as f32)),
+                    ),
+                    _mm_set1_ps(f32::from_bits((127 - 120) << 23)),
+                );
+                let bn = _mm_sub_ps(b, s);
+                let bf = _mm_add_ps(b, s);
+                let (a, bn, bf): ([f32; 4], [f32; 4], [f32; 4]) = (
+                    std::mem::transmute::<__m128, [f32; 4]>(a),
+                    std::mem::transmute::<__m128, [f32; 4]>(bn),
+                    std::mem::transmute::<__m128, [f32; 4]>(bf),
+                );
+                let row = |q: &[u8; 8]| {
+                    _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(
+                        q.as_ptr().cast::<__m128i>(),
+                    )))
+                };
+                let mut enter = _mm256_set1_ps(tmin);
+                let mut leave = _mm256_set1_ps(tmax);
+                for k in 0..3 {
+                    let near = ray.near[k] & 1;
+                    let av = _mm256_set1_ps(a[k]);
+                    let tn = _mm256_fmadd_ps(row(&n.rows[near][k]), av, _mm256_set1_ps(bn[k]));
+                    let tf = _mm256_fmadd_ps(row(&n.rows[near ^ 1][k]), av, _mm256_set1_ps(bf[k]));
+                    enter = _mm256_max_ps(tn, enter);
+                    leave = _mm256_min_ps(tf, leave);
+                }
+                const IOTA: [f32; 8] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+                let live = _mm256_cmp_ps::<_CMP_LT_OQ>(
+                    _mm256_loadu_ps(IOTA.as_ptr()),
+                    _mm256_set1_ps(n.child_count.min(8) as f32),
+                );
+                let grown = _mm256_mul_ps(leave, _mm256_set1_ps(1.0 + 8.0 / (1u32 << 24) as f32));
+                let hit = _mm256_and_ps(live, _mm256_cmp_ps::<_CMP_LE_OQ>(enter, grown));
+                let t = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), enter, hit);
+                (
+                    _mm256_movemask_ps(hit) as u32,
+                    std::mem::transmute::<__m256, [f32; 8]>(t),
+                )
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (ray, n, tmin, tmax);
+            match self.never {}
+        }
+    }
+}
+
 /// Proof that the CPU has SSE4.1 (and SSSE3): the crate is compiled for it, so every CPU the
 /// code runs on has it. Exists only in such builds; zero-sized.
 #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
@@ -233,6 +342,11 @@ mod x86 {
     impl Simd8 for Avx2 {
         type F = __m256;
         type Idx = __m256i;
+
+        #[inline(always)]
+        fn as_avx2(self) -> Option<Avx2> {
+            Some(self)
+        }
 
         #[inline(always)]
         fn load(self, x: &[f32; 8]) -> __m256 {

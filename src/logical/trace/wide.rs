@@ -119,75 +119,87 @@ impl Tree<'_> {
         k: &mut Counters,
         view: Option<&Held<'_>>,
     ) -> Result<Option<u32>, TraceError> {
+        // The unit of the entries being popped: the held block's above the floor, else the
+        // top tree's.
+        let mut held = if w.floor != usize::MAX { view } else { None };
+        let mut nodes = held.map_or(self.wide_top, |h| h.cluster_nodes);
         while let Some((mut at, t)) = w.stack.pop() {
+            // A child entered past the closest hit (grown as the node test grows exits).
             if t > grown_exit(w.t_best) {
                 continue;
             }
             if at & LINK != 0 {
-                let link = self
-                    .wide_links
-                    .get((at & !LINK) as usize)
-                    .ok_or_else(|| bad("wide link index out of range", None))?;
-                match view {
-                    Some(h) if h.id == link.block => {
-                        w.floor = w.stack.len();
-                        w.budget = w.budget.saturating_add(h.cluster_nodes.len());
-                        at = link.root;
-                    }
-                    _ => {
-                        if link.block as usize >= self.directory.len() {
-                            return Err(bad("wide link to a block the directory lacks", None));
-                        }
-                        w.stack.push((at, t));
-                        return Ok(Some(link.block));
-                    }
+                match self.enter_link(w, at, t, view)? {
+                    Ok((h, root)) => (held, nodes, at) = (Some(h), h.cluster_nodes, root),
+                    Err(block) => return Ok(Some(block)),
                 }
-            }
-            // Below the floor: the block's entries are all done with.
-            if w.stack.len() < w.floor {
+            } else if w.stack.len() < w.floor && w.floor != usize::MAX {
+                // Below the floor: the block's entries are all done with.
                 w.floor = usize::MAX;
+                (held, nodes) = (None, self.wide_top);
             }
-            let held = if w.floor != usize::MAX { view } else { None };
-            let nodes = held.map_or(self.wide_top, |h| h.cluster_nodes);
-            let n = nodes
-                .get(at as usize)
-                .ok_or_else(|| bad("wide node index out of range", held))?;
-            if w.budget == 0 {
+            let Some(n) = nodes.get(at as usize) else {
+                return Err(bad("wide node index out of range", held));
+            };
+            let Some(left) = w.budget.checked_sub(1) else {
                 return Err(bad("wide nodes that do not form a tree", held));
-            }
-            w.budget -= 1;
+            };
+            w.budget = left;
             k.nodes_visited += 1;
-            k.boxes_tested += n.child_count.min(8) as u64;
             let (mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
-            let inner = n.inner_count.min(8) as u32;
-            let inner_bits = (1u32 << inner) - 1;
-            let leaves = mask & !inner_bits;
-            let mut push = mask & inner_bits;
-            match held {
+            if mask == 0 {
+                continue;
+            }
+            let inner = n.inner_count as u32;
+            let kids = mask & (0xff >> (8 - inner.min(8)));
+            let leaves = mask ^ kids;
+            let push = match held {
                 Some(h) => {
                     if leaves != 0 && self.test_leaves::<ANY, S>(isa, r, w, k, n, leaves, h)? {
                         return Ok(None);
                     }
+                    kids
                 }
                 // The top tree's leaves are links: pushed with the inner children.
-                None => push |= leaves,
-            }
-            // The inner children's records, so that their loads overlap (the nearest is popped
-            // next; the others wait).
-            let mut kids = mask & inner_bits;
-            while kids != 0 {
-                let i = kids.trailing_zeros();
-                kids &= kids - 1;
-                if let Some(c) = nodes.get(n.node_base.wrapping_add(i) as usize) {
-                    crate::os::prefetch::<_, 2>(c);
-                }
-            }
+                None => mask,
+            };
             if push != 0 {
-                push_near_first::<ANY>(&mut w.stack, push, &near, n, inner)
+                push_near_first::<ANY>(&mut w.stack, push, &near, n, inner, nodes)
                     .map_err(|what| bad(what, held))?;
             }
         }
         Ok(None)
+    }
+
+    /// Enters the link popped as `at` (entered at `t`): the held block, if it is the link's,
+    /// and the link's root there (the block's entries start at the floor); else its block,
+    /// with the link pushed back, for the caller to fetch.
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    fn enter_link<'v, 'h>(
+        &self,
+        w: &mut WideWalk,
+        at: u32,
+        t: f32,
+        view: Option<&'v Held<'h>>,
+    ) -> Result<Result<(&'v Held<'h>, u32), u32>, TraceError> {
+        let Some(link) = self.wide_links.get((at & !LINK) as usize) else {
+            return Err(bad("wide link index out of range", None));
+        };
+        match view {
+            Some(h) if h.id == link.block => {
+                w.floor = w.stack.len();
+                w.budget = w.budget.saturating_add(h.cluster_nodes.len());
+                Ok(Ok((h, link.root)))
+            }
+            _ => {
+                if link.block as usize >= self.directory.len() {
+                    return Err(bad("wide link to a block the directory lacks", None));
+                }
+                w.stack.push((at, t));
+                Ok(Err(link.block))
+            }
+        }
     }
 
     /// Tests the groups of `n`'s leaf slots in `leaves`; true if `ANY` found a hit.
@@ -273,8 +285,9 @@ fn test_group<const ANY: bool, S: Simd8>(
 }
 
 /// Pushes the children of `n` in `mask` (entered at `near`), inner slots as wide nodes
-/// `node_base + i`, the others (the top tree's links) as links `group_base + i - inner`: for
-/// a closest hit so that the nearest is popped first, for any hit as they come.
+/// `node_base + i` of `nodes` (whose records it prefetches, so that their loads overlap), the
+/// others (the top tree's links) as links `group_base + i - inner`: for a closest hit so that
+/// the nearest is popped first, for any hit as they come.
 #[inline(always)]
 fn push_near_first<const ANY: bool>(
     stack: &mut Vec<(u32, f32)>,
@@ -282,10 +295,15 @@ fn push_near_first<const ANY: bool>(
     near: &[f32; CLUSTER_WIDTH],
     n: &ClusterNode,
     inner: u32,
+    nodes: &[ClusterNode],
 ) -> Result<(), &'static str> {
     let refer = |i: u32| {
         if i < inner {
-            n.node_base.wrapping_add(i) & !LINK
+            let c = n.node_base.wrapping_add(i);
+            if let Some(rec) = nodes.get(c as usize) {
+                crate::os::prefetch::<_, 2>(rec);
+            }
+            c & !LINK
         } else {
             n.group_base.wrapping_add(i - inner) | LINK
         }
