@@ -287,7 +287,7 @@ const FMA_ABS: f32 = f32::from_bits((127 - 120) << 23);
 /// The largest `|1 / d|` of an eligible ray, `2^55`.
 const FMA_MAX_INV: f32 = f32::from_bits((127 + 55) << 23);
 /// The largest `(|o| + coord_bound) |1 / d|` of an eligible ray, `2^100`.
-const FMA_MAX_REACH: f64 = (1u128 << 100) as f64;
+const FMA_MAX_REACH: f32 = f32::from_bits((127 + 100) << 23);
 
 /// A ray's constants for the FMA node test: the box test on a cluster node's eight children in
 /// one multiply-add per plane per lane (fused on AVX2), conservative by the bound derived
@@ -396,7 +396,9 @@ impl FmaRay {
     /// as the largest magnitude of its bounding box's corners, serves). The ray is eligible
     /// ([`FmaRay::eligible`]) iff `ray.tmin >= 0` and along every axis with `d != 0`, `1 / d`
     /// (rounded) is finite and normal, `|1 / d| <= 2^55` and `(|o| + coord_bound) |1 / d| <=
-    /// 2^100` (in f64).
+    /// 2^100` (computed in f32, within two roundings of that: the bound's margin to overflow,
+    /// `2^127`, is vast).
+    #[inline(always)]
     pub fn new(ray: &Ray, coord_bound: f32) -> FmaRay {
         let (o, d) = (ray.origin, ray.dir);
         let inv = d.map(|d| 1.0 / d);
@@ -407,7 +409,7 @@ impl FmaRay {
                 flat[k]
                     || r.is_normal()
                         && r <= FMA_MAX_INV
-                        && (o[k].abs() as f64 + coord_bound as f64) * r as f64 <= FMA_MAX_REACH
+                        && (o[k].abs() + coord_bound) * r <= FMA_MAX_REACH
             });
         let near = d.map(|d| if d > 0.0 { 0 } else { 1 });
         FmaRay {
