@@ -558,8 +558,8 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             Order::Stream => Order::Blocks,
             o => o,
         };
-        self.batch(rays, out, order, |ray, c| {
-            Ok(map(ray, tree.answer::<ANY>(ray, c)?))
+        self.batch(rays, out, order, |chunk, out, c| {
+            tree.answer_each::<ANY>(chunk, c, |i, ray, h| out[i] = map(ray, h))
         })
     }
 
@@ -742,32 +742,27 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
 
     /// Answers `rays` into `out` with `answer`, in `order`, in chunks on at most
     /// [`Self::threads`] threads, summing the counters; then checks that the file did not
-    /// change meanwhile.
+    /// change meanwhile. `answer` is given a chunk's rays and the room for their answers (as
+    /// many), in order.
     fn batch<T: Send + Sync + Copy>(
         &self,
         rays: &[Ray],
         out: &mut [T],
         order: Order,
-        answer: impl Fn(&Ray, &mut Counters) -> Result<T, TraceError> + Sync,
+        answer: impl Fn(ChunkRays<'_>, &mut [T], &mut Counters) -> Result<(), TraceError> + Sync,
     ) -> Result<Counters, Error> {
         check_room(rays.len(), out.len())?;
         let traced: Result<Counters, TraceError> = match self.permutation(rays, order)? {
             _ if rays.is_empty() => Ok(Counters::default()),
             None => in_order(rays, out, CHUNK, self.threads, |rays, out, c| {
-                for (ray, o) in rays.iter().zip(out) {
-                    *o = answer(ray, c)?;
-                }
-                Ok(())
+                answer(ChunkRays::Given(rays.iter()), out, c)
             }),
             Some(perm) => {
                 // Trace in that order into `sorted`, then put each answer at its ray's place:
                 // the same answers as unordered, written in the caller's order.
                 let mut sorted = vec![out[0]; rays.len()];
                 let c = in_order(&perm, &mut sorted, CHUNK, self.threads, |idx, out, c| {
-                    for (&i, o) in idx.iter().zip(out) {
-                        *o = answer(&rays[i as usize], c)?;
-                    }
-                    Ok(())
+                    answer(ChunkRays::Permuted(rays, idx.iter()), out, c)
                 });
                 for (&i, a) in perm.iter().zip(&sorted) {
                     out[i as usize] = *a;
@@ -778,6 +773,24 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         let c = traced.map_err(|e| self.corrupt(e))?;
         self.check_unchanged()?;
         Ok(c)
+    }
+}
+
+/// The rays of one chunk of a batch ([`Scene::batch`]), in the order they are traced: a slice
+/// of the batch's rays, or the batch's rays at a slice of its permutation.
+enum ChunkRays<'r> {
+    Given(std::slice::Iter<'r, Ray>),
+    Permuted(&'r [Ray], std::slice::Iter<'r, u32>),
+}
+
+impl<'r> Iterator for ChunkRays<'r> {
+    type Item = &'r Ray;
+    #[inline(always)]
+    fn next(&mut self) -> Option<&'r Ray> {
+        match self {
+            ChunkRays::Given(rays) => rays.next(),
+            ChunkRays::Permuted(rays, idx) => idx.next().map(|&i| &rays[i as usize]),
+        }
     }
 }
 

@@ -399,6 +399,83 @@ impl<'a> Tree<'a> {
         }
     }
 
+    /// The answers (closest hits; any hits with `ANY`) of `rays`, each given to `f` with the
+    /// ray's index among them, in order; stops at the first walk that fails. The same answers as
+    /// [`Self::dispatch`] ray by ray, with the choice of instruction set and walk made once for
+    /// all of them (one entry into the AVX2-compiled code, one taking of the wide walk's stack),
+    /// for the chunks of a batch.
+    #[inline(always)]
+    pub(in crate::logical) fn answer_each<'r, const ANY: bool>(
+        &self,
+        rays: impl Iterator<Item = &'r Ray>,
+        c: &mut Counters,
+        f: impl FnMut(usize, &'r Ray, Option<HitInfo>),
+    ) -> Result<(), TraceError> {
+        struct Job<'t, 'a, 'c, I, F, const ANY: bool> {
+            tree: &'t Tree<'a>,
+            rays: I,
+            c: &'c mut Counters,
+            f: F,
+        }
+        impl<'r, I, F, const ANY: bool> WithAvx2 for Job<'_, '_, '_, I, F, ANY>
+        where
+            I: Iterator<Item = &'r Ray>,
+            F: FnMut(usize, &'r Ray, Option<HitInfo>),
+        {
+            type Output = Result<(), TraceError>;
+            #[inline(always)]
+            fn run(self, isa: Avx2) -> Self::Output {
+                self.tree.each::<ANY, Avx2>(isa, self.rays, self.c, self.f)
+            }
+        }
+        match self.avx2 {
+            Some(isa) => isa.vectorize(Job::<_, _, ANY> {
+                tree: self,
+                rays,
+                c,
+                f,
+            }),
+            None => self.each::<ANY, _>(baseline(), rays, c, f),
+        }
+    }
+
+    /// [`Self::answer_each`] with the instruction set `isa`: the walk chosen once, then each
+    /// ray's (the wide walk's on the thread's stack, taken once).
+    #[inline(always)]
+    fn each<'r, const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        rays: impl Iterator<Item = &'r Ray>,
+        c: &mut Counters,
+        mut f: impl FnMut(usize, &'r Ray, Option<HitInfo>),
+    ) -> Result<(), TraceError> {
+        if self.wide {
+            let mut stack = wide::WIDE_STACK.take();
+            let mut result = Ok(());
+            for (i, ray) in rays.enumerate() {
+                match self.wide_ray::<ANY, S>(isa, ray, c, &mut stack) {
+                    Ok(h) => f(i, ray, h),
+                    Err(e) => {
+                        result = Err(e);
+                        break;
+                    }
+                }
+            }
+            wide::WIDE_STACK.set(stack);
+            result
+        } else if self.top_down {
+            for (i, ray) in rays.enumerate() {
+                f(i, ray, self.descend_all::<ANY, S>(isa, ray, c)?);
+            }
+            Ok(())
+        } else {
+            for (i, ray) in rays.enumerate() {
+                f(i, ray, self.walk::<ANY, S>(isa, ray, c)?);
+            }
+            Ok(())
+        }
+    }
+
     /// Block `b`'s bytes and map: straight from the file if it was admitted and the pager never
     /// evicts, else from the pager (counted alike).
     #[inline(always)]

@@ -5,7 +5,7 @@
 
 use super::ray::{Best, RayCtx};
 use super::topdown::Entry;
-use super::{Counters, Held, HitInfo, TraceError, Tree, baseline};
+use super::{Counters, Held, TraceError, Tree, baseline};
 use crate::geom::Ray;
 use crate::logical::pager::PageCounters;
 use crate::os::{Avx2, WithAvx2};
@@ -25,15 +25,6 @@ impl Tree<'_> {
     /// need of it would) and lets it go: the stream's readers.
     pub(in crate::logical) fn admit(&self, b: u32, c: &mut PageCounters) -> Result<(), TraceError> {
         self.fetch(b, c).map(|_| ())
-    }
-
-    /// Closest hit (any hit with `ANY`) of `ray`, walked directly.
-    pub(in crate::logical) fn answer<const ANY: bool>(
-        &self,
-        ray: &Ray,
-        c: &mut Counters,
-    ) -> Result<Option<HitInfo>, TraceError> {
-        self.dispatch::<ANY>(ray, c)
     }
 
     /// Whether rays are walked top-down (what streamed batches and frames need; files of leaf

@@ -48,19 +48,38 @@ pub(super) struct WideRay {
 }
 
 thread_local! {
-    static WIDE_STACK: std::cell::Cell<Vec<(u32, f32)>> = const { std::cell::Cell::new(Vec::new()) };
+    /// The walk's stack, kept per thread so that a ray costs no allocation: taken once per ray
+    /// ([`Tree::wide_all`]) or once per chunk of a batch ([`Tree::answer_each`]).
+    pub(super) static WIDE_STACK: std::cell::Cell<Vec<(u32, f32)>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
 impl Tree<'_> {
-    /// Closest hit (any hit with `ANY`) of `ray` by the wide walk; a ray the node test's bound
-    /// does not cover (spec §8.7: `tmin < 0`, a direction too small or too large for f32) is
-    /// walked top-down instead (the same answers).
+    /// Closest hit (any hit with `ANY`) of `ray` by the wide walk, with the thread's stack
+    /// ([`Self::wide_ray`]).
     #[inline(always)]
     pub(super) fn wide_all<const ANY: bool, S: Simd8>(
         &self,
         isa: S,
         ray: &Ray,
         c: &mut Counters,
+    ) -> Result<Option<HitInfo>, TraceError> {
+        let mut stack = WIDE_STACK.take();
+        let result = self.wide_ray::<ANY, S>(isa, ray, c, &mut stack);
+        WIDE_STACK.set(stack);
+        result
+    }
+
+    /// Closest hit (any hit with `ANY`) of `ray` by the wide walk on `stack` (cleared first;
+    /// left with its capacity for the next ray); a ray the node test's bound does not cover
+    /// (spec §8.7: `tmin < 0`, a direction too small or too large for f32) is walked top-down
+    /// instead (the same answers).
+    #[inline(always)]
+    pub(super) fn wide_ray<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        ray: &Ray,
+        c: &mut Counters,
+        stack: &mut Vec<(u32, f32)>,
     ) -> Result<Option<HitInfo>, TraceError> {
         let boxes = FmaRay::new(ray, self.coord_bound);
         // The occluders and the SATO order are the top-down walk's (research variants).
@@ -77,16 +96,15 @@ impl Tree<'_> {
             shear: RayShear::new(ray),
             tmin: ray.tmin,
         };
-        let mut stack = WIDE_STACK.take();
-        stack.clear();
-        stack.push((0, ray.tmin));
         let mut w = WideWalk {
-            stack,
+            stack: std::mem::take(stack),
             floor: usize::MAX,
             budget: self.wide_top.len(),
             best: None,
             t_best: ray.tmax,
         };
+        w.stack.clear();
+        w.stack.push((0, ray.tmin));
         let mut need: Option<u32> = None;
         let result = loop {
             let fetched = match need.take() {
@@ -103,9 +121,8 @@ impl Tree<'_> {
                 Err(e) => break Err(e),
             }
         };
-        let best = w.best;
-        WIDE_STACK.set(w.stack);
-        result.map(|()| best)
+        *stack = w.stack;
+        result.map(|()| w.best)
     }
 
     /// Pops entries until the ray is answered (`None`) or a link needs a block other than
