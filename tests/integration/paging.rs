@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
-use oavm::logical::{BlockReads, FrameOptions, Order, SceneOptions};
+use oavm::logical::{BlockReads, FrameOptions, Order, SceneOptions, Walk};
 use oavm::pack::encode_with;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::CODEC_RAW;
@@ -105,7 +105,7 @@ struct Run {
 /// raw blocks are paged in with their checksums checked (off, only the pages walks touch are
 /// read: the answers must not change).
 fn trace(bytes: &AlignedBytes, budget: u64, threads: usize, order: Order, checks: bool) -> Run {
-    trace_with(bytes, budget, threads, order, checks, false)
+    trace_with(bytes, budget, threads, order, checks, false, Walk::Auto)
 }
 
 /// [`trace`], reading blocks through the map (`map_blocks`) or into the pager's memory.
@@ -116,12 +116,13 @@ fn trace_with(
     order: Order,
     checks: bool,
     map_blocks: bool,
+    walk: Walk,
 ) -> Run {
     let scene = Scene::from_bytes_with(
         bytes.clone(),
         "bunny.oavm",
         &SceneOptions {
-            walk: oavm::logical::Walk::Auto,
+            walk,
             mem_budget: Some(budget),
             threads,
             check_blocks: checks,
@@ -232,7 +233,15 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
                     continue;
                 }
                 let what = format!("budget {budget}, {threads} threads, order {order}, map {map}");
-                let r = trace_with(bytes, budget, threads, order, budget != 3 * max, map);
+                let r = trace_with(
+                    bytes,
+                    budget,
+                    threads,
+                    order,
+                    budget != 3 * max,
+                    map,
+                    Walk::Auto,
+                );
                 if r.answers != reference.answers {
                     let first = (0..rays as usize).find(|&i| {
                         r.answers.closest[i] != reference.answers.closest[i]
@@ -416,7 +425,9 @@ fn without_link_culling(bytes: &AlignedBytes) -> AlignedBytes {
 /// Link bounds let rays pass blocks they cannot hit without paging them in, and change no
 /// answer: the same file with every link's bounds widened to its cell gives the same answers
 /// bit for bit, asks the pager for more blocks, and culls no link. The widened file is still
-/// structurally sound but no longer what its leaves give, and `--verify` says so.
+/// structurally sound but no longer what its leaves give, and `--verify` says so. The link
+/// bounds (format-spec §8.1) are what the top-down walk culls links by (the wide walk culls
+/// them by the top tree's wide nodes, §8.7): it is the walk traced here.
 #[test]
 fn link_bounds_save_block_reads_and_change_no_answer() {
     for compress in [None, Some(3)] {
@@ -431,8 +442,24 @@ fn link_bounds_save_block_reads_and_change_no_answer() {
             defects.iter().any(|d| d.contains("bounds")),
             "verify misses widened link bounds: {defects:?}"
         );
-        let culled = trace(bytes, u64::MAX, 2, Order::Morton, true);
-        let full = trace(&wide, u64::MAX, 2, Order::Morton, true);
+        let culled = trace_with(
+            bytes,
+            u64::MAX,
+            2,
+            Order::Morton,
+            true,
+            false,
+            Walk::TopDown,
+        );
+        let full = trace_with(
+            &wide,
+            u64::MAX,
+            2,
+            Order::Morton,
+            true,
+            false,
+            Walk::TopDown,
+        );
         assert_eq!(culled.answers, full.answers, "{compress:?}");
         for (a, b) in [(&culled.closest, &full.closest), (&culled.any, &full.any)] {
             assert!(a.links_culled > 0, "{compress:?}: {a:?}");

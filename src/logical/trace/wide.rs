@@ -164,11 +164,19 @@ impl Tree<'_> {
             w.budget = left;
             k.nodes_visited += 1;
             let (mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
+            let inner = n.inner_count as u32;
+            let inner_bits = 0xff >> (8 - inner.min(8));
+            if held.is_none() {
+                // The top tree's children culled: its nodes, and links whose blocks the ray
+                // never asks for.
+                let missed = ((1u32 << n.child_count.min(8)) - 1) & !mask;
+                k.top_nodes_culled += (missed & inner_bits).count_ones() as u64;
+                k.links_culled += (missed & !inner_bits).count_ones() as u64;
+            }
             if mask == 0 {
                 continue;
             }
-            let inner = n.inner_count as u32;
-            let kids = mask & (0xff >> (8 - inner.min(8)));
+            let kids = mask & inner_bits;
             let leaves = mask ^ kids;
             let push = match held {
                 Some(h) => {
