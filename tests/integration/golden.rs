@@ -3,7 +3,7 @@
 //! `tests/golden/` and reopened here by today's code. `tests/golden/README.md` says for each file
 //! the commit and the command that made it and its sha256.
 //!
-//! - The current version (5) opens, verifies, and traces the committed ray set to answers
+//! - The current version (6) opens, verifies, and traces the committed ray set to answers
 //!   byte-identical to the recorded ones, in the library and through `oavm-trace`: its files of
 //!   clusters (the default leaves, format-spec.md §7.1), raw and zstd-compressed, to `v4.hits` /
 //!   `v3.occl` (version 3's closest hits but at five ties, where clusters name the smallest
@@ -16,15 +16,15 @@
 //!   the mesh's triangles (rays aimed at shared edges and vertices aside, where either triangle
 //!   is right), and each recorded hit is at the `t` the triangle test gives for the triangle it
 //!   names.
-//! - Older versions (1 to 4) fail to open with `FormatError::Version { expected: 5, found }`
+//! - Older versions (1 to 5) fail to open with `FormatError::Version { expected: 6, found }`
 //!   and a message that names the file and says to repack, in the library and through
 //!   `oavm-trace` (non-zero exit, nothing written).
 //! - A golden file that is missing is a failure, never a skip.
 //!
-//! When the format moves to version 6, `CURRENT` becomes 6, `v6*.oavm` and their answers join
-//! the golden files (made as the README says), and the `v5*.oavm` files move to the rejected
+//! When the format moves to version 7, `CURRENT` becomes 7, `v7*.oavm` and their answers join
+//! the golden files (made as the README says), and the `v6*.oavm` files move to the rejected
 //! versions: the recorded answers stay (and their sha256 in the README), so the files keep
-//! proving what version 5 answered.
+//! proving what version 6 answered.
 
 use crate::common;
 
@@ -40,7 +40,7 @@ use tempfile::TempDir;
 /// The format version today's code writes and reads (`format-spec.md` §12). Written out rather
 /// than taken from the crate: a version bump must come with a new golden file, and this test
 /// failing is what says so.
-const CURRENT: u32 = 5;
+const CURRENT: u32 = 6;
 
 /// A golden file of the current version: its name, whether its solid leaves are clusters (the
 /// header's `CLUSTERS` flag, format-spec.md §2), and the answers it must trace to.
@@ -76,22 +76,22 @@ const V4_ANSWERS: Answers = Answers {
 /// 3, with the dead bytes of generations 1 and 2), which answers as the packed files do.
 const CURRENT_FILES: [Current; 4] = [
     Current {
-        name: "v5.oavm",
+        name: "v6.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
     Current {
-        name: "v5-zstd.oavm",
+        name: "v6-zstd.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
     Current {
-        name: "v5-list.oavm",
+        name: "v6-list.oavm",
         clusters: false,
         answers: V3_ANSWERS,
     },
     Current {
-        name: "v5-updated.oavm",
+        name: "v6-updated.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
@@ -101,7 +101,7 @@ const CURRENT_FILES: [Current; 4] = [
 const ALL_ANSWERS: [Answers; 2] = [V3_ANSWERS, V4_ANSWERS];
 
 /// The golden files of earlier versions, which must be rejected, and their versions.
-const REJECTED: [(&str, u32); 7] = [
+const REJECTED: [(&str, u32); 11] = [
     ("v1.oavm", 1),
     ("v2.oavm", 2),
     ("v3.oavm", 3),
@@ -109,6 +109,10 @@ const REJECTED: [(&str, u32); 7] = [
     ("v4.oavm", 4),
     ("v4-zstd.oavm", 4),
     ("v4-list.oavm", 4),
+    ("v5.oavm", 5),
+    ("v5-zstd.oavm", 5),
+    ("v5-list.oavm", 5),
+    ("v5-updated.oavm", 5),
 ];
 
 /// The ray set (`RAYS.md`).
