@@ -122,7 +122,8 @@ fn build_and_check_window(tris: &[ClusterTri], clip: Clip, window: usize) -> Clu
         .build_into(tris, clip, &mut nodes, &mut groups)
         .unwrap();
     let shape = check_cluster(&nodes, &groups, nb, clip).unwrap();
-    assert_eq!(shape.nodes, nb..nb + b.nodes.len() as u32);
+    // The root at `nb`, the nodes below it right after (the builder's layout).
+    assert_eq!(shape.below, nb + 1..nb + b.nodes.len() as u32);
     assert_eq!(shape.groups, gb..gb + b.groups.len() as u32);
     assert_eq!(&groups[gb as usize..], &b.groups[..], "groups differ");
     for (x, y) in nodes[nb as usize..].iter().zip(&b.nodes) {
@@ -140,7 +141,7 @@ fn build_and_check_window(tris: &[ClusterTri], clip: Clip, window: usize) -> Clu
 
 fn check_build(tris: &[ClusterTri], clip: Clip, b: &ClusterBuild, window: usize) {
     let shape = check_cluster(&b.nodes, &b.groups, 0, clip).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(shape.nodes, 0..b.nodes.len() as u32);
+    assert_eq!(shape.below, 1..b.nodes.len() as u32);
     assert_eq!(shape.groups, 0..b.groups.len() as u32);
     assert_eq!(shape.triangles, tris.len() as u64);
     assert!(shape.depth as usize <= MAX_CLUSTER_DEPTH);
