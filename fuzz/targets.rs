@@ -525,8 +525,8 @@ fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
 /// Rewrites `b` as a tool that edits a file in place would, so that only the structural checks
 /// can tell what changed. For each header slot that holds a header (slot 0 always, slot 1 when
 /// it starts with the magic; §2.1), the newer generation first, with the flags and the section
-/// table of that slot (seven sections, the ropes with flag `ROPES`, the primitive table with
-/// `PRIMS`, §3):
+/// table of that slot (seven sections, the wide nodes and links with flag `CLUSTERS`, the
+/// ropes with `ROPES`, the primitive table with `PRIMS`, §3):
 ///
 /// 1. `file_size` (§2) is set to where the slot's last section ends, if that is inside the
 ///    buffer, else to the buffer's length (so inserting or removing bytes, or appending them,

@@ -1,6 +1,7 @@
 //! `oavm-inspect FILE.oavm`: shows what a packed file holds (header, sections, the top tree's
-//! levels, the block directory; with `--blocks` every block, with `--levels` the whole tree's
-//! nodes per level) and, with `--verify`, checks every byte of it. Glue over
+//! levels, a file of clusters' wide nodes, the block directory; with `--blocks` every block,
+//! with `--levels` the whole tree's nodes per level and the blocks' wide nodes) and, with
+//! `--verify`, checks every byte of it. Glue over
 //! `oavm::physical::inspect`.
 
 mod cli;
@@ -23,7 +24,8 @@ struct Args {
     /// List every block's directory entry.
     #[arg(long)]
     blocks: bool,
-    /// Count the whole tree's nodes per level (reads and decodes every block).
+    /// Count the whole tree's nodes per level, and the blocks' wide nodes (reads and decodes
+    /// every block).
     #[arg(long)]
     levels: bool,
     /// Also check every section, checksum and invariant; exit non-zero on any defect.
@@ -95,6 +97,7 @@ fn text(args: &Args, i: &Inspection) -> String {
     header(&mut t, args, i);
     sections(&mut t, i);
     top_tree(&mut t, i);
+    wide(&mut t, i);
     blocks(&mut t, i);
     whole_tree(&mut t, i);
     t
@@ -186,6 +189,24 @@ fn top_tree(t: &mut String, i: &Inspection) {
             } else {
                 String::new()
             }
+        );
+    }
+}
+
+/// A file of clusters' wide nodes (format-spec §8.7): the top tree's, and with --levels the
+/// blocks', the octree's apart from the clusters'.
+fn wide(t: &mut String, i: &Inspection) {
+    let Some(w) = &i.wide else { return };
+    let _ = writeln!(
+        t,
+        "\nwide nodes: {} in the top tree, {} wide links",
+        w.top_nodes, w.links
+    );
+    if let Some(b) = &w.blocks {
+        let _ = writeln!(
+            t,
+            "  in blocks: {} of the octree, {} of clusters ({} cluster roots)",
+            b.octree_nodes, b.cluster_nodes, b.cluster_roots
         );
     }
 }

@@ -4,7 +4,8 @@
 //! level table. This drives the rest: the byte-level checks of the physical layer (section
 //! checksums, padding, block placement; every block read as the pager reads it, checksum and
 //! decoding included) and, here, the invariants of spec §10 on the contents of the top tree and
-//! of every block (rank words, leaf order, volumes, tight bounds, link bounds) and the links
+//! of every block (rank words, leaf order, volumes, tight bounds, link bounds, and in a file of
+//! clusters the wide nodes of §8.7, laid out again and compared byte for byte) and the links
 //! between them, which need the mapping layer's view of the tree.
 
 use rayon::prelude::*;
@@ -14,12 +15,13 @@ use crate::geom::tribox::{clipped_bounds, triangle_overlaps_box};
 use crate::mapping::ClusterGeometry;
 use crate::mapping::morton::{self, cell_origin, cell_size};
 use crate::mapping::{LevelInfos, TreeMap};
-use crate::physical::check_cluster;
 use crate::physical::format::*;
 use crate::physical::verify::{
     Defects, check_block_padding, check_block_placement, check_prim_chunks, check_sections,
 };
+use crate::physical::wide::{self, WorldBox};
 use crate::physical::{BlockReader, BlockView, OavmFile};
+use crate::physical::{check_cluster, check_node, wide_region};
 
 /// What verification found. `defects` is empty for a sound file.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -60,6 +62,10 @@ struct Unit<'a> {
     /// A file of clusters (spec §7.1): where the lattice lies, and the block's cluster parts.
     clusters: Option<ClusterGeometry>,
     cluster_nodes: &'a [ClusterNode],
+    /// Where the clusters' nodes below their roots start in `cluster_nodes`: after the octree's
+    /// region of the block's wide nodes (spec §8.7), counted from the node records (`None` if
+    /// they cannot be counted, a defect reported with the records).
+    below_start: Option<u64>,
     groups: &'a [TriGroup],
     top: bool,
     /// Ropes (spec §8.4), by node record; empty without them.
@@ -99,6 +105,10 @@ impl UnitTotals {
 /// The block roots the top tree links to, by (block, root): each link's code and bounds.
 type Roots = std::collections::HashMap<(u32, u32), (u64, LinkBounds)>;
 
+/// The box each wide link gives its block root (spec §8.7), by (block, root): the links whose
+/// box is well-formed.
+type WideBoxes = std::collections::HashMap<(u32, u32), WorldBox>;
+
 /// Checks the contents of the top tree and of every block, the links between them, and the
 /// header's totals against what they hold.
 fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
@@ -121,6 +131,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
         tris: &[],
         clusters: None,
         cluster_nodes: &[],
+        below_start: Some(0),
         groups: &[],
         top: true,
         ropes: file.records(SectionKind::Ropes),
@@ -135,6 +146,7 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
     // Links: every block root linked exactly once, from its level.
     check_link_bounds(file, d);
     let roots = linked_roots(file, &top_totals.links, d);
+    let wide_boxes = check_top_wide(file, &top_totals.links, d);
 
     // The blocks: stored one after another inside the blocks section, each read as the pager
     // reads it (entry, checksum, decoding) and checked like the top tree.
@@ -145,7 +157,11 @@ fn check_structure<D: AsRef<[u8]> + Sync>(file: &OavmFile<D>, d: &mut Defects) {
         bits: &prims_seen,
         table: &prims,
     };
-    let results = check_blocks(file, &placed, &roots, &top_index, &seen);
+    let linked = Linked {
+        roots: &roots,
+        wide_boxes: &wide_boxes,
+    };
+    let results = check_blocks(file, &placed, &linked, &top_index, &seen);
 
     let (totals, bounded) = sum_totals(top_totals, results, d);
     check_totals(header, &totals, bounded, plausible, &seen, d);
@@ -256,7 +272,7 @@ fn prim_bits(
 fn check_blocks<D: AsRef<[u8]> + Sync>(
     file: &OavmFile<D>,
     placed: &[bool],
-    roots: &Roots,
+    linked: &Linked<'_>,
     top: &TopNodes<'_>,
     seen: &Seen<'_>,
 ) -> Vec<(Defects, UnitTotals)> {
@@ -274,7 +290,7 @@ fn check_blocks<D: AsRef<[u8]> + Sync>(
                 id: b as u32,
                 entry: directory[b],
             };
-            let totals = check_block(&block, header, roots, top, seen, &mut bd);
+            let totals = check_block(&block, header, linked, top, seen, &mut bd);
             (bd, totals)
         })
         .collect()
@@ -397,6 +413,12 @@ fn check_table_complete(
     }
 }
 
+/// What the top tree says of the block roots: their links, and their wide links' boxes.
+struct Linked<'a> {
+    roots: &'a Roots,
+    wide_boxes: &'a WideBoxes,
+}
+
 /// A block of the file to check.
 struct Block<'a> {
     reader: &'a BlockReader,
@@ -411,7 +433,7 @@ struct Block<'a> {
 fn check_block(
     block: &Block,
     header: &Header,
-    roots: &Roots,
+    linked_roots: &Linked<'_>,
     top: &TopNodes<'_>,
     seen: &Seen<'_>,
     d: &mut Defects,
@@ -433,13 +455,17 @@ fn check_block(
     };
     check_block_padding(&raw, &view.header, b, d);
     let Some(linked) = (0..view.header.root_count)
-        .map(|j| roots.get(&(b, j)).copied())
+        .map(|j| linked_roots.roots.get(&(b, j)).copied())
         .collect::<Option<Vec<(u64, LinkBounds)>>>()
     else {
         d.push(format!("block {b}: a root has no link in the top tree"));
         return UnitTotals::default();
     };
     check_root_bounds(&view, &linked, b, d);
+    let clusters = header.flags & FLAG_CLUSTERS != 0;
+    if clusters {
+        check_block_wide(&view, b, linked_roots.wide_boxes, d);
+    }
     let root_codes = linked.iter().map(|&(code, _)| code).collect();
     let infos = LevelInfos::new(view.levels, view.header.root_level);
     let unit = Unit {
@@ -449,11 +475,15 @@ fn check_block(
         volumes: view.volumes,
         refs: view.refs,
         tris: view.triangles,
-        clusters: (header.flags & FLAG_CLUSTERS != 0).then_some(ClusterGeometry {
+        clusters: clusters.then_some(ClusterGeometry {
             root_min: header.root_min,
             root_size: header.root_size,
         }),
         cluster_nodes: view.cluster_nodes,
+        below_start: match clusters {
+            true => wide_region(view.levels, view.nodes).map(|(i, s)| i + s),
+            false => Some(0),
+        },
         groups: view.groups,
         top: false,
         ropes: view.ropes,
@@ -483,6 +513,210 @@ fn check_root_bounds(view: &BlockView<'_>, linked: &[(u64, LinkBounds)], b: u32,
             }
         }
     }
+}
+
+/// Spec §8.7: a block of clusters' wide nodes and solid leaves' payloads are exactly what
+/// [`wide::lay_block`] makes of its node records and cluster nodes (which proves the octree's
+/// wide nodes right: their boxes, bases, counts and order; that each solid leaf's payload is
+/// its own cluster's root, in the octree's region; and that the clusters' other nodes follow,
+/// each cluster's together), and the box of each root's wide node is its wide link's.
+fn check_block_wide(view: &BlockView<'_>, b: u32, wide_boxes: &WideBoxes, d: &mut Defects) {
+    // Nodes the layout could not read (it takes their boxes and bases as they are).
+    if let Some((i, what)) = view
+        .cluster_nodes
+        .iter()
+        .enumerate()
+        .find_map(|(i, n)| check_node(n).err().map(|e| (i, e)))
+    {
+        d.push(format!(
+            "block {b}: wide node {i}: {what} (the block's wide nodes are not laid out again)"
+        ));
+        return;
+    }
+    let laid = match wide::lay_block(view.levels, view.nodes, view.cluster_nodes) {
+        Ok(w) => w,
+        Err(e) => {
+            d.push(format!(
+                "block {b}: its wide nodes cannot be laid out (spec §8.7): {e}"
+            ));
+            return;
+        }
+    };
+    compare_wide(
+        &format!("block {b}: wide node"),
+        view.cluster_nodes,
+        &laid.nodes,
+        d,
+    );
+    if let Some(k) =
+        (0..view.nodes.len().min(laid.records.len())).find(|&k| view.nodes[k] != laid.records[k])
+    {
+        let base = view.header.root_level;
+        let (l, i) = view
+            .levels
+            .iter()
+            .enumerate()
+            .find(|(_, e)| (k as u64).wrapping_sub(e.node_start) < e.node_count)
+            .map_or((base, k as u64), |(ll, e)| {
+                (base + ll as u32, k as u64 - e.node_start)
+            });
+        d.push(format!(
+            "block {b} level {l} node {i}: payload {}, the layout of the block's wide nodes              gives {} (spec §8.7: a solid leaf's cluster root)",
+            view.nodes[k].payload, laid.records[k].payload
+        ));
+    }
+    for (j, bx) in laid.roots.iter().enumerate() {
+        let Some(link) = wide_boxes.get(&(b, j as u32)) else {
+            continue; // reported with the top tree's wide links
+        };
+        if !same_box(link, bx) {
+            d.push(format!(
+                "block {b}: root {j}'s wide link has the box {:?}..{:?}, its wide node's                  children give {:?}..{:?}",
+                link.0, link.1, bx.0, bx.1
+            ));
+        }
+    }
+}
+
+/// Whether two boxes are the same, bit for bit.
+fn same_box(a: &WorldBox, b: &WorldBox) -> bool {
+    let bits = |x: &WorldBox| (x.0.map(f32::to_bits), x.1.map(f32::to_bits));
+    bits(a) == bits(b)
+}
+
+/// Reports the first of `stored` (what the file holds) that differs from `laid` (what the
+/// layout gives), naming it `{what} {index}` and the first field that differs; or that their
+/// counts differ.
+fn compare_wide(what: &str, stored: &[ClusterNode], laid: &[ClusterNode], d: &mut Defects) {
+    let bytes = |n: &ClusterNode| bytemuck::bytes_of(n).to_vec();
+    if let Some(i) =
+        (0..stored.len().min(laid.len())).find(|&i| bytes(&stored[i]) != bytes(&laid[i]))
+    {
+        let (s, l) = (&stored[i], &laid[i]);
+        let field = if s.origin.map(f32::to_bits) != l.origin.map(f32::to_bits) {
+            format!("origin {:?}, laid out {:?}", s.origin, l.origin)
+        } else if s.exp != l.exp {
+            format!("exp {:?}, laid out {:?}", s.exp, l.exp)
+        } else if (s.child_count, s.inner_count) != (l.child_count, l.inner_count) {
+            format!(
+                "{} children ({} inner), laid out {} ({})",
+                s.child_count, s.inner_count, l.child_count, l.inner_count
+            )
+        } else if (s.node_base, s.group_base) != (l.node_base, l.group_base) {
+            format!(
+                "node_base {} group_base {}, laid out {} and {}",
+                s.node_base, s.group_base, l.node_base, l.group_base
+            )
+        } else if (s.lo, s.hi) != (l.lo, l.hi) {
+            let slot = (0..8)
+                .find(|&c| (0..3).any(|k| (s.lo[k][c], s.hi[k][c]) != (l.lo[k][c], l.hi[k][c])))
+                .unwrap_or(0);
+            let q = |n: &ClusterNode| {
+                (
+                    [0, 1, 2].map(|k| n.lo[k][slot]),
+                    [0, 1, 2].map(|k| n.hi[k][slot]),
+                )
+            };
+            format!("child {slot}'s box {:?}, laid out {:?}", q(s), q(l))
+        } else {
+            "reserved bytes".to_string()
+        };
+        d.push(format!(
+            "{what} {i}: {field} (spec §8.7: not what the layout makes of the tree)"
+        ));
+    } else if stored.len() != laid.len() {
+        d.push(format!(
+            "{what}s: {} of them, the layout of spec §8.7 makes {}",
+            stored.len(),
+            laid.len()
+        ));
+    }
+}
+
+/// Spec §8.7: in a file of clusters, the top tree's wide nodes and wide links are exactly what
+/// [`wide::lay_top`] makes of its node records and the wide links' boxes; so every link of the
+/// top tree has exactly one wide link, and there is no other. (That each box is its block
+/// root's is checked with the block, [`check_block_wide`].) A file of lists has neither.
+/// Returns the wide links' boxes by (block, root).
+fn check_top_wide<D: AsRef<[u8]>>(
+    file: &OavmFile<D>,
+    links: &[(u32, u32, u32, u64, u64)],
+    d: &mut Defects,
+) -> WideBoxes {
+    let nodes: &[ClusterNode] = file.records(SectionKind::WideNodes);
+    let wide_links: &[WideLink] = file.records(SectionKind::WideLinks);
+    let mut boxes = WideBoxes::new();
+    if file.header().flags & FLAG_CLUSTERS == 0 {
+        if !nodes.is_empty() || !wide_links.is_empty() {
+            d.push("wide nodes or wide links in a file of leaf lists".into());
+        }
+        return boxes;
+    }
+    let top_links: std::collections::HashSet<(u32, u32)> =
+        links.iter().map(|&(b, r, ..)| (b, r)).collect();
+    let mut named = std::collections::HashSet::new();
+    for (i, w) in wide_links.iter().enumerate() {
+        let key = (w.block, w.root);
+        if !named.insert(key) {
+            d.push(format!(
+                "wide links section link {i}: block {} root {} has a wide link already",
+                w.block, w.root
+            ));
+            continue;
+        }
+        if !top_links.contains(&key) {
+            d.push(format!(
+                "wide links section link {i}: block {} root {}, which no link of the top tree                  names",
+                w.block, w.root
+            ));
+        }
+        let finite = w.lo.iter().chain(&w.hi).all(|x| x.is_finite());
+        if !finite || (0..3).any(|k| w.lo[k] > w.hi[k]) {
+            d.push(format!(
+                "wide links section link {i} (block {} root {}): box {:?}..{:?} is not finite                  with lo <= hi",
+                w.block, w.root, w.lo, w.hi
+            ));
+            continue;
+        }
+        boxes.insert(key, (w.lo, w.hi));
+    }
+    let mut complete = true;
+    for &(b, r, _, _, at) in links {
+        if !named.contains(&(b, r)) {
+            complete = false;
+            d.push(format!(
+                "top tree node {at}: its link to block {b} root {r} has no wide link"
+            ));
+        }
+    }
+    if !complete || boxes.len() != named.len() {
+        return boxes; // the layout needs a box for every link
+    }
+    let top_nodes: &[NodeRecord] = file.records(SectionKind::Nodes);
+    match wide::lay_top(file.levels(), top_nodes, |b, r| boxes.get(&(b, r)).copied()) {
+        Err(e) => d.push(format!(
+            "wide nodes section: the top tree's wide nodes cannot be laid out (spec §8.7): {e}"
+        )),
+        Ok((laid_nodes, laid_links)) => {
+            compare_wide("wide nodes section node", nodes, &laid_nodes, d);
+            if let Some(i) = (0..wide_links.len().min(laid_links.len()))
+                .find(|&i| bytemuck::bytes_of(&wide_links[i]) != bytemuck::bytes_of(&laid_links[i]))
+            {
+                let (s, l) = (&wide_links[i], &laid_links[i]);
+                d.push(format!(
+                    "wide links section link {i}: block {} root {}, the layout of spec §8.7                      puts block {} root {} there",
+                    s.block, s.root, l.block, l.root
+                ));
+            } else if wide_links.len() != laid_links.len() {
+                d.push(format!(
+                    "wide links section: {} links, the layout of spec §8.7 makes {}",
+                    wide_links.len(),
+                    laid_links.len()
+                ));
+            }
+        }
+    }
+    boxes
 }
 
 /// Marks the primitives block `b` stores (triangle records, occluders and group lanes) as
@@ -701,10 +935,12 @@ struct LeafWalk<'u, 'a> {
     merged: bool,
     tri_used: Vec<bool>,
     volume_used: Vec<bool>,
-    /// Where the next solid leaf's references, cluster nodes and groups must start.
+    /// Where the next solid leaf's references, cluster nodes below its root and groups must
+    /// start; for the clusters, `None` after a cluster that is not sound (whose extent is not
+    /// known: the next sound one starts them again).
     next_ref: u64,
-    next_node: u64,
-    next_group: u64,
+    next_below: Option<u64>,
+    next_group: Option<u64>,
 }
 
 impl<'u, 'a> LeafWalk<'u, 'a> {
@@ -716,8 +952,8 @@ impl<'u, 'a> LeafWalk<'u, 'a> {
             tri_used: vec![false; u.tris.len()],
             volume_used: vec![false; u.volumes.len()],
             next_ref: 0,
-            next_node: 0,
-            next_group: 0,
+            next_below: u.below_start,
+            next_group: Some(0),
         }
     }
 
@@ -752,9 +988,11 @@ impl<'u, 'a> LeafWalk<'u, 'a> {
         }
     }
 
-    /// A solid leaf of a file of clusters: its cluster is sound and starts where the previous
-    /// leaf's ended (nodes and groups), and its tight bounds hold its lanes' triangles, which
-    /// count in the unit's totals.
+    /// A solid leaf of a file of clusters: its cluster is sound, the nodes below its root and
+    /// its groups start where the previous leaf's ended (spec §8.7: the cluster roots are
+    /// among the octree's wide nodes, in the layout's order, which [`check_block_wide`]
+    /// checks; the nodes below them follow in leaf order, from `below_start`), and its tight
+    /// bounds hold its lanes' triangles, which count in the unit's totals.
     fn cluster_leaf(&mut self, at: &LeafAt, s: Solid, totals: &mut UnitTotals, d: &mut Defects) {
         let u = self.u;
         let (label, l, i) = (&u.label, at.l, at.i);
@@ -772,30 +1010,44 @@ impl<'u, 'a> LeafWalk<'u, 'a> {
                 "{label} level {l} node {i}: a cluster's leaf with a reference count"
             ));
         }
-        let next_node = self.next_node;
-        if first as u64 != next_node {
+        if let Some(region) = u.below_start
+            && first as u64 >= region
+        {
             d.push(format!(
-                "{label} level {l} node {i}: cluster root {first}, expected {next_node} (leaf order)"
+                "{label} level {l} node {i}: cluster root {first}, not among the octree's \
+                 {region} wide nodes and cluster roots (spec §8.7)"
             ));
         }
         let clip = geometry.widened_cell(l, at.key >> (3 * (MAX_LEVEL - l)));
         let shape = match check_cluster(u.cluster_nodes, u.groups, first, clip) {
             Err(what) => {
                 d.push(format!("{label} level {l} node {i}: cluster: {what}"));
-                self.next_node = first as u64 + 1;
+                (self.next_below, self.next_group) = (None, None);
                 return;
             }
             Ok(shape) => shape,
         };
-        let next_group = self.next_group;
-        if shape.groups.start as u64 != next_group {
+        if !shape.below.is_empty() {
+            if let Some(next) = self.next_below
+                && shape.below.start as u64 != next
+            {
+                d.push(format!(
+                    "{label} level {l} node {i}: cluster nodes below root {first} start at {}, \
+                     expected {next} (leaf order)",
+                    shape.below.start
+                ));
+            }
+            self.next_below = Some(shape.below.end as u64);
+        }
+        if let Some(next) = self.next_group
+            && shape.groups.start as u64 != next
+        {
             d.push(format!(
-                "{label} level {l} node {i}: cluster groups start at {}, expected {next_group} (leaf order)",
+                "{label} level {l} node {i}: cluster groups start at {}, expected {next} (leaf order)",
                 shape.groups.start
             ));
         }
-        self.next_node = shape.nodes.end as u64;
-        self.next_group = shape.groups.end as u64;
+        self.next_group = Some(shape.groups.end as u64);
         let groups = u
             .groups
             .get(shape.groups.start as usize..shape.groups.end as usize)
@@ -892,22 +1144,27 @@ impl<'u, 'a> LeafWalk<'u, 'a> {
         }
     }
 
-    /// After the last leaf: the solid leaves covered every reference, cluster node and group.
+    /// After the last leaf: the solid leaves covered every reference, cluster node below a
+    /// root (after the octree's region) and group; as far as known (a cluster that is not
+    /// sound was reported).
     fn check_covered(&self, d: &mut Defects) {
         let u = self.u;
         let label = &u.label;
-        let (next_ref, next_node, next_group) = (self.next_ref, self.next_node, self.next_group);
+        let next_ref = self.next_ref;
         if next_ref != u.refs.len() as u64 {
             d.push(format!(
                 "{label}: leaves reference {next_ref} of {} stored references",
                 u.refs.len()
             ));
         }
-        if next_node != u.cluster_nodes.len() as u64 || next_group != u.groups.len() as u64 {
+        let (nodes, groups) = (u.cluster_nodes.len() as u64, u.groups.len() as u64);
+        if let (Some(start), Some(next_below), Some(next_group)) =
+            (u.below_start, self.next_below, self.next_group)
+            && (next_below != nodes || next_group != groups)
+        {
             d.push(format!(
-                "{label}: clusters hold nodes 0..{next_node} and groups 0..{next_group} of {} and {}",
-                u.cluster_nodes.len(),
-                u.groups.len()
+                "{label}: clusters hold nodes {start}..{next_below} below their roots and groups \
+                 0..{next_group} of {nodes} and {groups}"
             ));
         }
     }

@@ -5,15 +5,19 @@
 
 use crate::geom::tribox::triangle_box;
 use crate::physical::format::{
-    CLUSTER_EXP_RANGE, CLUSTER_WIDTH, ClusterNode, GROUP_CORNERS, GROUP_LANES, MAX_CLUSTER_DEPTH,
-    TriGroup,
+    CLUSTER_EXP_RANGE, CLUSTER_WIDTH, ClusterNode, GROUP_CORNERS, GROUP_LANES, KIND_INTERNAL,
+    KIND_SOLID, LevelEntry, MAX_CLUSTER_DEPTH, NodeRecord, TriGroup,
 };
 
-/// What a well-formed cluster occupies: a block's clusters should tile its nodes and groups.
+/// What a well-formed cluster occupies. In a block (spec §8.7) its root is among the octree's
+/// wide nodes and the nodes below it follow them, so a block's clusters should tile the rest of
+/// its cluster nodes, and its groups, in leaf order.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ClusterShape {
-    /// The nodes reached from the root: exactly these, each once.
-    pub nodes: std::ops::Range<u32>,
+    /// The nodes reached from the root but the root: exactly these, each once, all after the
+    /// root (`root + 1..root + 1` when the root's children are all groups). A cluster as the
+    /// builder makes it is `root` followed by these.
+    pub below: std::ops::Range<u32>,
     /// The groups reached: exactly these, each once.
     pub groups: std::ops::Range<u32>,
     /// Lanes in use over all groups (triangles).
@@ -30,8 +34,9 @@ pub struct ClusterShape {
 ///   `|origin / 2^exp| + 255 < 2^24`, `lo <= hi` in used slots, zero in unused slots and
 ///   reserved bytes;
 /// - inner children are in range and after their parent, nodes are at most
-///   [`MAX_CLUSTER_DEPTH`] deep, and the nodes and groups reached are contiguous ranges, each
-///   reached once (`nodes[root..]` and some range of `groups`);
+///   [`MAX_CLUSTER_DEPTH`] deep, and the nodes below the root and the groups reached are
+///   contiguous ranges, each reached once (some range of `nodes[root + 1..]` and some range of
+///   `groups`: the root need not be next to the nodes below it, spec §8.7);
 /// - every group has 1 to 8 lanes, corner slots below 8, finite corners, zero in unused lanes,
 ///   unused corner slots and reserved bytes;
 /// - for every lane, the box its triangle must have ([`triangle_box`]) is inside the box of
@@ -145,18 +150,17 @@ pub(crate) fn check_with_depth(
             }
         }
     }
-    let nodes_range =
-        contiguous(&mut seen_nodes).ok_or("nodes reached are not one range each once")?;
-    if nodes_range.start != root {
-        return Err(format!(
-            "node {} is reached, before the root {root}",
-            nodes_range.start
-        ));
-    }
+    // The root is reached first and once (every child is after its parent, so after the root).
+    let below = match &mut seen_nodes[1..] {
+        [] => root + 1..root + 1,
+        rest => {
+            contiguous(rest).ok_or("nodes reached below the root are not one range each once")?
+        }
+    };
     let groups_range =
         contiguous(&mut seen_groups).ok_or("groups reached are not one range each once")?;
     Ok(ClusterShape {
-        nodes: nodes_range,
+        below,
         groups: groups_range,
         triangles,
         depth,
@@ -172,7 +176,11 @@ fn contiguous(ids: &mut [u32]) -> Option<std::ops::Range<u32>> {
     ok.then_some(first..end)
 }
 
-fn check_node(n: &ClusterNode) -> Result<(), String> {
+/// Checks one node on its own (spec §7.1): 1 to 8 children, `inner_count <= child_count`,
+/// reserved bytes zero, exponents in [`CLUSTER_EXP_RANGE`], origins multiples of `2^exp` with
+/// `|origin / 2^exp| + 255 < 2^24` (so every face is a finite f32), `lo <= hi` in used slots,
+/// unused slots zero. Says nothing of its bases.
+pub(crate) fn check_node(n: &ClusterNode) -> Result<(), String> {
     let count = n.child_count as usize;
     if !(1..=CLUSTER_WIDTH).contains(&count) {
         return Err(format!("{count} children"));
@@ -244,4 +252,39 @@ fn check_group(g: &TriGroup) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+/// The size of the octree's region of a block's wide nodes (spec §8.7), counted from its node
+/// records alone, apart from the layout that makes it: one wide node per internal node with a
+/// solid leaf below it, and one cluster root per solid leaf. Returns `(internal, solid)`, or
+/// `None` if the records do not fit the level table (a defect reported elsewhere).
+pub fn wide_region(levels: &[LevelEntry], records: &[NodeRecord]) -> Option<(u64, u64)> {
+    let (mut internal, mut solid) = (0u64, 0u64);
+    // Whether each node of the level below has a solid leaf under it (or is one).
+    let mut below: Vec<bool> = Vec::new();
+    for e in levels.iter().rev() {
+        let end = e.node_start.checked_add(e.node_count)?;
+        let recs = records.get(usize::try_from(e.node_start).ok()?..usize::try_from(end).ok()?)?;
+        let mut here = Vec::with_capacity(recs.len());
+        let mut rank = 0usize;
+        for r in recs {
+            let live = match r.kind_bits() {
+                KIND_SOLID => {
+                    solid += 1;
+                    true
+                }
+                KIND_INTERNAL => {
+                    let kids = below.get(8 * rank..8 * rank + 8)?;
+                    rank += 1;
+                    let live = kids.iter().any(|&k| k);
+                    internal += live as u64;
+                    live
+                }
+                _ => false,
+            };
+            here.push(live);
+        }
+        below = here;
+    }
+    Some((internal, solid))
 }

@@ -1,10 +1,12 @@
 //! What a file holds, as `oavm-inspect` shows it: the header, the section table, the top
-//! tree's levels, the block directory (a summary and, on request, every block) and, on request,
-//! the whole tree's nodes per level (which reads every block).
+//! tree's levels, the wide nodes of a file of clusters (spec §8.7), the block directory (a
+//! summary and, on request, every block) and, on request, the whole tree's nodes per level
+//! and the blocks' wide nodes (which read every block).
 
 use serde::Serialize;
 
 use super::block::{BlockReader, BlockView};
+use super::cluster_check::wide_region;
 use super::file::OavmFile;
 use super::format::*;
 
@@ -24,6 +26,30 @@ pub struct Inspection {
     /// Nodes per level of the whole tree (top tree and blocks), when asked for.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tree_levels: Option<Vec<TreeLevel>>,
+    /// The wide nodes (spec §8.7), in a file of clusters.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wide: Option<WideSummary>,
+}
+
+/// A file of clusters' wide nodes (spec §8.7).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct WideSummary {
+    /// The top tree's wide nodes and wide links (the records of their sections).
+    pub top_nodes: u64,
+    pub links: u64,
+    /// Over every readable block, when the whole tree is counted (it reads every block).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blocks: Option<BlockWideCounts>,
+}
+
+/// The wide nodes of the blocks, by what they are: the octree's internal nodes, and the
+/// clusters' (their roots among the octree's, spec §8.7; the nodes below them after).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct BlockWideCounts {
+    pub octree_nodes: u64,
+    pub cluster_roots: u64,
+    /// All the clusters' nodes, their roots included.
+    pub cluster_nodes: u64,
 }
 
 /// One section of the table (spec §3).
@@ -154,7 +180,18 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
     }
     d.root_levels = (0..).zip(root_levels).filter(|&(_, n)| n > 0).collect();
 
-    let tree_levels = opts.levels.then(|| tree_levels(file));
+    let (tree_levels, block_wide) = match opts.levels {
+        true => {
+            let (t, w) = tree_levels(file);
+            (Some(t), Some(w))
+        }
+        false => (None, None),
+    };
+    let wide = (header.flags & FLAG_CLUSTERS != 0).then(|| WideSummary {
+        top_nodes: file.section(SectionKind::WideNodes).count,
+        links: file.section(SectionKind::WideLinks).count,
+        blocks: block_wide,
+    });
     Inspection {
         header,
         flags,
@@ -163,11 +200,13 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
         directory: d,
         blocks: opts.blocks.then(|| directory.to_vec()),
         tree_levels,
+        wide,
     }
 }
 
-/// Nodes per level over the top tree and every readable block.
-fn tree_levels<D: AsRef<[u8]>>(file: &OavmFile<D>) -> Vec<TreeLevel> {
+/// Nodes per level over the top tree and every readable block, and the blocks' wide nodes.
+fn tree_levels<D: AsRef<[u8]>>(file: &OavmFile<D>) -> (Vec<TreeLevel>, BlockWideCounts) {
+    let mut wide = BlockWideCounts::default();
     let mut levels: Vec<TreeLevel> = (0..=MAX_LEVEL)
         .map(|level| TreeLevel {
             level,
@@ -203,6 +242,15 @@ fn tree_levels<D: AsRef<[u8]>>(file: &OavmFile<D>) -> Vec<TreeLevel> {
         let Ok(view) = BlockView::parse(&raw, b as u32, e) else {
             continue;
         };
+        if let (false, Some((octree, roots))) = (
+            view.cluster_nodes.is_empty(),
+            wide_region(view.levels, view.nodes),
+        ) {
+            let all = view.cluster_nodes.len() as u64;
+            wide.octree_nodes += octree.min(all);
+            wide.cluster_roots += roots;
+            wide.cluster_nodes += all.saturating_sub(octree);
+        }
         for (ll, le) in view.levels.iter().enumerate() {
             let l = view.header.root_level as usize + ll;
             for r in view
@@ -217,5 +265,5 @@ fn tree_levels<D: AsRef<[u8]>>(file: &OavmFile<D>) -> Vec<TreeLevel> {
     while levels.last().is_some_and(|t| t.nodes == 0) {
         levels.pop();
     }
-    levels
+    (levels, wide)
 }

@@ -20,11 +20,13 @@ pub mod wide;
 pub(crate) mod writer;
 
 pub use block::{BlockError, BlockReader, BlockView, ReadBlock};
+pub(crate) use cluster_check::check_node;
 #[cfg(test)]
 pub(crate) use cluster_check::check_with_depth;
-pub use cluster_check::{ClusterShape, check_cluster};
+pub use cluster_check::{ClusterShape, check_cluster, wide_region};
 pub use file::{AlignedBytes, OavmFile, SlotState, generation_intact};
 pub use inspect::{
-    DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel, inspect,
+    BlockWideCounts, DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel,
+    WideSummary, inspect,
 };
 pub use writer::{BlockOptions, DEFAULT_BLOCK_SIZE, DEFAULT_ZSTD_LEVEL};

@@ -2,12 +2,13 @@
 //! out by hand for the tests and the fuzz targets that build or damage files byte by byte: they
 //! must not take offsets from the code they check. Shared by the `tests/corrupt_*.rs` files
 //! (`tests/common/corrupt`) and `fuzz/targets.rs` (through `#[path]`); a change of the format
-//! changes this file with the spec. As of format version 5 (generations in two header slots, the
-//! primitive table).
+//! changes this file with the spec. As of format version 6 (generations in two header slots, the
+//! primitive table; the wide nodes of §8.7: the top tree's wide nodes and wide links, two
+//! sections of a file of clusters).
 #![allow(dead_code)]
 
 /// §12: the version this layout describes.
-pub const VERSION: u32 = 5;
+pub const VERSION: u32 = 6;
 /// §2: the magic bytes a header starts with.
 pub const MAGIC: &[u8; 8] = b"\x89OAVM\r\n\x1a";
 /// §2: the header is 256 bytes; its last 8 are the checksum of the bytes before them and of the
@@ -35,7 +36,8 @@ pub const SLOT_LEN: usize = 2048;
 /// §3: the section table follows its slot's header: 48-byte entries, seven in every file.
 pub const ENTRY_LEN: usize = 48;
 pub const SECTION_COUNT: usize = 7;
-/// Where slot 0's table ends in a file with no optional section (no ropes, no primitive table).
+/// Where slot 0's table ends in a file with no optional section (leaf lists: no wide nodes; no
+/// ropes, no primitive table).
 pub const TABLE_END: usize = HEADER_LEN + SECTION_COUNT * ENTRY_LEN;
 /// §3: fields of a section table entry.
 pub const ENTRY_KIND: usize = 0;
@@ -51,9 +53,19 @@ pub const NODES: usize = 3;
 pub const RANKS: usize = 4;
 pub const VOLUMES: usize = 5;
 pub const LINK_BOUNDS: usize = 6;
-/// §3: the kinds of the sections after them, each present by a flag, in this order.
+/// §3: the kinds of the sections after them, each present by a flag: the top tree's wide nodes
+/// and wide links (§8.7, `CLUSTERS`), the ropes (`ROPES`), the primitive table (`PRIMS`), in
+/// this order in the table (not the order of their kinds).
 pub const KIND_ROPES: u32 = 8;
 pub const KIND_PRIMS: u32 = 9;
+pub const KIND_WIDE_NODES: u32 = 10;
+pub const KIND_WIDE_LINKS: u32 = 11;
+/// §8.7: a wide link (`WideLink`, 32 bytes): `block` u32, `root` u32, `lo` f32[3], `hi` f32[3].
+pub const WIDE_LINK_LEN: usize = 32;
+pub const WL_BLOCK: usize = 0;
+pub const WL_ROOT: usize = 4;
+pub const WL_LO: usize = 8;
+pub const WL_HI: usize = 20;
 /// §2, §3: the blocks section (the data region) starts at offset 4096, after both slots.
 pub const BLOCKS_START: usize = 4096;
 /// §8.2: a directory entry and its fields.
@@ -130,9 +142,13 @@ pub const LINK_ROOT_MASK: u32 = (1 << 30) - 1;
 pub const BLOCK_TAG: &[u8; 4] = b"OBLK";
 
 /// §3: the kinds of the sections a file with these header flags has, in table order: the
-/// seven every file has, then ropes with `ROPES`, then the primitive table with `PRIMS`.
+/// seven every file has, then the wide nodes and wide links with `CLUSTERS`, then ropes with
+/// `ROPES`, then the primitive table with `PRIMS`.
 pub fn section_kinds(flags: u32) -> Vec<u32> {
     let mut kinds: Vec<u32> = (1..=SECTION_COUNT as u32).collect();
+    if flags & FLAG_CLUSTERS != 0 {
+        kinds.extend([KIND_WIDE_NODES, KIND_WIDE_LINKS]);
+    }
     if flags & FLAG_ROPES != 0 {
         kinds.push(KIND_ROPES);
     }

@@ -934,7 +934,9 @@ fn check_rewritten(fix: &'static Fixture, per_region: usize, seed: u64) -> Resul
                 region.kind,
                 RegionKind::Stored(_) | RegionKind::Section(0) | RegionKind::Section(2)
             )
-            || region.kind == RegionKind::Section(ROPES - 1);
+            || [SECTION_ROPES, SECTION_WIDE_NODES, SECTION_WIDE_LINKS]
+                .iter()
+                .any(|&s| region.kind == RegionKind::Section(s));
         let mut tries = 0;
         while tally.tried < count && tries < count * 20 {
             tries += 1;

@@ -125,7 +125,8 @@ fn directory_entries_rewritten_field_by_field_are_caught() {
 /// Free directory entries (§8.2: all 48 bytes zero, what an update leaves where it removed a
 /// block): a file as packed has none, so an entry zeroed there is reported, naming the block,
 /// and tracing, which needs it, fails naming it. A later generation may have them (the updated
-/// fixture has some and verifies clean), but no link may lead to one.
+/// fixture has some and verifies clean), but no link may lead to one (nor, in a file of
+/// clusters, the wide link beside it, §8.7, which the walk follows).
 #[test]
 fn free_entries_are_checked() {
     let mut problems = Vec::new();
@@ -142,15 +143,14 @@ fn free_entries_are_checked() {
     let fix = updated_file();
     let free: Vec<usize> = (0..fix.dir.len()).filter(|&b| fix.dir[b].free).collect();
     assert!(!free.is_empty(), "{}: no free entry", fix.name);
-    let nodes = section(&fix.bytes, NODES).0;
     for &blk in &free {
         // The link to a block's first root (a ray of the fixture starts inside its bounds, so
         // its walk takes the link), sent to the free entry.
         let firsts: Vec<&Link> = fix.links.iter().filter(|l| l.root == 0).collect();
         let l = *firsts[firsts.len() / 2];
-        let mut new = (blk as u32).to_le_bytes().to_vec();
-        new.extend_from_slice(&(KIND_LINK << 30).to_le_bytes());
-        let b = fix.rewrite(Space::File, nodes + 8 * l.node, &new);
+        let mut b = fix.bytes.clone();
+        relink(&mut b, l.node, (l.block, l.root), (blk as u32, 0));
+        fix_checksums_at(&mut b, fix.slot);
         let what = format!(
             "{}: the link to block {} root {} sent to free entry {blk}",
             fix.name, l.block, l.root
@@ -661,6 +661,88 @@ fn verify_checks_padding_inside_a_block() {
                     "{}: {} byte 0 set to 0x5a, checksums recomputed: verify reports nothing",
                     fix.name, r.name
                 ));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// The octree's wide nodes in a block (§8.7)
+
+/// §8.7: the indices of a decoded block's octree wide nodes: its cluster nodes but those of
+/// its clusters (each reached from a solid leaf's payload, its root, through inner children).
+fn octree_wide_nodes(raw: &[u8]) -> Vec<usize> {
+    let nodes = block_parts(raw)[PART_CLUSTER_NODES].clone();
+    let n = nodes.len() / CLUSTER_NODE_LEN;
+    let node_at = |i: usize| nodes.start + i * CLUSTER_NODE_LEN;
+    let mut in_cluster = vec![false; n];
+    let mut stack = cluster_roots(raw);
+    while let Some(i) = stack.pop() {
+        in_cluster[i] = true;
+        let base = read_u32(raw, node_at(i) + CN_NODE_BASE) as usize;
+        stack.extend(base..base + raw[node_at(i) + CN_INNER_COUNT] as usize);
+    }
+    (0..n).filter(|&i| !in_cluster[i]).collect()
+}
+
+/// A child box of an octree wide node of a block (§8.7) grown or shrunk by one step along an
+/// axis, checksums recomputed: nothing but the layout of the block's wide nodes says what those
+/// boxes are (no triangle is checked against them, and a grown box changes no answer), so only
+/// verify's laying the block's wide nodes out again can tell. It must report the node by index
+/// and the child's box; tracing returns, answers or an error, never a panic or an endless walk.
+#[test]
+fn octree_wide_nodes_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    // The deep files: the default file's blocks each hold solid roots only, so no octree wide
+    // node (`oavm-inspect --levels` counts them).
+    for fix in [deep_file(), deep_zstd_file(), occluded_file()] {
+        // The block with the most octree wide nodes (a block whose roots are all solid leaves
+        // has none).
+        let blk = (0..fix.dir.len())
+            .max_by_key(|&b| octree_wide_nodes(&fix.decoded[b]).len())
+            .expect("blocks");
+        let raw = &fix.decoded[blk];
+        let nodes = block_parts(raw)[PART_CLUSTER_NODES].start;
+        let octree = octree_wide_nodes(raw);
+        assert!(
+            octree.len() >= 3 && octree[0] == 0,
+            "{}: block {blk}'s octree wide nodes {octree:?} (its first root's first)",
+            fix.name
+        );
+        for &i in &[
+            octree[0],
+            octree[octree.len() / 2],
+            octree[octree.len() - 1],
+        ] {
+            let at = nodes + i * CLUSTER_NODE_LEN;
+            let count = raw[at + CN_CHILD_COUNT] as usize;
+            // (what, byte offset in the block, new byte, the child)
+            let mut cases: Vec<(String, usize, u8, usize)> = Vec::new();
+            let (lo, hi) = (at + CN_LO, at + CN_HI);
+            if raw[hi] < 255 {
+                cases.push(("child 0's box grown along +x".into(), hi, raw[hi] + 1, 0));
+            } else if raw[lo] > 0 {
+                cases.push(("child 0's box grown along -x".into(), lo, raw[lo] - 1, 0));
+            }
+            // The last child along y (lo[1][c], hi[1][c]): shrunk if it can be.
+            let c = count - 1;
+            let (lo_y, hi_y) = (lo + 8 + c, hi + 8 + c);
+            if raw[lo_y] < raw[hi_y] {
+                cases.push((
+                    format!("child {c}'s box shrunk along -y"),
+                    lo_y,
+                    raw[lo_y] + 1,
+                    c,
+                ));
+            }
+            assert!(!cases.is_empty(), "{}: node {i}: no case", fix.name);
+            for (what, at, new, child) in cases {
+                let b = fix.rewrite(Space::Block(blk), at, &[new]);
+                let what = format!("{}: block {blk}: octree wide node {i}: {what}", fix.name);
+                let defect = format!("block {blk}: wide node {i}: child {child}'s box");
+                let reported = |d: &str| d.starts_with(&defect);
+                expect_reported(fix, what, b, &defect, &reported, &[], &mut problems);
             }
         }
     }

@@ -211,7 +211,7 @@ fn layout_matches_the_spec() {
         group_fields.to_vec(),
         GROUP_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
     );
-    assert_eq!(SectionKind::ALL.len(), 9, "§3: nine kinds");
+    assert_eq!(SectionKind::ALL.len(), 11, "§3: eleven kinds");
     assert_eq!(SectionKind::BASE, SECTION_COUNT);
     assert_eq!(SectionKind::count_for(FLAG_ROPES), SECTION_COUNT_ROPES);
     assert_eq!(SectionKind::Ropes as u32, KIND_ROPES, "§3: kind 8");
@@ -219,7 +219,37 @@ fn layout_matches_the_spec() {
     assert_eq!(section_position(FLAG_ROPES, KIND_ROPES), Some(ROPES));
     assert_eq!(SECTIONS[SECTION_ROPES].0, SectionKind::Ropes.name());
     assert_eq!(SECTIONS[SECTION_PRIMS].0, SectionKind::Prims.name());
-    // §3: the seven sections, then ropes with ROPES, then the primitive table with PRIMS.
+    assert_eq!(
+        SectionKind::WideNodes as u32,
+        KIND_WIDE_NODES,
+        "§3: kind 10"
+    );
+    assert_eq!(
+        SectionKind::WideLinks as u32,
+        KIND_WIDE_LINKS,
+        "§3: kind 11"
+    );
+    assert_eq!(
+        SECTIONS[SECTION_WIDE_NODES].0,
+        SectionKind::WideNodes.name()
+    );
+    assert_eq!(
+        SECTIONS[SECTION_WIDE_LINKS].0,
+        SectionKind::WideLinks.name()
+    );
+    assert_eq!(size_of::<f::WideLink>(), WIDE_LINK_LEN);
+    assert_eq!(
+        [
+            offset_of!(f::WideLink, block),
+            offset_of!(f::WideLink, root),
+            offset_of!(f::WideLink, lo),
+            offset_of!(f::WideLink, hi),
+        ]
+        .to_vec(),
+        WIDE_LINK_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
+    // §3: the seven sections, then the wide nodes and links with CLUSTERS, then ropes with
+    // ROPES, then the primitive table with PRIMS.
     for flags in 0..64 {
         let code: Vec<u32> = SectionKind::for_flags(flags).map(|k| k as u32).collect();
         assert_eq!(section_kinds(flags), code, "flags {flags:#x}");
@@ -235,12 +265,14 @@ fn layout_matches_the_spec() {
             table_range(0, FLAG_ROPES).end,
             table_range(HEADER_SLOTS[1], FLAG_PRIMS).end,
             table_range(0, FLAG_ROPES | FLAG_PRIMS).end,
+            table_range(0, FLAG_CLUSTERS | FLAG_ROPES).end,
         ),
-        (256 + 336, 256 + 384, 2048 + 256 + 384, 256 + 432),
+        (256 + 336, 256 + 384, 2048 + 256 + 384, 256 + 432, 256 + 480),
         "§2, §3"
     );
     assert_eq!(SectionKind::ALL[BLOCKS].record_size(), None);
-    for (kind, (name, size, _)) in SectionKind::ALL[1..].iter().zip(SECTIONS) {
+    for kind in &SectionKind::ALL[1..] {
+        let (name, size, _) = SECTIONS[*kind as usize - 2];
         assert_eq!((kind.name(), kind.record_size()), (name, Some(size as u64)));
     }
     assert_eq!(oavm::physical::format::CODEC_RAW, CODEC_RAW);
@@ -264,7 +296,7 @@ fn layout_matches_the_spec() {
         // The section table is as long as the flags say (§2, §3).
         assert_eq!(
             read_u32(&fix.bytes, fix.slot + SECTION_COUNT_AT) as usize,
-            SECTION_COUNT + fix.ropes as usize + fix.prims as usize,
+            SECTION_COUNT + 2 * fix.clusters as usize + fix.ropes as usize + fix.prims as usize,
             "{}: section_count",
             fix.name
         );
@@ -898,7 +930,8 @@ fn assert_version_error(err: &FormatError, v: u32, what: &str) {
 #[test]
 fn wrong_version_fails_at_open_and_says_to_repack() {
     let fix = default_file();
-    for v in [0u32, 1, 2, 3, 4, 6, 0x100, u32::MAX] {
+    // Every version but this one (§12: 6, the wide nodes of §8.7).
+    for v in [0u32, 1, 2, 3, 4, 5, 7, 0x100, u32::MAX] {
         for fix_checksum in [false, true] {
             let mut b = fix.bytes.clone();
             write_u32(&mut b, VERSION_AT, v);
@@ -1036,7 +1069,8 @@ fn max_block_raw_len_is_checked() {
 /// checks `mesh_min..mesh_max` against the stored triangles and inside the root cube (spec §2:
 /// since version 5 any cube that holds the mesh strictly inside, `oavm-pack --bounds`), and
 /// reports a referenced triangle that misses its leaf's widened cell (a cube moved by a quarter
-/// of its edge may still hold the mesh: that check is what catches it).
+/// of its edge may still hold the mesh: that check is what catches it). In a file of lists the
+/// answers change too; in a file of clusters the walk of §8.7 reads no cell and may not.
 #[test]
 fn verify_catches_a_moved_root_cube() {
     for fix in [default_file(), list_file()] {
@@ -1067,8 +1101,10 @@ fn moved_root_cube_is_caught(fix: &'static Fixture) {
         fix_header_checksum(&mut b);
         let scene = open(&b).expect("the header is well-formed");
         let traced = trace(fix, &scene);
+        // The walk of a file of clusters (§8.7) takes its boxes from the wide nodes, in world
+        // units: it reads no cell of the root cube, and may answer as before.
         assert!(
-            matches!(traced, Traced::Different(_)),
+            fix.clusters || matches!(traced, Traced::Different(_)),
             "{}: {what}: the answers should change: {traced:?}",
             fix.name
         );

@@ -8,17 +8,45 @@ use crate::fixtures::*;
 
 /// Links of the top tree (§8.1) rewritten, checksums recomputed: to a block past the
 /// directory, to a root past its block's roots, to a block whose roots are at another level,
-/// and to a root another link already names (leaving one root unlinked). Verify reports each;
-/// tracing fails naming the block where the link cannot be followed.
+/// and to a root another link already names (leaving one root unlinked); in a file of clusters
+/// the wide link beside the link too (§8.7: the walk follows the wide links). Verify reports
+/// each; tracing fails naming the block where the link cannot be followed, in a file of lists
+/// (for the walk of a file of clusters, see [`wide_links_rewritten_fail_the_trace_by_name`]).
 #[test]
 fn links_rewritten_are_caught() {
-    let mut problems = Vec::new();
-    for fix in [
+    let fixes = [
         default_file(),
         list_zstd_file(),
         deep_file(),
         deep_zstd_file(),
-    ] {
+    ];
+    let problems = links_rewritten(&fixes, |fix| !fix.clusters);
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// Bug (the wide walk, `src/logical/trace/wide.rs`, format 6): the links of
+/// [`links_rewritten_are_caught`] in a file of clusters, where the walk follows the wide links
+/// (§8.7): verify reports each, but tracing does not fail naming the block where the link
+/// cannot be followed. A wide link to a block past the directory fails with "wide link to a
+/// block the directory lacks (level 0, node 0)", which names neither the block nor the link; a
+/// wide link to a root past its block's roots is followed to a wide node that is not a root
+/// (wrong answers: §11 has the trace check links against the block's roots); one to a block
+/// whose roots are at another level is followed as if it were right (wrong answers; §11 has the
+/// trace check the root level, which the wide walk does not need: the spec or the walk should
+/// change).
+#[test]
+#[ignore = "bug: the wide walk follows a wide link to a root past its block's roots or at \
+            another level, and its error for a block past the directory names no block"]
+fn wide_links_rewritten_fail_the_trace_by_name() {
+    let problems = links_rewritten(&[default_file(), deep_file()], |_| true);
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// The cases of [`links_rewritten_are_caught`] on `fixes`; tracing must fail naming the block
+/// in the fixtures `traced` accepts (else only return). The problems found.
+fn links_rewritten(fixes: &[&'static Fixture], traced: fn(&Fixture) -> bool) -> Vec<String> {
+    let mut problems = Vec::new();
+    for &fix in fixes {
         let nodes = section(&fix.bytes, NODES).0;
         let n = fix.dir.len() as u32;
         let link = |block: u32, root: u32| {
@@ -92,18 +120,22 @@ fn links_rewritten_are_caught() {
             ),
         ];
         for (what, l, new, defect, fails_on) in cases {
-            let at = nodes + 8 * l.node;
+            // The link record, and in a file of clusters its wide link (§8.7: the walk follows
+            // the wide links).
             let mut b = fix.bytes.clone();
-            b[at..at + 8].copy_from_slice(&new);
+            let to = (read_u32(&new, 0), read_u32(&new, 4) & LINK_ROOT_MASK);
+            relink(&mut b, l.node, (l.block, l.root), to);
+            assert_eq!(b[nodes + 8 * l.node..nodes + 8 * l.node + 8], new[..]);
             fix_checksums(&mut b);
             let what = format!(
                 "{}: the link at level {} to block {} root {} rewritten {what}",
                 fix.name, l.level, l.block, l.root
             );
+            let fails_on = if traced(fix) { fails_on } else { Vec::new() };
             expect_caught(fix, what, b, defect, &fails_on, &mut problems);
         }
     }
-    assert!(problems.is_empty(), "{}", problems.join("\n"));
+    problems
 }
 
 /// Ropes (§8.4) rewritten one at a time, checksums recomputed, in the top tree's ropes section
@@ -281,6 +313,64 @@ fn ropes_rewritten_are_caught() {
             assert!(bytes != fix.bytes, "{}: {what}: nothing changed", fix.name);
             let what = format!("{}: {what}", fix.name);
             expect_caught(fix, what, bytes, &defect, &fails_on, &mut problems);
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// The top tree's wide nodes and wide links (§8.7) rewritten, checksums recomputed: a child box
+/// of the root's wide node and of the last wide node grown or shrunk by one step, and a wide
+/// link's box moved by the smallest step (as a block changed by hand would leave it). Nothing
+/// but the layout says what those boxes are: verify lays the top tree's wide nodes out again
+/// and compares each block root's box with its wide link's, and must report each, by index
+/// (the wide node) or by block and root (the link); tracing returns, answers or an error,
+/// never a panic or an endless walk.
+#[test]
+fn top_wide_nodes_and_links_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    for fix in [default_file(), default_zstd_file(), deep_file()] {
+        let (nodes, len) = section_of(&fix.bytes, KIND_WIDE_NODES).expect("wide nodes");
+        let count = len / CLUSTER_NODE_LEN;
+        assert!(count >= 2, "{}: {count} top wide nodes", fix.name);
+        for i in [0, count - 1] {
+            let at = nodes + i * CLUSTER_NODE_LEN;
+            let (lo, hi) = (at + CN_LO, at + CN_HI);
+            let b0 = &fix.bytes;
+            let (what, at, new) = match (b0[hi] < 255, b0[lo] < b0[hi]) {
+                (true, _) => ("child 0's box grown along +x", hi, b0[hi] + 1),
+                (false, true) => ("child 0's box shrunk along -x", lo, b0[lo] + 1),
+                (false, false) => ("child 0's box grown along -x", lo, b0[lo] - 1),
+            };
+            let b = fix.rewrite(Space::File, at, &[new]);
+            let what = format!("{}: top wide node {i}: {what}", fix.name);
+            let defect = format!("wide nodes section node {i}: child 0's box");
+            let reported = |d: &str| d.starts_with(&defect);
+            expect_reported(fix, what, b, &defect, &reported, &[], &mut problems);
+        }
+        let links = wide_links(&fix.bytes);
+        for w in [links[0], links[links.len() / 2], links[links.len() - 1]] {
+            for (k, side) in [(0, "lo x"), (2, "hi z")] {
+                // The next f32 outward: lower for lo, higher for hi.
+                let (at, x) = match side {
+                    "lo x" => (w.at + WL_LO + 4 * k, w.lo[k]),
+                    _ => (w.at + WL_HI + 4 * k, w.hi[k]),
+                };
+                let down = side.starts_with("lo");
+                let moved = match (x == 0.0, (x > 0.0) == down) {
+                    (true, _) => f32::from_bits(if down { 0x8000_0001 } else { 1 }),
+                    (false, true) => f32::from_bits(x.to_bits() - 1),
+                    (false, false) => f32::from_bits(x.to_bits() + 1),
+                };
+                assert!(moved.is_finite() && (moved < x) == down && moved != x);
+                let b = fix.rewrite(Space::File, at, &moved.to_le_bytes());
+                let what = format!(
+                    "{}: the wide link of block {} root {}: {side} {x} -> {moved}",
+                    fix.name, w.block, w.root
+                );
+                let defect = format!("block {}: root {}'s wide link has the box", w.block, w.root);
+                let reported = |d: &str| d.starts_with(&defect);
+                expect_reported(fix, what, b, &defect, &reported, &[], &mut problems);
+            }
         }
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));

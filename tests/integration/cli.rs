@@ -1458,6 +1458,12 @@ fn inspect_shows_the_structure() {
     );
     assert!(lists[1].contains("records in blocks"), "{list_words}");
     assert!(lists[2].ends_with(" triangle records"), "{list_words}");
+    // The wide nodes of a file of clusters (format-spec.md §8.7), in their sections and in
+    // words; a file of lists has none.
+    for needle in ["wide nodes ", "wide links ", "wide nodes: "] {
+        assert!(words.contains(needle), "{needle}: {words}");
+        assert!(!list_words.contains(needle), "{needle}: {list_words}");
+    }
     let o = run(inspect()
         .arg(&file)
         .args(["--json", "--blocks", "--levels", "--verify"]));
@@ -1472,7 +1478,21 @@ fn inspect_shows_the_structure() {
     assert_ne!(h.flags & oavm::physical::format::FLAG_CLUSTERS, 0);
     assert_eq!(uint(&v["directory"], "blocks"), h.block_count);
     assert_eq!(v["blocks"].as_array().unwrap().len() as u64, h.block_count);
-    assert_eq!(v["sections"].as_array().unwrap().len(), 7);
+    // The seven sections, and the wide nodes and links of a file of clusters (§3, §8.7).
+    assert_eq!(v["sections"].as_array().unwrap().len(), 9);
+    let wide = |kind| scene.file().section(kind).count;
+    use oavm::physical::format::SectionKind;
+    assert_eq!(uint(&v["wide"], "top_nodes"), wide(SectionKind::WideNodes));
+    assert_eq!(uint(&v["wide"], "links"), wide(SectionKind::WideLinks));
+    let roots: u64 = (scene.file().directory().iter())
+        .map(|e| e.root_count as u64)
+        .sum();
+    assert_eq!(uint(&v["wide"], "links"), roots);
+    // --levels reads the blocks: their wide nodes, the octree's and the clusters'.
+    let blocks = &v["wide"]["blocks"];
+    assert_eq!(uint(blocks, "cluster_roots"), h.solid_leaves);
+    assert!(uint(blocks, "cluster_nodes") >= h.solid_leaves, "{blocks}");
+    assert!(blocks.get("octree_nodes").is_some(), "{blocks}");
     let levels = v["tree_levels"].as_array().unwrap();
     assert_eq!(levels.len() as u32, h.level_count);
     let (mut empty, mut solid) = (0, 0);

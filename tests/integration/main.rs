@@ -31,3 +31,4 @@ mod ropes;
 mod safety;
 mod tracing;
 mod update;
+mod wide;

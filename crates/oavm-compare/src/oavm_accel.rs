@@ -46,6 +46,7 @@ impl OavmAccel {
             name: match walk {
                 Walk::Neighbours => "oavm:morton",
                 Walk::Ropes => "oavm:ropes",
+                Walk::Wide => "oavm:wide",
                 Walk::TopDown | Walk::Auto => "oavm",
             },
             build_seconds,

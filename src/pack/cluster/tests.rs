@@ -122,7 +122,8 @@ fn build_and_check_window(tris: &[ClusterTri], clip: Clip, window: usize) -> Clu
         .build_into(tris, clip, &mut nodes, &mut groups)
         .unwrap();
     let shape = check_cluster(&nodes, &groups, nb, clip).unwrap();
-    assert_eq!(shape.nodes, nb..nb + b.nodes.len() as u32);
+    // The root at `nb`, the nodes below it right after (the builder's layout).
+    assert_eq!(shape.below, nb + 1..nb + b.nodes.len() as u32);
     assert_eq!(shape.groups, gb..gb + b.groups.len() as u32);
     assert_eq!(&groups[gb as usize..], &b.groups[..], "groups differ");
     for (x, y) in nodes[nb as usize..].iter().zip(&b.nodes) {
@@ -140,7 +141,7 @@ fn build_and_check_window(tris: &[ClusterTri], clip: Clip, window: usize) -> Clu
 
 fn check_build(tris: &[ClusterTri], clip: Clip, b: &ClusterBuild, window: usize) {
     let shape = check_cluster(&b.nodes, &b.groups, 0, clip).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(shape.nodes, 0..b.nodes.len() as u32);
+    assert_eq!(shape.below, 1..b.nodes.len() as u32);
     assert_eq!(shape.groups, 0..b.groups.len() as u32);
     assert_eq!(shape.triangles, tris.len() as u64);
     assert!(shape.depth as usize <= MAX_CLUSTER_DEPTH);
@@ -631,11 +632,12 @@ fn bad_inputs_are_errors() {
 /// opened first) and meets it; a cap no tree can meet is an error.
 #[test]
 fn the_depth_cap_holds() {
-    // Rows of 8 triangles at x = 2^0 .. 2^99 (and again): the SAH peels off a few rows at a
-    // time, a deep, lopsided tree (13 levels), where median splits make 3.
+    // Rows of 8 triangles at x = 2^0 .. 2^63 (and again; a node's extent must stay below the
+    // 2^70 that exponents up to 63 allow, spec §7.1): the SAH peels off a few rows at a time,
+    // a deep, lopsided tree, where median splits make 3.
     let tris: Vec<ClusterTri> = (0..2000u32)
         .map(|i| {
-            let x = 2f32.powi((i / 8) as i32 % 100);
+            let x = 2f32.powi((i / 8) as i32 % 64);
             let y = (i % 8) as f32;
             ClusterTri {
                 v: [[x, y, 0.0], [x + 1.0, y, 0.0], [x, y + 1.0, 1.0]],
