@@ -174,12 +174,18 @@ pub fn lay_block(
     let region = order.len();
     for (j, n) in placed.iter_mut().enumerate() {
         let is_octree = j < region && matches!(order[j], Slot::Inner { .. });
-        if is_octree || n.inner_count == 0 {
+        if is_octree || n.inner_count.min(n.child_count) == 0 {
             continue;
         }
-        let first = new_index[n.node_base as usize];
-        for c in 0..n.inner_count as u32 {
-            if new_index.get((n.node_base + c) as usize) != Some(&(first + c)) {
+        let Some(&first) = new_index.get(n.node_base as usize) else {
+            return Err("a cluster node's children are past the cluster nodes".into());
+        };
+        for c in 0..n.inner_count.min(n.child_count).min(8) as u32 {
+            let at = n
+                .node_base
+                .checked_add(c)
+                .map(|i| new_index.get(i as usize));
+            if at != Some(Some(&first.wrapping_add(c))) || first == u32::MAX {
                 return Err("a cluster node's children are not consecutive".into());
             }
         }
@@ -190,11 +196,14 @@ pub fn lay_block(
         .map(|r| {
             let mut r = *r;
             if r.kind_bits() == KIND_SOLID {
-                r.payload = new_index[r.payload as usize];
+                r.payload = match new_index.get(r.payload as usize) {
+                    Some(&i) if i != u32::MAX => i,
+                    _ => return Err("a solid leaf outside the tree of the block's roots"),
+                };
             }
-            r
+            Ok(r)
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
     Ok(BlockWide {
         nodes: placed,
         records,
@@ -353,6 +362,15 @@ pub fn quantise(
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for (a, b) in boxes.clone() {
+        // A box that is not one (NaN, infinite, or inverted) has no grid: refused, never
+        // quantised to some bytes.
+        if let Some(k) = (0..3).find(|&k| !(a[k].is_finite() && b[k].is_finite() && a[k] <= b[k])) {
+            return Err(QuantiseError {
+                axis: k,
+                lo: a[k],
+                hi: b[k],
+            });
+        }
         lo = std::array::from_fn(|k| lo[k].min(a[k]));
         hi = std::array::from_fn(|k| hi[k].max(b[k]));
     }

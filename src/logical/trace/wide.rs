@@ -34,8 +34,12 @@ pub(in crate::logical) struct WideWalk {
     pub(super) stack: Vec<(u32, f32)>,
     /// Entries at and above this index are the held block's.
     floor: usize,
-    /// Node visits left before the bytes are taken for something that is not a tree.
+    /// Visits of the top tree's wide nodes left, and of the held block's since its link was
+    /// entered, before the bytes are taken for something that is not a tree: the top tree's
+    /// budget is never refilled, so its nodes push finitely many links, and each link entered
+    /// visits at most its block's nodes.
     budget: usize,
+    block_budget: usize,
     pub(super) best: Option<HitInfo>,
     pub(super) t_best: f32,
 }
@@ -100,6 +104,7 @@ impl Tree<'_> {
             stack: std::mem::take(stack),
             floor: usize::MAX,
             budget: self.wide_top.len(),
+            block_budget: 0,
             best: None,
             t_best: ray.tmax,
         };
@@ -158,10 +163,15 @@ impl Tree<'_> {
             let Some(n) = nodes.get(at as usize) else {
                 return Err(bad("wide node index out of range", held));
             };
-            let Some(left) = w.budget.checked_sub(1) else {
+            let budget = if held.is_some() {
+                &mut w.block_budget
+            } else {
+                &mut w.budget
+            };
+            let Some(left) = budget.checked_sub(1) else {
                 return Err(bad("wide nodes that do not form a tree", held));
             };
-            w.budget = left;
+            *budget = left;
             k.nodes_visited += 1;
             let (mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
             let inner = n.inner_count as u32;
@@ -189,7 +199,12 @@ impl Tree<'_> {
                 None => mask,
             };
             if push != 0 {
-                push_near_first::<ANY>(&mut w.stack, push, &near, n, inner, nodes)
+                // Any hit takes a block's children as they come, but the top tree's nearest
+                // first: the blocks it asks for are then those a closest hit asks for, or
+                // fewer (it stops at the first block that holds a hit), which is what keeps
+                // shadow rays from paging in blocks behind their first occluder.
+                let sorted = !ANY || held.is_none();
+                push_near_first(&mut w.stack, push, &near, n, inner, nodes, sorted)
                     .map_err(|what| bad(what, held))?;
             }
         }
@@ -213,13 +228,21 @@ impl Tree<'_> {
         };
         match view {
             Some(h) if h.id == link.block => {
+                if link.root >= h.root_count {
+                    return Err(bad("wide link to a root the block does not have", Some(h)));
+                }
                 w.floor = w.stack.len();
-                w.budget = w.budget.saturating_add(h.cluster_nodes.len());
+                w.block_budget = h.cluster_nodes.len();
                 Ok(Ok((h, link.root)))
             }
             _ => {
                 if link.block as usize >= self.directory.len() {
-                    return Err(bad("wide link to a block the directory lacks", None));
+                    return Err(TraceError::Corrupt(Corruption {
+                        what: "wide link to a block the directory does not have",
+                        block: Some(link.block),
+                        level: 0,
+                        index: (at & !LINK) as u64,
+                    }));
                 }
                 w.stack.push((at, t));
                 Ok(Err(link.block))
@@ -311,16 +334,17 @@ fn test_group<const ANY: bool, S: Simd8>(
 
 /// Pushes the children of `n` in `mask` (entered at `near`), inner slots as wide nodes
 /// `node_base + i` of `nodes` (whose records it prefetches, so that their loads overlap), the
-/// others (the top tree's links) as links `group_base + i - inner`: for a closest hit so that
-/// the nearest is popped first, for any hit as they come.
+/// others (the top tree's links) as links `group_base + i - inner`: so that
+/// the nearest is popped first where `sorted`, else as they come.
 #[inline(always)]
-fn push_near_first<const ANY: bool>(
+fn push_near_first(
     stack: &mut Vec<(u32, f32)>,
     mut mask: u32,
     near: &[f32; CLUSTER_WIDTH],
     n: &ClusterNode,
     inner: u32,
     nodes: &[ClusterNode],
+    sorted: bool,
 ) -> Result<(), &'static str> {
     let refer = |i: u32| {
         if i < inner {
@@ -336,7 +360,7 @@ fn push_near_first<const ANY: bool>(
     if stack.len() + CLUSTER_WIDTH > STACK {
         return Err("wide nodes deeper than the format allows");
     }
-    if ANY || mask & (mask - 1) == 0 {
+    if !sorted || mask & (mask - 1) == 0 {
         while mask != 0 {
             let i = mask.trailing_zeros();
             mask &= mask - 1;
