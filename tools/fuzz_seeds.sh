@@ -11,7 +11,7 @@
 # size), compressed and raw, deep trees and unmerged volumes fit in that. Both kinds of solid
 # leaf (format-spec.md §2 flag CLUSTERS): clusters, the default (§7.1, §7.2), and leaf lists
 # (`--leaf list`, §6, §7; the seeds named *_list); files with the primitive table (*_upd, §8.6)
-# and of generation 2 (*_gen2, §2.1: updated in place by oavm-update). Format version 5.
+# and of generation 2 (*_gen2, §2.1: updated in place by oavm-update). Format version 6.
 #
 # The binaries are built in $CARGO_TARGET_DIR if it is set (else target/).
 set -euo pipefail
