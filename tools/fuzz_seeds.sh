@@ -56,7 +56,7 @@ pack cornell_z cornell.obj --compress
 pack dragon200_z dragon200.ply --compress=1
 pack dragon60_4k dragon60.ply --block-size 4K --leaf-size 16
 pack dragon200_4k_z dragon200.ply --block-size 4K --leaf-size 32 --compress=1
-pack dragon20_deep_z dragon20.ply --leaf-size 3 --max-depth 8 --block-size 4K --compress
+pack dragon20_deep_z dragon20.ply --leaf-size 3 --max-depth 7 --block-size 4K --compress
 pack dragon60_leaf8_z dragon60.ply --leaf-size 8 --max-depth 6 --block-size 4K --compress
 pack dragon20_nomerge_z dragon20.ply --block-size 4K --no-merge --leaf-size 4 --compress
 pack museum_block museum_block.aff --block-size 4K
