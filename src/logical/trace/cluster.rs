@@ -4,6 +4,7 @@
 
 use super::ray::{Best, RayCtx};
 use super::{Counters, Held, HitInfo};
+use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::grown_exit;
 use crate::os::Simd8;
 use crate::physical::format::{CLUSTER_WIDTH, MAX_CLUSTER_DEPTH, TriGroup};
@@ -55,7 +56,7 @@ pub(super) fn trace_cluster<const ANY: bool, S: Simd8>(
             let Some(g) = h.groups.get(gi as usize) else {
                 return Err("triangle group index out of range");
             };
-            if test_group::<ANY, S>(isa, r, w, g, k) {
+            if test_group::<ANY, S>(isa, (&r.shear, r.tmin), &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);
             }
         }
@@ -66,40 +67,40 @@ pub(super) fn trace_cluster<const ANY: bool, S: Simd8>(
     Ok(false)
 }
 
-/// Tests the lanes of group `g`, keeping the closest hit (ties to the smallest primitive id);
-/// with `ANY`, true at the first hit.
+/// Tests the lanes of group `g` for the ray sheared as `shear`, keeping the closest hit in
+/// `best` and its distance in `t_best` (ties to the smallest primitive id); with `ANY`, true at
+/// the first hit. Every walk tests its groups here.
 #[inline(always)]
-fn test_group<const ANY: bool, S: Simd8>(
+pub(super) fn test_group<const ANY: bool, S: Simd8>(
     isa: S,
-    r: &RayCtx,
-    w: &mut Best,
+    (shear, tmin): (&RayShear, f32),
+    best: &mut Option<HitInfo>,
+    t_best: &mut f32,
     g: &TriGroup,
     k: &mut Counters,
 ) -> bool {
     k.groups_tested += 1;
     k.triangles_tested += g.count.min(8) as u64;
-    let (mut hits, ts) = r
-        .shear
-        .intersect_group_with(isa, g.view(), r.tmin, w.t_best);
+    let (mut hits, ts) = shear.intersect_group_with(isa, g.view(), tmin, *t_best);
     while hits != 0 {
         let l = hits.trailing_zeros() as usize;
         hits &= hits - 1;
         let (t, prim) = (ts[l], g.prim[l]);
         if ANY {
-            w.best = Some(HitInfo {
+            *best = Some(HitInfo {
                 t,
                 prim,
                 v: g.triangle(l),
             });
             return true;
         }
-        let better = match &w.best {
+        let better = match best {
             None => true,
             Some(b) => (t, prim) < (b.t, b.prim),
         };
         if better {
-            w.t_best = t;
-            w.best = Some(HitInfo {
+            *t_best = t;
+            *best = Some(HitInfo {
                 t,
                 prim,
                 v: g.triangle(l),

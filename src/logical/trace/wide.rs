@@ -14,13 +14,14 @@
 //! unit has nodes plus the blocks entered have (a tree visits each once), and the stack is
 //! capped by the depth the format allows; past either, the bytes are not a tree.
 
+use super::cluster::test_group;
 use super::{Counters, Held, HitInfo, TraceError, Tree};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::{FmaRay, grown_exit};
 use crate::mapping::Corruption;
 use crate::os::Simd8;
-use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, MAX_CLUSTER_DEPTH, TriGroup};
+use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, MAX_CLUSTER_DEPTH};
 
 /// A stack entry's reference: the index of a wide node of its unit, or with this bit a link
 /// (an index into the top tree's wide links).
@@ -281,55 +282,13 @@ impl Tree<'_> {
                 .groups
                 .get(gi as usize)
                 .ok_or_else(|| bad("triangle group index out of range", Some(h)))?;
-            if test_group::<ANY, S>(isa, r, w, g, k) {
+            let ray = (&r.shear, r.tmin);
+            if test_group::<ANY, S>(isa, ray, &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);
             }
         }
         Ok(false)
     }
-}
-
-/// Tests the lanes of group `g`, keeping the closest hit (ties to the smallest primitive id);
-/// with `ANY`, true at the first hit.
-#[inline(always)]
-fn test_group<const ANY: bool, S: Simd8>(
-    isa: S,
-    r: &WideRay,
-    w: &mut WideWalk,
-    g: &TriGroup,
-    k: &mut Counters,
-) -> bool {
-    k.groups_tested += 1;
-    k.triangles_tested += g.count.min(8) as u64;
-    let (mut hits, ts) = r
-        .shear
-        .intersect_group_with(isa, g.view(), r.tmin, w.t_best);
-    while hits != 0 {
-        let l = hits.trailing_zeros() as usize;
-        hits &= hits - 1;
-        let (t, prim) = (ts[l], g.prim[l]);
-        if ANY {
-            w.best = Some(HitInfo {
-                t,
-                prim,
-                v: g.triangle(l),
-            });
-            return true;
-        }
-        let better = match &w.best {
-            None => true,
-            Some(b) => (t, prim) < (b.t, b.prim),
-        };
-        if better {
-            w.t_best = t;
-            w.best = Some(HitInfo {
-                t,
-                prim,
-                v: g.triangle(l),
-            });
-        }
-    }
-    false
 }
 
 /// Pushes the children of `n` in `mask` (entered at `near`), inner slots as wide nodes
