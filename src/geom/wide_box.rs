@@ -467,47 +467,6 @@ impl FmaRay {
         self.kernel::<S, true>(isa, n, tmin, tmax)
     }
 
-    /// [`FmaRay::node_hits`] with the eight children in one AVX2 register and fused
-    /// multiply-adds, from ordinary code (one call through the trampoline of
-    /// [`Avx2::vectorize`]; inside another `vectorize`, use [`FmaRay::node_hits_with`]).
-    #[inline(always)]
-    pub fn node_hits_avx2(
-        &self,
-        isa: Avx2,
-        n: ClusterNodeView<'_>,
-        tmin: f32,
-        tmax: f32,
-    ) -> (u32, [f32; 8]) {
-        struct Job<'a> {
-            ray: &'a FmaRay,
-            n: ClusterNodeView<'a>,
-            tmin: f32,
-            tmax: f32,
-        }
-        impl WithAvx2 for Job<'_> {
-            type Output = (u32, [f32; 8]);
-            #[inline(always)]
-            fn run(self, isa: Avx2) -> Self::Output {
-                #[cfg(target_arch = "x86_64")]
-                return self
-                    .ray
-                    .kernel::<_, true>(isa, self.n, self.tmin, self.tmax);
-                // No token exists on other architectures: never reached.
-                #[cfg(not(target_arch = "x86_64"))]
-                return {
-                    let _ = isa;
-                    self.ray.node_hits(self.n, self.tmin, self.tmax)
-                };
-            }
-        }
-        isa.vectorize(Job {
-            ray: self,
-            n,
-            tmin,
-            tmax,
-        })
-    }
-
     /// The kernel. `SLACK` is false only in the tests, which show that without the slack the
     /// test misses children.
     #[inline(always)]
@@ -1067,9 +1026,6 @@ mod tests {
                 }
             }
             let avx2 = isa.vectorize(Job::<SLACK>(fr, n.view(), tmin, tmax));
-            if SLACK {
-                assert!(same(fr.node_hits_avx2(isa, n.view(), tmin, tmax), avx2));
-            }
             out.push(("avx2", avx2));
         }
         out

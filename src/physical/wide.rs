@@ -63,12 +63,6 @@ pub fn lay_block(
     records: &[NodeRecord],
     clusters: &[ClusterNode],
 ) -> Result<BlockWide, String> {
-    let level_recs = |l: usize| -> Result<&[NodeRecord], String> {
-        let e = &levels[l];
-        records
-            .get(e.node_start as usize..(e.node_start + e.node_count) as usize)
-            .ok_or_else(|| format!("level {l} lies past the node records"))
-    };
     // The clusters' nodes: each reachable from one solid leaf's payload. Their roots move into
     // the octree's region; the others keep their order after it.
     let mut role = vec![0u8; clusters.len()]; // 0 unreached, 1 root, 2 inner
@@ -78,56 +72,41 @@ pub fn lay_block(
     // Bottom up: each node's slot (empty, a cluster, or an inner wide node made now).
     let mut octree: Vec<ClusterNode> = Vec::new();
     let mut octree_kids: Vec<Vec<Slot>> = Vec::new();
-    let mut below: Vec<Slot> = Vec::new();
-    for l in (0..levels.len()).rev() {
-        let recs = level_recs(l)?;
-        let mut here = Vec::with_capacity(recs.len());
-        let mut rank = 0usize;
-        for rec in recs {
-            here.push(match rec.kind_bits() {
-                KIND_EMPTY => Slot::Empty,
-                KIND_SOLID => {
-                    let root = clusters
-                        .get(rec.payload as usize)
-                        .ok_or("a solid leaf's cluster root is past the cluster nodes")?;
-                    let bx = node_box(root).ok_or("a cluster root without children")?;
-                    Slot::Cluster {
-                        root: rec.payload,
-                        bx,
-                    }
-                }
-                KIND_INTERNAL => {
-                    let kids = below
-                        .get(8 * rank..8 * rank + 8)
-                        .ok_or("an internal node's children are past the next level")?;
-                    rank += 1;
-                    let live: Vec<Slot> = kids
-                        .iter()
-                        .copied()
-                        .filter(|s| !matches!(s, Slot::Empty))
-                        .collect();
-                    if live.is_empty() {
-                        Slot::Empty
-                    } else {
-                        let mut n: ClusterNode = bytemuck::Zeroable::zeroed();
-                        n.child_count = live.len() as u8;
-                        n.inner_count = live.len() as u8;
-                        quantise(&mut n, live.iter().map(slot_box))
-                            .map_err(|e| format!("a node's box cannot be quantised: {e}"))?;
-                        let bx = node_box(&n).ok_or("no box")?;
-                        octree.push(n);
-                        octree_kids.push(live);
-                        Slot::Inner {
-                            wide: (octree.len() - 1) as u32,
-                            bx,
-                        }
-                    }
-                }
-                _ => return Err("a link or an invalid record in a block".into()),
-            });
-        }
-        below = here;
-    }
+    let below = bottom_up(
+        levels,
+        records,
+        |rec| match rec.kind_bits() {
+            KIND_EMPTY => Ok(Slot::Empty),
+            KIND_SOLID => {
+                let root = clusters
+                    .get(rec.payload as usize)
+                    .ok_or("a solid leaf's cluster root is past the cluster nodes")?;
+                let bx = node_box(root).ok_or("a cluster root without children")?;
+                Ok(Slot::Cluster {
+                    root: rec.payload,
+                    bx,
+                })
+            }
+            _ => Err("a link or an invalid record in a block".into()),
+        },
+        |kids| {
+            let live: Vec<Slot> = kids
+                .iter()
+                .copied()
+                .filter(|s| !matches!(s, Slot::Empty))
+                .collect();
+            if live.is_empty() {
+                return Ok(Slot::Empty);
+            }
+            let (n, bx) = wide_node(live.len(), live.iter().map(slot_box))?;
+            octree.push(n);
+            octree_kids.push(live);
+            Ok(Slot::Inner {
+                wide: (octree.len() - 1) as u32,
+                bx,
+            })
+        },
+    )?;
     // Top down, breadth first: the roots at 0.., each node's children consecutively after.
     let mut order: Vec<Slot> = below.clone();
     let mut roots = Vec::with_capacity(below.len());
@@ -257,71 +236,48 @@ pub fn lay_top(
         Top::Empty => ([0.0; 3], [0.0; 3]),
     };
     let mut made: Vec<(ClusterNode, Vec<Top>)> = Vec::new();
-    let mut below: Vec<Top> = Vec::new();
-    for l in (0..levels.len()).rev() {
-        let e = &levels[l];
-        let recs = records
-            .get(e.node_start as usize..(e.node_start + e.node_count) as usize)
-            .ok_or_else(|| format!("top level {l} lies past the node records"))?;
-        let mut here = Vec::with_capacity(recs.len());
-        let mut rank = 0usize;
-        for rec in recs {
-            here.push(match rec.kind_bits() {
-                KIND_EMPTY => Top::Empty,
-                KIND_LINK => {
-                    let (block, root) = rec.link_bits();
-                    let (lo, hi) = root_box(block, root)
-                        .ok_or_else(|| format!("no box for root {root} of block {block}"))?;
-                    Top::Link(WideLink {
-                        block,
-                        root,
-                        lo,
-                        hi,
-                    })
-                }
-                KIND_INTERNAL => {
-                    let kids = below
-                        .get(8 * rank..8 * rank + 8)
-                        .ok_or("a top node's children are past the next level")?;
-                    rank += 1;
-                    // Inner children first, then links (spec §7.1's slot order).
-                    let mut live: Vec<Top> = kids
-                        .iter()
-                        .copied()
-                        .filter(|t| matches!(t, Top::Inner { .. }))
-                        .collect();
-                    live.extend(kids.iter().copied().filter(|t| matches!(t, Top::Link(_))));
-                    if live.is_empty() {
-                        Top::Empty
-                    } else {
-                        let mut n: ClusterNode = bytemuck::Zeroable::zeroed();
-                        n.child_count = live.len() as u8;
-                        n.inner_count = live
-                            .iter()
-                            .filter(|t| matches!(t, Top::Inner { .. }))
-                            .count() as u8;
-                        quantise(&mut n, live.iter().map(top_box))
-                            .map_err(|e| format!("a top node's box cannot be quantised: {e}"))?;
-                        let bx = node_box(&n).ok_or("no box")?;
-                        made.push((n, live));
-                        Top::Inner {
-                            wide: (made.len() - 1) as u32,
-                            bx,
-                        }
-                    }
-                }
-                _ => return Err("a solid leaf or an invalid record in the top tree".into()),
-            });
-        }
-        below = here;
-    }
+    let below = bottom_up(
+        levels,
+        records,
+        |rec| match rec.kind_bits() {
+            KIND_EMPTY => Ok(Top::Empty),
+            KIND_LINK => {
+                let (block, root) = rec.link_bits();
+                let (lo, hi) = root_box(block, root)
+                    .ok_or_else(|| format!("no box for root {root} of block {block}"))?;
+                Ok(Top::Link(WideLink {
+                    block,
+                    root,
+                    lo,
+                    hi,
+                }))
+            }
+            _ => Err("a solid leaf or an invalid record in the top tree".into()),
+        },
+        |kids| {
+            // Inner children first, then links (spec §7.1's slot order).
+            let mut live: Vec<Top> = kids
+                .iter()
+                .copied()
+                .filter(|t| matches!(t, Top::Inner { .. }))
+                .collect();
+            let inner = live.len();
+            live.extend(kids.iter().copied().filter(|t| matches!(t, Top::Link(_))));
+            if live.is_empty() {
+                return Ok(Top::Empty);
+            }
+            let (n, bx) = wide_node(inner, live.iter().map(top_box))?;
+            made.push((n, live));
+            Ok(Top::Inner {
+                wide: (made.len() - 1) as u32,
+                bx,
+            })
+        },
+    )?;
     let root = match below.first() {
         None | Some(Top::Empty) => return Ok((Vec::new(), Vec::new())),
         Some(Top::Link(w)) => {
-            let mut n: ClusterNode = bytemuck::Zeroable::zeroed();
-            n.child_count = 1;
-            quantise(&mut n, std::iter::once((w.lo, w.hi)))
-                .map_err(|e| format!("the root's box cannot be quantised: {e}"))?;
+            let (n, _) = wide_node(0, std::iter::once((w.lo, w.hi)))?;
             return Ok((vec![n], vec![*w]));
         }
         Some(t) => *t,
@@ -348,6 +304,53 @@ pub fn lay_top(
         i += 1;
     }
     Ok((nodes, links))
+}
+
+/// The values of the octree of `levels` and `records`, bottom up: each leaf's (and link's)
+/// from its record by `leaf`, each internal node's from its eight children's by `inner` (the
+/// mapping rule of spec §4: the `r`-th internal node of a level has nodes `8r..8r + 8` of the
+/// next); returns level 0's.
+fn bottom_up<T>(
+    levels: &[LevelEntry],
+    records: &[NodeRecord],
+    mut leaf: impl FnMut(&NodeRecord) -> Result<T, String>,
+    mut inner: impl FnMut(&[T]) -> Result<T, String>,
+) -> Result<Vec<T>, String> {
+    let mut below: Vec<T> = Vec::new();
+    for (l, e) in levels.iter().enumerate().rev() {
+        let recs = records
+            .get(e.node_start as usize..(e.node_start + e.node_count) as usize)
+            .ok_or_else(|| format!("level {l} lies past the node records"))?;
+        let mut here = Vec::with_capacity(recs.len());
+        let mut rank = 0usize;
+        for rec in recs {
+            here.push(if rec.kind_bits() == KIND_INTERNAL {
+                let kids = below
+                    .get(8 * rank..8 * rank + 8)
+                    .ok_or("an internal node's children are past the next level")?;
+                rank += 1;
+                inner(kids)?
+            } else {
+                leaf(rec)?
+            });
+        }
+        below = here;
+    }
+    Ok(below)
+}
+
+/// A wide node over the children whose boxes are `boxes` (the first `inner_count` of them
+/// inner), its bases left 0, and its own box.
+fn wide_node(
+    inner_count: usize,
+    boxes: impl Iterator<Item = WorldBox> + Clone,
+) -> Result<(ClusterNode, WorldBox), String> {
+    let mut n: ClusterNode = bytemuck::Zeroable::zeroed();
+    n.child_count = boxes.clone().count() as u8;
+    n.inner_count = inner_count as u8;
+    quantise(&mut n, boxes).map_err(|e| format!("a node's box cannot be quantised: {e}"))?;
+    let bx = node_box(&n).ok_or("a wide node without children")?;
+    Ok((n, bx))
 }
 
 /// Sets the grid and the child boxes of `node` from the children's f32 boxes (spec §7.1): per
