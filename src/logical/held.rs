@@ -51,6 +51,29 @@ impl ReadyMap {
     }
 }
 
+/// A block as the wide walk sees it (spec §8.7): its wide nodes and its triangle groups, the
+/// only parts that walk reads, cast when the walk enters it.
+pub(crate) struct WideHeld<'v> {
+    pub id: u32,
+    pub root_count: u32,
+    pub nodes: &'v [ClusterNode],
+    pub groups: &'v [TriGroup],
+}
+
+impl ReadyMap {
+    /// The wide walk's view of block `id`, whose bytes are `raw` (casting only, as
+    /// [`Held::new`]).
+    #[inline(always)]
+    pub fn wide<'v>(&self, id: u32, raw: &'v [u8]) -> WideHeld<'v> {
+        WideHeld {
+            id,
+            root_count: self.root_count,
+            nodes: self.part(raw, 6),
+            groups: self.part(raw, 7),
+        }
+    }
+}
+
 /// A block being walked: its id and its records.
 pub(crate) struct Held<'v> {
     pub id: u32,

@@ -5,17 +5,18 @@
 //! into the wide nodes of the unit it is in (the top tree's, or the held block's).
 //!
 //! **Units.** The stack holds the top tree's entries below the held block's: a block is entered
-//! when a link is popped, and every entry pushed after that is the block's, until the stack is
-//! back below the place the link had (`floor`). A popped link to a block other than the one
-//! held ends the turn: the caller fetches that block (and lets the other go) and runs the walk
-//! on, so one block is held at a time, as in the other walks.
+//! when a link is popped, and its own loop ([`Tree::walk_block`]) runs until the stack is back
+//! at the place the link had (its floor); every entry it pushes is the block's. A popped link
+//! to a block other than the one held ends the turn: the caller fetches that block (and lets
+//! the other go) and runs the walk on, so one block is held at a time, as in the other walks.
 //!
 //! **Bounded whatever the bytes.** Each unit's nodes are visited at most as many times as the
 //! unit has nodes plus the blocks entered have (a tree visits each once), and the stack is
 //! capped by the depth the format allows; past either, the bytes are not a tree.
 
 use super::cluster::test_group;
-use super::{Counters, Held, HitInfo, TraceError, Tree};
+use super::{Counters, HitInfo, TraceError, Tree};
+use crate::logical::held::WideHeld;
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::{FmaRay, grown_exit};
@@ -30,17 +31,19 @@ const LINK: u32 = 1 << 31;
 /// cluster ([`MAX_CLUSTER_DEPTH`]), and the root.
 const STACK: usize = (CLUSTER_WIDTH - 1) * (22 + MAX_CLUSTER_DEPTH) + 1;
 
+/// A stack entry: a reference (a node of its unit, or a link) and the distance at which the ray
+/// enters it.
+type Entry = (u32, f32);
+
 /// What a walk carries from one block to the next.
-pub(in crate::logical) struct WideWalk {
-    pub(super) stack: Vec<(u32, f32)>,
-    /// Entries at and above this index are the held block's.
-    floor: usize,
-    /// Visits of the top tree's wide nodes left, and of the held block's since its link was
-    /// entered, before the bytes are taken for something that is not a tree: the top tree's
-    /// budget is never refilled, so its nodes push finitely many links, and each link entered
-    /// visits at most its block's nodes.
+pub(in crate::logical) struct WideWalk<'s> {
+    /// The stack, `sp` entries deep.
+    st: &'s mut [Entry; STACK],
+    sp: usize,
+    /// Visits of the top tree's wide nodes left before the bytes are taken for something that
+    /// is not a tree: never refilled, so the top tree's nodes push finitely many links (and
+    /// each link entered visits at most its block's nodes, [`Tree::walk_block`]).
     budget: usize,
-    block_budget: usize,
     pub(super) best: Option<HitInfo>,
     pub(super) t_best: f32,
 }
@@ -77,10 +80,10 @@ impl Tree<'_> {
         result
     }
 
-    /// Closest hit (any hit with `ANY`) of `ray` by the wide walk on `stack` (cleared first;
-    /// left with its capacity for the next ray); a ray the node test's bound does not cover
-    /// (spec §8.7: `tmin < 0`, a direction too small or too large for f32) is walked top-down
-    /// instead (the same answers).
+    /// Closest hit (any hit with `ANY`) of `ray` by the wide walk on `stack` (grown once to the
+    /// deepest stack a valid file needs, and kept for the next ray); a ray the node test's bound
+    /// does not cover (spec §8.7: `tmin < 0`, a direction too small or too large for f32) is
+    /// walked top-down instead (the same answers).
     #[inline(always)]
     pub(super) fn wide_ray<const ANY: bool, S: Simd8>(
         &self,
@@ -99,44 +102,43 @@ impl Tree<'_> {
         if self.wide_top.is_empty() {
             return Ok(None);
         }
+        if stack.len() < STACK {
+            stack.resize(STACK, (0, 0.0));
+        }
+        let Some(st) = stack.first_chunk_mut::<STACK>() else {
+            unreachable!("the stack was just grown to {STACK}");
+        };
         let r = WideRay {
             boxes,
             ray,
             shear: std::cell::OnceCell::new(),
             tmin: ray.tmin,
         };
+        st[0] = (0, ray.tmin);
         let mut w = WideWalk {
-            stack: std::mem::take(stack),
-            floor: usize::MAX,
+            st,
+            sp: 1,
             budget: self.wide_top.len(),
-            block_budget: 0,
             best: None,
             t_best: ray.tmax,
         };
-        w.stack.clear();
-        w.stack.push((0, ray.tmin));
         let mut need: Option<u32> = None;
-        let result = loop {
+        loop {
             let fetched = match need.take() {
                 None => None,
-                Some(b) => match self.fetch(b, &mut c.page) {
-                    Ok(f) => Some(f),
-                    Err(e) => break Err(e),
-                },
+                Some(b) => Some(self.fetch(b, &mut c.page)?),
             };
-            let view = Self::held(&fetched);
-            match self.run_wide::<ANY, S>(isa, &r, &mut w, c, view.as_ref()) {
-                Ok(Some(b)) => need = Some(b),
-                Ok(None) => break Ok(()),
-                Err(e) => break Err(e),
+            let view = fetched.as_ref().map(|(b, raw, ready)| ready.wide(*b, raw));
+            match self.run_wide::<ANY, S>(isa, &r, &mut w, c, view.as_ref())? {
+                Some(b) => need = Some(b),
+                None => return Ok(w.best),
             }
-        };
-        *stack = w.stack;
-        result.map(|()| w.best)
+        }
     }
 
-    /// Pops entries until the ray is answered (`None`) or a link needs a block other than
-    /// `view` (`Some(block)`, the link left on the stack).
+    /// Pops the top tree's entries until the ray is answered (`None`) or a link needs a block
+    /// other than `view` (`Some(block)`, the link left on the stack); a link to `view` runs
+    /// that block's walk.
     #[inline(always)]
     fn run_wide<const ANY: bool, S: Simd8>(
         &self,
@@ -144,115 +146,123 @@ impl Tree<'_> {
         r: &WideRay,
         w: &mut WideWalk,
         k: &mut Counters,
-        view: Option<&Held<'_>>,
+        view: Option<&WideHeld<'_>>,
     ) -> Result<Option<u32>, TraceError> {
-        // The unit of the entries being popped: the held block's above the floor, else the
-        // top tree's.
-        let mut held = if w.floor != usize::MAX { view } else { None };
-        let mut nodes = held.map_or(self.wide_top, |h| h.cluster_nodes);
-        while let Some((mut at, t)) = w.stack.pop() {
+        while w.sp > 0 {
+            w.sp -= 1;
+            let (at, t) = w.st[w.sp];
             // A child entered past the closest hit (grown as the node test grows exits).
             if t > grown_exit(w.t_best) {
                 continue;
             }
             if at & LINK != 0 {
-                match self.enter_link(w, at, t, view)? {
-                    Ok((h, root)) => (held, nodes, at) = (Some(h), h.cluster_nodes, root),
-                    Err(block) => return Ok(Some(block)),
+                let Some(link) = self.wide_links.get((at & !LINK) as usize) else {
+                    return Err(bad("wide link index out of range", None));
+                };
+                match view {
+                    Some(h) if h.id == link.block => {
+                        if link.root >= h.root_count {
+                            let what = "wide link to a root the block does not have";
+                            return Err(bad(what, Some(h.id)));
+                        }
+                        if self.walk_block::<ANY, S>(isa, r, w, k, h, (link.root, t))? {
+                            return Ok(None);
+                        }
+                        continue;
+                    }
+                    _ if link.block as usize >= self.directory.len() => {
+                        return Err(TraceError::Corrupt(Corruption {
+                            what: "wide link to a block the directory does not have",
+                            block: Some(link.block),
+                            level: 0,
+                            index: (at & !LINK) as u64,
+                        }));
+                    }
+                    _ => {
+                        w.sp += 1;
+                        return Ok(Some(link.block));
+                    }
                 }
-            } else if w.stack.len() < w.floor && w.floor != usize::MAX {
-                // Below the floor: the block's entries are all done with.
-                w.floor = usize::MAX;
-                (held, nodes) = (None, self.wide_top);
             }
-            let Some(n) = nodes.get(at as usize) else {
-                return Err(bad("wide node index out of range", held));
+            let Some(n) = self.wide_top.get(at as usize) else {
+                return Err(bad("wide node index out of range", None));
             };
-            let budget = if held.is_some() {
-                &mut w.block_budget
-            } else {
-                &mut w.budget
+            let Some(left) = w.budget.checked_sub(1) else {
+                return Err(bad("wide nodes that do not form a tree", None));
             };
-            let Some(left) = budget.checked_sub(1) else {
-                return Err(bad("wide nodes that do not form a tree", held));
-            };
-            *budget = left;
+            w.budget = left;
             k.nodes_visited += 1;
             let (mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
-            let inner = n.inner_count as u32;
-            let inner_bits = 0xff >> (8 - inner.min(8));
-            if held.is_none() {
-                // The top tree's children culled: its nodes, and links whose blocks the ray
-                // never asks for.
-                let missed = ((1u32 << n.child_count.min(8)) - 1) & !mask;
-                k.top_nodes_culled += (missed & inner_bits).count_ones() as u64;
-                k.links_culled += (missed & !inner_bits).count_ones() as u64;
-            }
-            if mask == 0 {
-                continue;
-            }
-            let kids = mask & inner_bits;
-            let leaves = mask ^ kids;
-            let push = match held {
-                Some(h) => {
-                    if leaves != 0 && self.test_leaves::<ANY, S>(isa, r, w, k, n, leaves, h)? {
-                        return Ok(None);
-                    }
-                    kids
-                }
-                // The top tree's leaves are links: pushed with the inner children.
-                None => mask,
-            };
-            if push != 0 {
-                // Any hit takes a block's children as they come, but the top tree's nearest
-                // first: the blocks it asks for are then those a closest hit asks for, or
-                // fewer (it stops at the first block that holds a hit), which is what keeps
-                // shadow rays from paging in blocks behind their first occluder.
-                let sorted = !ANY || held.is_none();
-                push_near_first(&mut w.stack, push, &near, n, inner, nodes, sorted)
-                    .map_err(|what| bad(what, held))?;
+            // The top tree's children culled: its nodes, and links whose blocks the ray never
+            // asks for.
+            let inner_bits = inner_bits(n);
+            let missed = ((1u32 << n.child_count.min(8)) - 1) & !mask;
+            k.top_nodes_culled += (missed & inner_bits).count_ones() as u64;
+            k.links_culled += (missed & !inner_bits).count_ones() as u64;
+            // The top tree's leaves are links, pushed with its inner children, nearest first
+            // for any hit too: the blocks it asks for are then those a closest hit asks for,
+            // or fewer (it stops at the first block that holds a hit), which is what keeps
+            // shadow rays from paging in blocks behind their first occluder.
+            if mask != 0 {
+                w.sp = push_children(w.st, w.sp, mask, &near, n, self.wide_top, true)
+                    .map_err(|what| bad(what, None))?;
             }
         }
         Ok(None)
     }
 
-    /// Enters the link popped as `at` (entered at `t`): the held block, if it is the link's,
-    /// and the link's root there (the block's entries start at the floor); else its block,
-    /// with the link pushed back, for the caller to fetch.
+    /// Walks block `h` from its root `root` (entered at `t`) on the stack above `w.sp` until
+    /// the stack is back there; true if `ANY` found a hit. Its nodes are visited at most as
+    /// many times as it has nodes (a tree visits each once).
     #[inline(always)]
-    #[allow(clippy::type_complexity)]
-    fn enter_link<'v, 'h>(
+    fn walk_block<const ANY: bool, S: Simd8>(
         &self,
+        isa: S,
+        r: &WideRay,
         w: &mut WideWalk,
-        at: u32,
-        t: f32,
-        view: Option<&'v Held<'h>>,
-    ) -> Result<Result<(&'v Held<'h>, u32), u32>, TraceError> {
-        let Some(link) = self.wide_links.get((at & !LINK) as usize) else {
-            return Err(bad("wide link index out of range", None));
-        };
-        match view {
-            Some(h) if h.id == link.block => {
-                if link.root >= h.root_count {
-                    return Err(bad("wide link to a root the block does not have", Some(h)));
-                }
-                w.floor = w.stack.len();
-                w.block_budget = h.cluster_nodes.len();
-                Ok(Ok((h, link.root)))
+        k: &mut Counters,
+        h: &WideHeld<'_>,
+        root: Entry,
+    ) -> Result<bool, TraceError> {
+        let floor = w.sp;
+        let mut sp = floor;
+        // In the place of the link just popped.
+        w.st[sp] = root;
+        sp += 1;
+        let mut budget = h.nodes.len();
+        let mut cull = grown_exit(w.t_best);
+        while sp > floor {
+            sp -= 1;
+            let (at, t) = w.st[sp];
+            if t > cull {
+                continue;
             }
-            _ => {
-                if link.block as usize >= self.directory.len() {
-                    return Err(TraceError::Corrupt(Corruption {
-                        what: "wide link to a block the directory does not have",
-                        block: Some(link.block),
-                        level: 0,
-                        index: (at & !LINK) as u64,
-                    }));
+            let Some(n) = h.nodes.get(at as usize) else {
+                return Err(bad("wide node index out of range", Some(h.id)));
+            };
+            let Some(left) = budget.checked_sub(1) else {
+                return Err(bad("wide nodes that do not form a tree", Some(h.id)));
+            };
+            budget = left;
+            k.nodes_visited += 1;
+            let (mask, near) = r.boxes.node_hits_with(isa, n.view(), r.tmin, w.t_best);
+            let kids = mask & inner_bits(n);
+            let leaves = mask ^ kids;
+            if leaves != 0 {
+                if self.test_leaves::<ANY, S>(isa, r, w, k, n, leaves, h)? {
+                    w.sp = sp;
+                    return Ok(true);
                 }
-                w.stack.push((at, t));
-                Ok(Err(link.block))
+                cull = grown_exit(w.t_best);
+            }
+            if kids != 0 {
+                // Any hit takes a block's children as they come.
+                sp = push_children(w.st, sp, kids, &near, n, h.nodes, !ANY)
+                    .map_err(|what| bad(what, Some(h.id)))?;
             }
         }
+        w.sp = floor;
+        Ok(false)
     }
 
     /// Tests the groups of `n`'s leaf slots in `leaves`; true if `ANY` found a hit.
@@ -266,7 +276,7 @@ impl Tree<'_> {
         k: &mut Counters,
         n: &ClusterNode,
         mut leaves: u32,
-        h: &Held<'_>,
+        h: &WideHeld<'_>,
     ) -> Result<bool, TraceError> {
         let inner = n.inner_count as u32;
         // Every group's lines first, so that their loads overlap.
@@ -285,7 +295,7 @@ impl Tree<'_> {
             let g = h
                 .groups
                 .get(gi as usize)
-                .ok_or_else(|| bad("triangle group index out of range", Some(h)))?;
+                .ok_or_else(|| bad("triangle group index out of range", Some(h.id)))?;
             let ray = (r.shear.get_or_init(|| RayShear::new(r.ray)), r.tmin);
             if test_group::<ANY, S>(isa, ray, &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);
@@ -295,20 +305,28 @@ impl Tree<'_> {
     }
 }
 
-/// Pushes the children of `n` in `mask` (entered at `near`), inner slots as wide nodes
-/// `node_base + i` of `nodes` (whose records it prefetches, so that their loads overlap), the
-/// others (the top tree's links) as links `group_base + i - inner`: so that
-/// the nearest is popped first where `sorted`, else as they come.
+/// The slots of `n` that are wide nodes (the first `inner_count`).
 #[inline(always)]
-fn push_near_first(
-    stack: &mut Vec<(u32, f32)>,
+fn inner_bits(n: &ClusterNode) -> u32 {
+    0xff >> (8 - (n.inner_count as u32).min(8))
+}
+
+/// Pushes the children of `n` in `mask` (entered at `near`) on `st` above `sp` and returns the
+/// new depth: inner slots as wide nodes `node_base + i` of `nodes` (whose records it
+/// prefetches, so that their loads overlap), the others (the top tree's links) as links
+/// `group_base + i - inner`; so that the nearest is popped first where `sorted`, else as they
+/// come.
+#[inline(always)]
+fn push_children(
+    st: &mut [Entry; STACK],
+    mut sp: usize,
     mut mask: u32,
     near: &[f32; CLUSTER_WIDTH],
     n: &ClusterNode,
-    inner: u32,
     nodes: &[ClusterNode],
     sorted: bool,
-) -> Result<(), &'static str> {
+) -> Result<usize, &'static str> {
+    let inner = n.inner_count as u32;
     let refer = |i: u32| {
         if i < inner {
             let c = n.node_base.wrapping_add(i);
@@ -320,16 +338,17 @@ fn push_near_first(
             n.group_base.wrapping_add(i - inner) | LINK
         }
     };
-    if stack.len() + CLUSTER_WIDTH > STACK {
+    if sp + CLUSTER_WIDTH > STACK {
         return Err("wide nodes deeper than the format allows");
     }
     if !sorted || mask & (mask - 1) == 0 {
         while mask != 0 {
             let i = mask.trailing_zeros();
             mask &= mask - 1;
-            stack.push((refer(i), near[i as usize]));
+            st[sp] = (refer(i), near[i as usize]);
+            sp += 1;
         }
-        return Ok(());
+        return Ok(sp);
     }
     let mut kids: [(f32, u32); CLUSTER_WIDTH] = [(0.0, 0); CLUSTER_WIDTH];
     let mut nk = 0;
@@ -354,16 +373,17 @@ fn push_near_first(
         }
     }
     for &(t, c) in &kids[..nk] {
-        stack.push((c, t));
+        st[sp] = (c, t);
+        sp += 1;
     }
-    Ok(())
+    Ok(sp)
 }
 
-/// Bytes that break the format at a wide node of `held` (or of the top tree).
-fn bad(what: &'static str, held: Option<&Held<'_>>) -> TraceError {
+/// Bytes that break the format at a wide node of block `block` (or of the top tree).
+fn bad(what: &'static str, block: Option<u32>) -> TraceError {
     TraceError::Corrupt(Corruption {
         what,
-        block: held.map(|h| h.id),
+        block,
         level: 0,
         index: 0,
     })
