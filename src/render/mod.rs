@@ -26,7 +26,8 @@ pub use look::{Look, PLAIN_AMBIENT, PLAIN_BACKGROUND, PointLight};
 pub use report::{RenderReport, RenderTotal, ShadedReport};
 pub use shot::{DEFAULT_FOV, DEFAULT_SIZE, ShadedShot, Shot, ShotSpec};
 pub use whitted::{
-    DEFAULT_MAX_DEPTH, DEFAULT_MIN_WEIGHT, MAX_DEPTH_LIMIT, OFFSET, ShadedOptions, ShadedStats,
+    DEFAULT_MAX_DEPTH, DEFAULT_MIN_WEIGHT, DEFAULT_WAVE_LIMIT, MAX_DEPTH_LIMIT, OFFSET,
+    ShadedOptions, ShadedStats,
     render_shaded,
 };
 

@@ -10,7 +10,7 @@ use super::look::Look;
 use super::{Image, TILE, assemble, check_size, tiles};
 use crate::error::Error;
 use crate::geom::Ray;
-use crate::logical::{BlockSource, Counters, Order, Scene, TraceError, Tree, in_order};
+use crate::logical::{BlockSource, Counters, HitInfo, Order, Scene, TraceError, Tree, in_order};
 use crate::mesh::aff::AffMaterial;
 use crate::rays::{Camera, SHADOW_EPSILON, unit};
 
@@ -25,6 +25,9 @@ pub const DEFAULT_MIN_WEIGHT: f64 = 1.0 / 1024.0;
 /// How far a ray leaving a surface starts from it, relative to the scene's scale (see
 /// [`render_shaded`]).
 pub const OFFSET: f64 = 1e-5;
+/// The most points and light terms a tile's waves keep by default
+/// ([`ShadedOptions::wave_limit`]): 2^18, about 25 MB a thread.
+pub const DEFAULT_WAVE_LIMIT: usize = 1 << 18;
 
 /// What [`render_shaded`] renders and how.
 #[derive(Clone, Copy, Debug)]
@@ -44,6 +47,13 @@ pub struct ShadedOptions {
     /// positions (neighbouring tiles together, which need the same blocks). The image is the
     /// same.
     pub order: Order,
+    /// Each tile's rays are traced in waves through the batch calls: its primary rays, then
+    /// their shadow rays, then the reflected and refracted rays of the points they hit, and
+    /// so on. A wave's tile keeps its tree of rays (a point per closest-hit ray, a term per
+    /// light) until the tile is done: a tile that would keep more than this many is traced ray
+    /// by ray, depth first, instead, whose memory is only its depth ([`DEFAULT_WAVE_LIMIT`];
+    /// 0: every tile ray by ray). The image and the counts are the same either way.
+    pub wave_limit: usize,
 }
 
 impl ShadedOptions {
@@ -57,6 +67,7 @@ impl ShadedOptions {
             min_weight: DEFAULT_MIN_WEIGHT,
             shadows: true,
             order: Order::Morton,
+            wave_limit: DEFAULT_WAVE_LIMIT,
         }
     }
 }
@@ -94,6 +105,8 @@ pub struct ShadedStats {
     pub depth_limited: u64,
     /// Reflection or refraction rays not cast for [`ShadedOptions::min_weight`].
     pub weight_limited: u64,
+    /// Tiles traced ray by ray, their waves past [`ShadedOptions::wave_limit`].
+    pub ray_by_ray_tiles: u64,
 }
 
 impl std::ops::Add for ShadedStats {
@@ -112,6 +125,7 @@ impl std::ops::Add for ShadedStats {
                 + b.total_internal_reflections,
             depth_limited: self.depth_limited + b.depth_limited,
             weight_limited: self.weight_limited + b.weight_limited,
+            ray_by_ray_tiles: self.ray_by_ray_tiles + b.ray_by_ray_tiles,
             ..self
         }
     }
@@ -205,15 +219,24 @@ pub fn render_shaded<D: AsRef<[u8]> + BlockSource>(
     let pixels = opts.camera.pixels(opts.width, opts.height);
     let mut done: Vec<Vec<u8>> = vec![Vec::new(); tiles.len()];
     let traced = in_order(&tiles, &mut done, 1, scene.threads(), |tiles, out, s| {
+        let mut waves = Waves::default();
         for (&(_, tx, ty), px) in tiles.iter().zip(out) {
             let (x0, y0) = (tx * TILE, ty * TILE);
             let (x1, y1) = ((x0 + TILE).min(opts.width), (y0 + TILE).min(opts.height));
             px.reserve_exact(3 * ((x1 - x0) * (y1 - y0)) as usize);
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    let c = shader.radiance(&pixels.ray(x, y), Kind::Primary, 0, 1.0, s)?;
-                    px.extend(c.to_array().map(to_display8));
-                }
+            let rays = (y0..y1).flat_map(|y| (x0..x1).map(move |x| pixels.ray(x, y)));
+            let before = *s;
+            if shader.tile_in_waves(rays.clone(), opts.wave_limit, &mut waves, s)? {
+                px.extend(waves.pixels().flat_map(|c| c.to_array().map(to_display8)));
+                continue;
+            }
+            // Ray by ray: a tile whose waves would outgrow their limit (its counts so far
+            // undone).
+            *s = before;
+            s.ray_by_ray_tiles += 1;
+            for ray in rays {
+                let c = shader.radiance(&ray, Kind::Primary, 0, 1.0, s)?;
+                px.extend(c.to_array().map(to_display8));
             }
         }
         Ok(())
@@ -349,8 +372,17 @@ impl<'a> Shader<'a> {
         self.surfaces.get(index).unwrap_or(&self.default)
     }
 
+    /// The counters of rays of `kind`.
+    fn counters(kind: Kind, s: &mut ShadedStats) -> &mut Counters {
+        match kind {
+            Kind::Primary => &mut s.primary,
+            Kind::Reflection => &mut s.reflection,
+            Kind::Refraction => &mut s.refraction,
+        }
+    }
+
     /// The linear colour `ray` brings back, `depth` bounces from the camera, weighing `weight`
-    /// in its pixel.
+    /// in its pixel: traced ray by ray, depth first.
     fn radiance(
         &self,
         ray: &Ray,
@@ -359,14 +391,41 @@ impl<'a> Shader<'a> {
         weight: f64,
         s: &mut ShadedStats,
     ) -> Result<DVec3, TraceError> {
-        let counters = match kind {
-            Kind::Primary => &mut s.primary,
-            Kind::Reflection => &mut s.reflection,
-            Kind::Refraction => &mut s.refraction,
-        };
-        let Some(hit) = self.tree.intersect(ray, counters)? else {
+        let Some(hit) = self.tree.intersect(ray, Self::counters(kind, s))? else {
             return Ok(self.background);
         };
+        let mut lights = Vec::new();
+        let (mut c, bounces) = self.shade(ray, kind, depth, weight, &hit, s, &mut lights);
+        for l in &lights {
+            let lit = match &l.shadow {
+                Some(shadow) => !self.tree.occluded(shadow, &mut s.shadow)?,
+                None => true,
+            };
+            c = l.add_to(c, lit, s);
+        }
+        for b in bounces.into_iter().flatten() {
+            c += b.factor * self.radiance(&b.ray, b.kind, depth + 1, b.weight, s)?;
+        }
+        Ok(c)
+    }
+
+    /// Shades the closest hit `hit` of `ray` (`depth` bounces from the camera, weighing
+    /// `weight`): its colour before the lights (the ambient term), each light's terms appended
+    /// to `lights` (in the lights' order, each with the shadow ray that decides it), and the
+    /// reflected and refracted rays it casts, in that order. The colour is then the ambient
+    /// term, plus each light's terms where its shadow ray is not occluded, plus each bounce's
+    /// factor times the colour it brings back ([`Self::radiance`]).
+    #[allow(clippy::too_many_arguments)]
+    fn shade(
+        &self,
+        ray: &Ray,
+        kind: Kind,
+        depth: u32,
+        weight: f64,
+        hit: &HitInfo,
+        s: &mut ShadedStats,
+        lights: &mut Vec<LightTerm>,
+    ) -> (DVec3, [Option<Bounce>; 2]) {
         s.surface_hits += 1;
         s.hits += (kind == Kind::Primary) as u64;
         let m = *self.surface(hit.prim);
@@ -385,7 +444,7 @@ impl<'a> Shader<'a> {
         let p = DVec3::from(ray.at(hit.t as f64));
         let lifted = p + ns * self.eps;
 
-        let mut c = self.ambient * m.ambient;
+        let c = self.ambient * m.ambient;
         for &(light, light_colour) in &self.lights {
             let l = unit(light - p);
             let ndl = ns.dot(l);
@@ -393,34 +452,40 @@ impl<'a> Shader<'a> {
                 s.facing_away += 1;
                 continue;
             }
-            if self.shadows {
-                let shadow = Ray::new(
+            let shadow = self.shadows.then(|| {
+                Ray::new(
                     f32s(lifted),
                     f32s(light - lifted),
                     0.0,
                     1.0 - SHADOW_EPSILON,
-                );
-                if self.tree.occluded(&shadow, &mut s.shadow)? {
-                    s.shadowed += 1;
-                    continue;
-                }
-            }
-            c += light_colour * m.diffuse * ndl;
+                )
+            });
+            let mut specular = None;
             if m.shine > 0.0 && m.specular != DVec3::ZERO {
                 let r = 2.0 * ndl * ns - l;
                 let rv = -r.dot(d);
                 if rv > 0.0 {
-                    c += light_colour * m.specular * rv.powf(m.shine);
+                    specular = Some(light_colour * m.specular * rv.powf(m.shine));
                 }
             }
+            lights.push(LightTerm {
+                shadow,
+                diffuse: light_colour * m.diffuse * ndl,
+                specular,
+            });
         }
 
+        let mut bounces = [None, None];
         let mirror = d - 2.0 * d.dot(ns) * ns;
         if m.specular != DVec3::ZERO
             && let Some(w) = self.next_weight(weight, m.specular.max_element(), depth, s)
         {
-            let r = Ray::new(f32s(lifted), f32s(mirror), 0.0, f32::INFINITY);
-            c += m.specular * self.radiance(&r, Kind::Reflection, depth + 1, w, s)?;
+            bounces[0] = Some(Bounce {
+                ray: Ray::new(f32s(lifted), f32s(mirror), 0.0, f32::INFINITY),
+                kind: Kind::Reflection,
+                weight: w,
+                factor: m.specular,
+            });
         }
         if m.transmittance > 0.0
             && let Some(w) = self.next_weight(weight, m.transmittance, depth, s)
@@ -428,7 +493,7 @@ impl<'a> Shader<'a> {
             let eta = if front { 1.0 / m.ior } else { m.ior };
             let cos_i = -d.dot(ns);
             let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
-            let (r, kind) = if k < 0.0 {
+            let (ray, kind) = if k < 0.0 {
                 s.total_internal_reflections += 1;
                 let r = Ray::new(f32s(lifted), f32s(mirror), 0.0, f32::INFINITY);
                 (r, Kind::Reflection)
@@ -437,9 +502,112 @@ impl<'a> Shader<'a> {
                 let r = Ray::new(f32s(p - ns * self.eps), f32s(t), 0.0, f32::INFINITY);
                 (r, Kind::Refraction)
             };
-            c += m.transmittance * self.radiance(&r, kind, depth + 1, w, s)?;
+            bounces[1] = Some(Bounce {
+                ray,
+                kind,
+                weight: w,
+                factor: DVec3::splat(m.transmittance),
+            });
         }
-        Ok(c)
+        (c, bounces)
+    }
+
+    /// Renders one tile's pixels, whose primary rays are `rays`, in waves (see
+    /// [`ShadedOptions::wave_limit`]) into `w` ([`Waves::pixels`]); false, with nothing of it
+    /// certain, if it would keep more than `limit` points and light terms.
+    fn tile_in_waves(
+        &self,
+        rays: impl Iterator<Item = Ray>,
+        limit: usize,
+        w: &mut Waves,
+        s: &mut ShadedStats,
+    ) -> Result<bool, TraceError> {
+        w.points.clear();
+        w.casts.clear();
+        for ray in rays {
+            w.casts.push(Cast {
+                point: w.points.len() as u32,
+                ray,
+                kind: Kind::Primary,
+                depth: 0,
+                weight: 1.0,
+            });
+            w.points.push(Point::new(self.background));
+        }
+        w.pixels = w.points.len();
+        if w.pixels > limit {
+            return Ok(false);
+        }
+        while !w.casts.is_empty() {
+            // The closest hits, one batch per kind of ray (each kind has its counters).
+            w.hits.clear();
+            w.hits.resize(w.casts.len(), None);
+            for kind in [Kind::Primary, Kind::Reflection, Kind::Refraction] {
+                w.rays.clear();
+                w.rays
+                    .extend(w.casts.iter().filter(|c| c.kind == kind).map(|c| c.ray));
+                if w.rays.is_empty() {
+                    continue;
+                }
+                self.tree
+                    .intersect_each(&w.rays, Self::counters(kind, s), &mut w.answers)?;
+                let slots = w.casts.iter().enumerate().filter(|(_, c)| c.kind == kind);
+                for ((i, _), &hit) in slots.zip(&w.answers) {
+                    w.hits[i] = hit;
+                }
+            }
+            // Shade what they hit, in order; the next wave is their bounces.
+            w.lights.clear();
+            w.owners.clear();
+            w.next.clear();
+            for (cast, hit) in w.casts.iter().zip(&w.hits) {
+                let Some(hit) = hit else { continue };
+                let (c, bounces) =
+                    self.shade(&cast.ray, cast.kind, cast.depth, cast.weight, hit, s, &mut w.lights);
+                w.owners.resize(w.lights.len(), cast.point);
+                let at = cast.point as usize;
+                w.points[at].colour = c;
+                for (slot, b) in bounces.into_iter().enumerate() {
+                    let Some(b) = b else { continue };
+                    let child = w.points.len() as u32;
+                    w.points.push(Point::new(self.background));
+                    w.points[at].bounces[slot] = Some((child, b.factor));
+                    w.next.push(Cast {
+                        point: child,
+                        ray: b.ray,
+                        kind: b.kind,
+                        depth: cast.depth + 1,
+                        weight: b.weight,
+                    });
+                }
+                if w.points.len() + w.lights.len() > limit {
+                    return Ok(false);
+                }
+            }
+            // The shadow rays, in one batch; then each light's terms, in order.
+            w.rays.clear();
+            w.rays.extend(w.lights.iter().filter_map(|l| l.shadow));
+            self.tree
+                .occluded_each(&w.rays, &mut s.shadow, &mut w.occluded)?;
+            let mut shadows = w.occluded.iter();
+            for (l, &owner) in w.lights.iter().zip(&w.owners) {
+                let lit = l.shadow.is_none() || shadows.next() == Some(&false);
+                let p = &mut w.points[owner as usize];
+                p.colour = l.add_to(p.colour, lit, s);
+            }
+            std::mem::swap(&mut w.casts, &mut w.next);
+        }
+        // Each point's bounces were cast after it: from the last point back, each adds what
+        // its bounces brought back, as the ray-by-ray recursion does on its way up.
+        for i in (0..w.points.len()).rev() {
+            for slot in 0..2 {
+                if let Some((child, factor)) = w.points[i].bounces[slot] {
+                    let brought = w.points[child as usize].colour;
+                    w.points[i].colour += factor * brought;
+                }
+            }
+        }
+        Ok(true)
     }
 
     /// The weight of a ray cast from a point of weight `weight` through a factor `factor`, or
@@ -461,6 +629,87 @@ impl<'a> Shader<'a> {
             return None;
         }
         Some(w)
+    }
+}
+
+/// A light's share of a shaded point: added to its colour if the shadow ray (if any) is not
+/// occluded.
+struct LightTerm {
+    shadow: Option<Ray>,
+    diffuse: DVec3,
+    specular: Option<DVec3>,
+}
+
+impl LightTerm {
+    /// `c` with this term added if the light reaches the point (`lit`), counted otherwise.
+    fn add_to(&self, mut c: DVec3, lit: bool, s: &mut ShadedStats) -> DVec3 {
+        if !lit {
+            s.shadowed += 1;
+            return c;
+        }
+        c += self.diffuse;
+        if let Some(sp) = self.specular {
+            c += sp;
+        }
+        c
+    }
+}
+
+/// A reflected or refracted ray a shaded point casts, and the factor its colour is added by.
+struct Bounce {
+    ray: Ray,
+    kind: Kind,
+    weight: f64,
+    factor: DVec3,
+}
+
+/// A closest-hit ray of a wave: the point whose colour it brings back.
+struct Cast {
+    point: u32,
+    ray: Ray,
+    kind: Kind,
+    depth: u32,
+    weight: f64,
+}
+
+/// A point of a tile's ray tree: its colour (the background until its ray hits), and its
+/// bounces' points with their factors.
+#[derive(Clone, Copy)]
+struct Point {
+    colour: DVec3,
+    bounces: [Option<(u32, DVec3)>; 2],
+}
+
+impl Point {
+    fn new(background: DVec3) -> Point {
+        Point {
+            colour: background,
+            bounces: [None, None],
+        }
+    }
+}
+
+/// A tile's waves: its ray tree (the first [`Waves::pixels`] points are its pixels) and the
+/// buffers of a wave, kept from tile to tile.
+#[derive(Default)]
+struct Waves {
+    points: Vec<Point>,
+    pixels: usize,
+    casts: Vec<Cast>,
+    next: Vec<Cast>,
+    hits: Vec<Option<HitInfo>>,
+    answers: Vec<Option<HitInfo>>,
+    rays: Vec<Ray>,
+    lights: Vec<LightTerm>,
+    /// The point of each light term.
+    owners: Vec<u32>,
+    occluded: Vec<bool>,
+}
+
+impl Waves {
+    /// The colours of the tile's pixels, row by row.
+    fn pixels(&self) -> impl Iterator<Item = DVec3> + '_ {
+        self.points[..self.pixels].iter().map(|p| p.colour)
     }
 }
 

@@ -683,3 +683,103 @@ fn a_shot_takes_the_view_scene_or_frames_the_model() {
     let (_, st) = shaded.render(&scene).unwrap();
     assert_eq!((st.width, st.height), (160, 120));
 }
+
+// ---------------------------------------------------------------------------------------------
+// Waves
+
+/// The counts a render must give the same whichever way it traces.
+fn counts(s: &ShadedStats) -> [u64; 12] {
+    [
+        s.rays,
+        s.primary.rays,
+        s.shadow.rays,
+        s.reflection.rays,
+        s.refraction.rays,
+        s.hits,
+        s.surface_hits,
+        s.shadowed,
+        s.facing_away,
+        s.total_internal_reflections,
+        s.depth_limited,
+        s.weight_limited,
+    ]
+}
+
+/// Renders `s` in waves (the default), with wave limits that send the tiles that branch most
+/// ray by ray (some limit must split the tiles), and all ray by ray (limit 0): the same bytes
+/// and counts. Returns the waves' render and counts.
+fn waves_match_ray_by_ray(
+    s: &AffScene,
+    edit: impl Fn(&mut ShadedOptions) + Copy,
+) -> (Image, ShadedStats) {
+    let scene = build_scene(&s.mesh, &BuildOptions::default());
+    let look = Look::from_aff(s);
+    let mut opts = ShadedOptions::new(160, 120, view_camera(s));
+    edit(&mut opts);
+    assert_eq!(opts.wave_limit, oavm::render::DEFAULT_WAVE_LIMIT);
+    let with_limit = |wave_limit| {
+        shade(
+            &scene,
+            &ShadedOptions {
+                wave_limit,
+                ..opts
+            },
+            &look,
+        )
+    };
+    let (single, s1) = with_limit(0);
+    // 10 x 8 tiles.
+    assert_eq!(s1.ray_by_ray_tiles, 80);
+    let (waves, sw) = with_limit(opts.wave_limit);
+    assert!(sw.ray_by_ray_tiles < 80, "{sw:?}");
+    assert!(waves.rgb == single.rgb, "waves and ray by ray differ");
+    assert_eq!(counts(&sw), counts(&s1));
+    let mut split = false;
+    for limit in [1_000, 3_000, 10_000, 30_000] {
+        let (mixed, sm) = with_limit(limit);
+        assert!(mixed.rgb == single.rgb, "waves within {limit} and ray by ray differ");
+        assert_eq!(counts(&sm), counts(&s1), "waves within {limit}");
+        split |= sm.ray_by_ray_tiles > 0 && sm.ray_by_ray_tiles < 80;
+    }
+    assert!(split, "no limit sent some tiles, but not all, ray by ray");
+    (waves, sw)
+}
+
+#[test]
+fn waves_render_the_kitchen_as_ray_by_ray_does() {
+    let path = shared_scene("bart/kitchen/kitchen.aff");
+    let s = oavm::mesh::load_aff(&path, None).unwrap_or_else(|e| panic!("{e}"));
+    let (_, st) = waves_match_ray_by_ray(&s, |_| {});
+    // Shadows, reflections and hits all happened, so every part of a wave was compared; the
+    // default limit holds every tile.
+    assert_eq!(st.ray_by_ray_tiles, 0);
+    assert!(st.reflection.rays > 1000, "{st:?}");
+    assert!(st.shadowed > 1000 && st.shadowed < st.shadow.rays, "{st:?}");
+    assert!(st.hits > 10_000, "{st:?}");
+}
+
+#[test]
+fn waves_render_glass_that_reflects_and_refracts_as_ray_by_ray_does() {
+    // The slab of glass, reflective too, bounced 8 times and never cut by weight: every hit
+    // on it casts two rays, so the tiles that see it branch far more than the others.
+    let s = aff(&format!(
+        "b 0.1 0.2 0.3\nam 1 1 1\n\
+         v from 0 0 100 at 0 0 0 up 0 1 0 angle 4 hither 0.01 resolution 160 120\n\
+         l 0 0 50\nl 30 10 40\n\
+         f 1 0 0 1 0 0 0 1\n\
+         p 4  -20 -20 -5  0 -20 -5  0 20 -5  -20 20 -5\n\
+         f 0 1 0 1 0 0 0 1\n\
+         p 4  0 -20 -5  20 -20 -5  20 20 -5  0 20 -5\n\
+         fm 0.1 0.1 0.1  0.2 0.2 0.2  0.5 0.5 0.5  30 0.6 1.5\n\
+         xs 8 8 2  0 1 0 45  0 0 0 {{\n{CUBE}}}\n"
+    ));
+    let (_, st) = waves_match_ray_by_ray(&s, |o| {
+        o.max_depth = 8;
+        o.min_weight = 0.0;
+    });
+    assert!(st.refraction.rays > 10_000, "{st:?}");
+    assert!(st.reflection.rays > 10_000, "{st:?}");
+    assert!(st.total_internal_reflections > 0, "{st:?}");
+    assert!(st.shadowed > 0, "{st:?}");
+    assert!(st.depth_limited > 0, "{st:?}");
+}

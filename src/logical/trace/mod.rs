@@ -365,6 +365,34 @@ impl<'a> Tree<'a> {
         Ok(self.dispatch::<true>(ray, c)?.is_some())
     }
 
+    /// The closest hits of `rays`, in order, into `out` (cleared first): the answers of
+    /// [`Self::intersect`] ray by ray, with the instruction set and the walk chosen once for all
+    /// of them. For a batch its caller has made (a wave of a render's rays); stops at the first
+    /// ray whose walk fails.
+    pub fn intersect_each(
+        &self,
+        rays: &[Ray],
+        c: &mut Counters,
+        out: &mut Vec<Option<HitInfo>>,
+    ) -> Result<(), TraceError> {
+        out.clear();
+        out.reserve(rays.len());
+        self.answer_each::<false>(rays.iter(), c, |_, _, h| out.push(h))
+    }
+
+    /// Whether each of `rays` is occluded, in order, into `out` (cleared first): the answers of
+    /// [`Self::occluded`] ray by ray, as [`Self::intersect_each`].
+    pub fn occluded_each(
+        &self,
+        rays: &[Ray],
+        c: &mut Counters,
+        out: &mut Vec<bool>,
+    ) -> Result<(), TraceError> {
+        out.clear();
+        out.reserve(rays.len());
+        self.answer_each::<true>(rays.iter(), c, |_, _, h| out.push(h.is_some()))
+    }
+
     /// The walk compiled for the best instruction set the CPU has: AVX2 where it exists
     /// (detected once per tree), else what the build targets (SSE4.1, or eight scalars).
     #[inline(always)]
