@@ -480,8 +480,13 @@ fn check_block(
             root_size: header.root_size,
         }),
         cluster_nodes: view.cluster_nodes,
+        // The octree's region as the layout makes it (adoption, spec §8.7, leaves out some
+        // internal nodes: which depends on their boxes); a block it cannot lay out (reported
+        // by check_block_wide) is counted from its records, one wide node per internal node.
         below_start: match clusters {
-            true => wide_region(view.levels, view.nodes).map(|(i, s)| i + s),
+            true => wide::lay_block(view.levels, view.nodes, view.cluster_nodes)
+                .map(|w| Some(w.region as u64))
+                .unwrap_or_else(|_| wide_region(view.levels, view.nodes).map(|(i, s)| i + s)),
             false => Some(0),
         },
         groups: view.groups,

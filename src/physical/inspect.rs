@@ -242,11 +242,15 @@ fn tree_levels<D: AsRef<[u8]>>(file: &OavmFile<D>) -> (Vec<TreeLevel>, BlockWide
         let Ok(view) = BlockView::parse(&raw, b as u32, e) else {
             continue;
         };
-        if let (false, Some((octree, roots))) = (
+        if let (false, Some((_, roots))) = (
             view.cluster_nodes.is_empty(),
             wide_region(view.levels, view.nodes),
         ) {
+            // The region as laid out (spec §8.7: adoption leaves out some internal nodes).
             let all = view.cluster_nodes.len() as u64;
+            let region = super::wide::lay_block(view.levels, view.nodes, view.cluster_nodes)
+                .map_or(roots, |w| w.region as u64);
+            let octree = region.saturating_sub(roots);
             wide.octree_nodes += octree.min(all);
             wide.cluster_roots += roots;
             wide.cluster_nodes += all.saturating_sub(octree);

@@ -26,6 +26,9 @@ pub struct BlockWide {
     pub records: Vec<NodeRecord>,
     /// The box of each root, the union of its wide node's child boxes.
     pub roots: Vec<WorldBox>,
+    /// The octree's region of `nodes`: its roots, the octree's wide nodes and the clusters'
+    /// roots, before the clusters' other nodes.
+    pub region: usize,
 }
 
 /// The union of `a` and `b`.
@@ -90,7 +93,7 @@ pub fn lay_block(
             _ => Err("a link or an invalid record in a block".into()),
         },
         |kids| {
-            let live: Vec<Slot> = kids
+            let mut live: Vec<Slot> = kids
                 .iter()
                 .copied()
                 .filter(|s| !matches!(s, Slot::Empty))
@@ -98,6 +101,10 @@ pub fn lay_block(
             if live.is_empty() {
                 return Ok(Slot::Empty);
             }
+            adopt(&mut live, |s| match s {
+                Slot::Inner { wide, bx } => Some((octree_kids[*wide as usize].as_slice(), *bx)),
+                _ => None,
+            });
             let (n, bx) = wide_node(live.len(), live.iter().map(slot_box))?;
             octree.push(n);
             octree_kids.push(live);
@@ -187,6 +194,7 @@ pub fn lay_block(
         nodes: placed,
         records,
         roots,
+        region,
     })
 }
 
@@ -255,6 +263,15 @@ pub fn lay_top(
             _ => Err("a solid leaf or an invalid record in the top tree".into()),
         },
         |kids| {
+            let mut kids: Vec<Top> = kids
+                .iter()
+                .copied()
+                .filter(|t| !matches!(t, Top::Empty))
+                .collect();
+            adopt(&mut kids, |t| match t {
+                Top::Inner { wide, bx } => Some((made[*wide as usize].1.as_slice(), *bx)),
+                _ => None,
+            });
             // Inner children first, then links (spec §7.1's slot order).
             let mut live: Vec<Top> = kids
                 .iter()
@@ -304,6 +321,38 @@ pub fn lay_top(
         i += 1;
     }
     Ok((nodes, links))
+}
+
+/// Collapses a wide node's children `live` (spec §8.7): while some inner child's own children
+/// (`open(child)`: its children and its box; `None` for a child that is not an octree node)
+/// fit in the node's eight slots in its place, the one of largest surface area among them is
+/// replaced by its children, in its place. A ray that enters the node then meets those
+/// children one level higher, and the opened node is left out of the tree.
+fn adopt<'k, T: Copy + 'k>(
+    live: &mut Vec<T>,
+    open: impl Fn(&T) -> Option<(&'k [T], WorldBox)>,
+) {
+    let area = |(lo, hi): WorldBox| {
+        let d: [f64; 3] = std::array::from_fn(|k| (hi[k] as f64 - lo[k] as f64).max(0.0));
+        d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+    };
+    loop {
+        let mut best: Option<(usize, f64)> = None;
+        for (i, c) in live.iter().enumerate() {
+            if let Some((kids, bx)) = open(c)
+                && live.len() - 1 + kids.len() <= CLUSTER_WIDTH
+                && best.is_none_or(|(_, a)| area(bx) > a)
+            {
+                best = Some((i, area(bx)));
+            }
+        }
+        let Some((i, _)) = best else { return };
+        let Some((kids, _)) = open(&live[i]) else { return };
+        let mut merged = live[..i].to_vec();
+        merged.extend_from_slice(kids);
+        merged.extend_from_slice(&live[i + 1..]);
+        *live = merged;
+    }
 }
 
 /// The values of the octree of `levels` and `records`, bottom up: each leaf's (and link's)
