@@ -3,7 +3,8 @@
 //! options that change what a block holds (small blocks and deep trees, compressed blocks, and
 //! the passes that decode every block and store it again: ropes, occluders). Their layout is
 //! also what the spec says of it, checked here from the records alone: every block root has one
-//! wide link, and the top tree one wide node per internal node with a link below it. The
+//! wide link, and the top tree at most one wide node per internal node with a link below it
+//! (adoption leaves some out; a test below requires that it does). The
 //! corruption tests (`tests/corruption/blocks.rs`, `top.rs`) damage them.
 
 use crate::common::{build_scene, load_shared};
@@ -29,7 +30,8 @@ fn verified(bytes: &[u8], what: &str) -> Scene<AlignedBytes> {
 }
 
 /// What §8.7 says of a file's wide sections, from its records alone: a wide link per link of
-/// the top tree (per block root), and a top wide node per internal node with a link below it;
+/// the top tree (per block root), and at most a top wide node per internal node with a link
+/// below it (adoption leaves some out), at least as many as eight-wide nodes over the links;
 /// and `oavm-inspect`'s counts of them, and of the blocks' (a cluster root per solid leaf, and
 /// octree wide nodes if `octree`: blocks whose roots are all solid leaves have none).
 fn check_counts(file: &OavmFile<AlignedBytes>, octree: bool, what: &str) {
@@ -43,12 +45,20 @@ fn check_counts(file: &OavmFile<AlignedBytes>, octree: bool, what: &str) {
         links.len(),
         "{what}: one wide link per link"
     );
-    // Every internal node of the top tree has a link below it in a packed file.
+    // Every internal node of the top tree has a link below it in a packed file, so each has a
+    // wide node but those adoption leaves out (§8.7); and an 8-wide tree over the links needs
+    // at least one node per seven links past the first.
     let internal = top
         .iter()
         .filter(|r| r.kind_bits() == KIND_INTERNAL)
         .count();
-    assert_eq!(nodes.len(), internal.max(1), "{what}: top wide nodes");
+    let least = links.len().saturating_sub(1).div_ceil(7).max(1);
+    assert!(
+        (least..=internal.max(1)).contains(&nodes.len()),
+        "{what}: {} top wide nodes for {internal} internal nodes and {} links",
+        nodes.len(),
+        links.len()
+    );
     let i = inspect(
         file,
         InspectOptions {
@@ -175,4 +185,51 @@ fn blocks_stored_again_and_files_of_lists_verify_clean() {
         inspect(file, InspectOptions::default()).wide.is_none(),
         "a file of lists has no wide nodes"
     );
+}
+
+/// Adoption (spec §8.7) happens: the dragon's top tree has fewer wide nodes than internal
+/// nodes, and its blocks' octree regions fewer octree wide nodes than internal nodes with a
+/// solid leaf below them; the file verifies (verify lays it out again) and a wide node never
+/// holds more than eight children.
+#[test]
+fn adoption_leaves_out_nodes_whose_children_fit_in_their_parent() {
+    let dragon = load_shared("dragon/dragon_vrip.ply");
+    let bytes = packed(&dragon, &BuildOptions::default(), &BlockOptions::default());
+    let scene = verified(bytes.as_ref(), "dragon");
+    let file = scene.file();
+    let nodes: &[ClusterNode] = file.records(SectionKind::WideNodes);
+    let top: &[NodeRecord] = file.records(SectionKind::Nodes);
+    let internal = top
+        .iter()
+        .filter(|r| r.kind_bits() == KIND_INTERNAL)
+        .count();
+    assert!(
+        nodes.len() < internal,
+        "{} top wide nodes, {internal} internal nodes",
+        nodes.len()
+    );
+    assert!(nodes.iter().all(|n| (1..=8).contains(&n.child_count)));
+    let i = inspect(
+        file,
+        InspectOptions {
+            levels: true,
+            ..InspectOptions::default()
+        },
+    );
+    let blocks = i.wide.and_then(|w| w.blocks).expect("counted over the blocks");
+    // One wide node per internal node with a solid leaf below it, counted from the records.
+    let mut unadopted = 0;
+    let reader = oavm::physical::BlockReader::new(file);
+    for (b, e) in file.directory().iter().enumerate() {
+        let raw = reader.read(file.bytes(), b as u32, e).expect("read");
+        let view = oavm::physical::BlockView::parse(&raw, b as u32, e).expect("parse");
+        let (internal, _) =
+            oavm::physical::wide_region(view.levels, view.nodes).expect("region");
+        unadopted += internal;
+    }
+    assert!(
+        blocks.octree_nodes < unadopted,
+        "{blocks:?}: {unadopted} internal nodes with a solid leaf below"
+    );
+    check_counts(file, true, "dragon");
 }
