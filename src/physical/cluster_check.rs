@@ -254,10 +254,11 @@ fn check_group(g: &TriGroup) -> Result<(), String> {
     Ok(())
 }
 
-/// The size of the octree's region of a block's wide nodes (spec §8.7), counted from its node
-/// records alone, apart from the layout that makes it: one wide node per internal node with a
-/// solid leaf below it, and one cluster root per solid leaf. Returns `(internal, solid)`, or
-/// `None` if the records do not fit the level table (a defect reported elsewhere).
+/// The internal nodes with a solid leaf below them and the solid leaves of a block, counted
+/// from its node records alone: the size of its wide nodes' octree region (spec §8.7) before
+/// adoption, which leaves some internal nodes out (an upper bound on it, then; verify and
+/// inspect take the region as laid out). Returns `(internal, solid)`, or `None` if the records
+/// do not fit the level table (a defect reported elsewhere).
 pub fn wide_region(levels: &[LevelEntry], records: &[NodeRecord]) -> Option<(u64, u64)> {
     let (mut internal, mut solid) = (0u64, 0u64);
     // Whether each node of the level below has a solid leaf under it (or is one).
