@@ -1,7 +1,7 @@
 //! Format 6's wide hierarchy (spec §8.7): the internal nodes of the octree, in the top tree
 //! and in each block, as 8-wide nodes with quantised child boxes (the [`ClusterNode`] record of
 //! the clusters, Ylitie, Karras and Laine's compressed wide BVH), a node with few children
-//! adopting its grandchildren ([`adopt`]), so that one loop walks from the root to the
+//! adopting its grandchildren (`adopt`), so that one loop walks from the root to the
 //! triangle groups.
 //!
 //! The wide nodes are a function of the octree's records and the clusters: [`lay_block`] and
