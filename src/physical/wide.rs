@@ -329,10 +329,7 @@ pub fn lay_top(
 /// fit in the node's eight slots in its place, the one of largest surface area among them is
 /// replaced by its children, in its place. A ray that enters the node then meets those
 /// children one level higher, and the opened node is left out of the tree.
-fn adopt<'k, T: Copy + 'k>(
-    live: &mut Vec<T>,
-    open: impl Fn(&T) -> Option<(&'k [T], WorldBox)>,
-) {
+fn adopt<'k, T: Copy + 'k>(live: &mut Vec<T>, open: impl Fn(&T) -> Option<(&'k [T], WorldBox)>) {
     let area = |(lo, hi): WorldBox| {
         let d: [f64; 3] = std::array::from_fn(|k| (hi[k] as f64 - lo[k] as f64).max(0.0));
         d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
@@ -348,7 +345,9 @@ fn adopt<'k, T: Copy + 'k>(
             }
         }
         let Some((i, _)) = best else { return };
-        let Some((kids, _)) = open(&live[i]) else { return };
+        let Some((kids, _)) = open(&live[i]) else {
+            return;
+        };
         let mut merged = live[..i].to_vec();
         merged.extend_from_slice(kids);
         merged.extend_from_slice(&live[i + 1..]);

@@ -27,8 +27,7 @@ pub use report::{RenderReport, RenderTotal, ShadedReport};
 pub use shot::{DEFAULT_FOV, DEFAULT_SIZE, ShadedShot, Shot, ShotSpec};
 pub use whitted::{
     DEFAULT_MAX_DEPTH, DEFAULT_MIN_WEIGHT, DEFAULT_WAVE_LIMIT, MAX_DEPTH_LIMIT, OFFSET,
-    ShadedOptions, ShadedStats,
-    render_shaded,
+    ShadedOptions, ShadedStats, render_shaded,
 };
 
 use std::time::Instant;

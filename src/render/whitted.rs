@@ -562,8 +562,15 @@ impl<'a> Shader<'a> {
             w.next.clear();
             for (cast, hit) in w.casts.iter().zip(&w.hits) {
                 let Some(hit) = hit else { continue };
-                let (c, bounces) =
-                    self.shade(&cast.ray, cast.kind, cast.depth, cast.weight, hit, s, &mut w.lights);
+                let (c, bounces) = self.shade(
+                    &cast.ray,
+                    cast.kind,
+                    cast.depth,
+                    cast.weight,
+                    hit,
+                    s,
+                    &mut w.lights,
+                );
                 w.owners.resize(w.lights.len(), cast.point);
                 let at = cast.point as usize;
                 w.points[at].colour = c;

@@ -717,16 +717,7 @@ fn waves_match_ray_by_ray(
     let mut opts = ShadedOptions::new(160, 120, view_camera(s));
     edit(&mut opts);
     assert_eq!(opts.wave_limit, oavm::render::DEFAULT_WAVE_LIMIT);
-    let with_limit = |wave_limit| {
-        shade(
-            &scene,
-            &ShadedOptions {
-                wave_limit,
-                ..opts
-            },
-            &look,
-        )
-    };
+    let with_limit = |wave_limit| shade(&scene, &ShadedOptions { wave_limit, ..opts }, &look);
     let (single, s1) = with_limit(0);
     // 10 x 8 tiles.
     assert_eq!(s1.ray_by_ray_tiles, 80);
@@ -737,7 +728,10 @@ fn waves_match_ray_by_ray(
     let mut split = false;
     for limit in [1_000, 3_000, 10_000, 30_000] {
         let (mixed, sm) = with_limit(limit);
-        assert!(mixed.rgb == single.rgb, "waves within {limit} and ray by ray differ");
+        assert!(
+            mixed.rgb == single.rgb,
+            "waves within {limit} and ray by ray differ"
+        );
         assert_eq!(counts(&sm), counts(&s1), "waves within {limit}");
         split |= sm.ray_by_ray_tiles > 0 && sm.ray_by_ray_tiles < 80;
     }

@@ -216,15 +216,17 @@ fn adoption_leaves_out_nodes_whose_children_fit_in_their_parent() {
             ..InspectOptions::default()
         },
     );
-    let blocks = i.wide.and_then(|w| w.blocks).expect("counted over the blocks");
+    let blocks = i
+        .wide
+        .and_then(|w| w.blocks)
+        .expect("counted over the blocks");
     // One wide node per internal node with a solid leaf below it, counted from the records.
     let mut unadopted = 0;
     let reader = oavm::physical::BlockReader::new(file);
     for (b, e) in file.directory().iter().enumerate() {
         let raw = reader.read(file.bytes(), b as u32, e).expect("read");
         let view = oavm::physical::BlockView::parse(&raw, b as u32, e).expect("parse");
-        let (internal, _) =
-            oavm::physical::wide_region(view.levels, view.nodes).expect("region");
+        let (internal, _) = oavm::physical::wide_region(view.levels, view.nodes).expect("region");
         unadopted += internal;
     }
     assert!(

@@ -16,10 +16,10 @@
 
 use super::cluster::test_group;
 use super::{Counters, HitInfo, TraceError, Tree};
-use crate::logical::held::WideHeld;
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::{FmaRay, grown_exit};
+use crate::logical::held::WideHeld;
 use crate::mapping::Corruption;
 use crate::os::Simd8;
 use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, MAX_CLUSTER_DEPTH};
