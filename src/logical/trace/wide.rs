@@ -95,19 +95,18 @@ impl Tree<'_> {
         let boxes = FmaRay::new(ray, self.coord_bound);
         // The occluders and the SATO order are the top-down walk's (research variants).
         let research = ANY && (self.occluders || self.sato);
-        if !boxes.eligible() || !ray.is_valid() || research {
-            return self.descend_all::<ANY, S>(isa, ray, c);
+        if stack.len() < STACK {
+            stack.resize(STACK, (0, 0.0));
         }
+        // The stack is there (grown just above).
+        let st = match stack.first_chunk_mut::<STACK>() {
+            Some(st) if boxes.eligible() && ray.is_valid() && !research => st,
+            _ => return self.descend_all::<ANY, S>(isa, ray, c),
+        };
         c.rays += 1;
         if self.wide_top.is_empty() {
             return Ok(None);
         }
-        if stack.len() < STACK {
-            stack.resize(STACK, (0, 0.0));
-        }
-        let Some(st) = stack.first_chunk_mut::<STACK>() else {
-            unreachable!("the stack was just grown to {STACK}");
-        };
         let r = WideRay {
             boxes,
             ray,
