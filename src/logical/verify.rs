@@ -463,9 +463,10 @@ fn check_block(
     };
     check_root_bounds(&view, &linked, b, d);
     let clusters = header.flags & FLAG_CLUSTERS != 0;
-    if clusters {
-        check_block_wide(&view, b, linked_roots.wide_boxes, d);
-    }
+    let region = match clusters {
+        true => check_block_wide(&view, b, linked_roots.wide_boxes, d),
+        false => None,
+    };
     let root_codes = linked.iter().map(|&(code, _)| code).collect();
     let infos = LevelInfos::new(view.levels, view.header.root_level);
     let unit = Unit {
@@ -480,14 +481,13 @@ fn check_block(
             root_size: header.root_size,
         }),
         cluster_nodes: view.cluster_nodes,
-        // The octree's region as the layout makes it (adoption, spec §8.7, leaves out some
-        // internal nodes: which depends on their boxes); a block it cannot lay out (reported
-        // by check_block_wide) is counted from its records, one wide node per internal node.
-        below_start: match clusters {
-            true => wide::lay_block(view.levels, view.nodes, view.cluster_nodes)
-                .map(|w| Some(w.region as u64))
-                .unwrap_or_else(|_| wide_region(view.levels, view.nodes).map(|(i, s)| i + s)),
-            false => Some(0),
+        // The octree's region as check_block_wide laid it out (adoption, spec §8.7, leaves
+        // out some internal nodes, which depends on their boxes); a block it could not lay out
+        // (reported there) is counted from its records, one wide node per internal node.
+        below_start: match (clusters, region) {
+            (true, Some(region)) => Some(region),
+            (true, None) => wide_region(view.levels, view.nodes).map(|(i, s)| i + s),
+            (false, _) => Some(0),
         },
         groups: view.groups,
         top: false,
@@ -525,7 +525,15 @@ fn check_root_bounds(view: &BlockView<'_>, linked: &[(u64, LinkBounds)], b: u32,
 /// wide nodes right: their boxes, bases, counts and order; that each solid leaf's payload is
 /// its own cluster's root, in the octree's region; and that the clusters' other nodes follow,
 /// each cluster's together), and the box of each root's wide node is its wide link's.
-fn check_block_wide(view: &BlockView<'_>, b: u32, wide_boxes: &WideBoxes, d: &mut Defects) {
+///
+/// Returns the size of the octree's region as laid out (adoption makes it depend on boxes), or
+/// `None` if the block's wide nodes could not be laid out (reported).
+fn check_block_wide(
+    view: &BlockView<'_>,
+    b: u32,
+    wide_boxes: &WideBoxes,
+    d: &mut Defects,
+) -> Option<u64> {
     // Nodes the layout could not read (it takes their boxes and bases as they are).
     if let Some((i, what)) = view
         .cluster_nodes
@@ -536,7 +544,7 @@ fn check_block_wide(view: &BlockView<'_>, b: u32, wide_boxes: &WideBoxes, d: &mu
         d.push(format!(
             "block {b}: wide node {i}: {what} (the block's wide nodes are not laid out again)"
         ));
-        return;
+        return None;
     }
     let laid = match wide::lay_block(view.levels, view.nodes, view.cluster_nodes) {
         Ok(w) => w,
@@ -544,7 +552,7 @@ fn check_block_wide(view: &BlockView<'_>, b: u32, wide_boxes: &WideBoxes, d: &mu
             d.push(format!(
                 "block {b}: its wide nodes cannot be laid out (spec §8.7): {e}"
             ));
-            return;
+            return None;
         }
     };
     compare_wide(
@@ -581,6 +589,7 @@ fn check_block_wide(view: &BlockView<'_>, b: u32, wide_boxes: &WideBoxes, d: &mu
             ));
         }
     }
+    Some(laid.region as u64)
 }
 
 /// Whether two boxes are the same, bit for bit.
