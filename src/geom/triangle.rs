@@ -42,6 +42,7 @@ pub struct RayShear {
 impl RayShear {
     /// Precomputes the shear for `ray`. The direction must be non-zero and finite
     /// ([`Ray::is_valid`]).
+    #[inline]
     pub fn new(ray: &Ray) -> RayShear {
         let d = ray.dir;
         let a = [d[0].abs(), d[1].abs(), d[2].abs()];

@@ -479,9 +479,10 @@ impl<'a> Tree<'a> {
     ) -> Result<(), TraceError> {
         if self.wide {
             let mut stack = wide::WIDE_STACK.take();
+            let mut kept = None;
             let mut result = Ok(());
             for (i, ray) in rays.enumerate() {
-                match self.wide_ray::<ANY, S>(isa, ray, c, &mut stack) {
+                match self.wide_ray::<ANY, S>(isa, ray, c, &mut stack, &mut kept) {
                     Ok(h) => f(i, ray, h),
                     Err(e) => {
                         result = Err(e);

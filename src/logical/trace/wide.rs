@@ -15,7 +15,7 @@
 //! capped by the depth the format allows; past either, the bytes are not a tree.
 
 use super::cluster::test_group;
-use super::{Counters, HitInfo, TraceError, Tree};
+use super::{Counters, Fetched, HitInfo, TraceError, Tree};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::{FmaRay, grown_exit};
@@ -46,15 +46,17 @@ pub(in crate::logical) struct WideWalk<'s> {
     budget: usize,
     pub(super) best: Option<HitInfo>,
     pub(super) t_best: f32,
+    /// The triangle test's constants, made when the ray first reaches a group: most rays of a
+    /// scene with open space (three in four of the dragon's primary rays) never do. (Here, not
+    /// in a `OnceCell`, whose first `get_or_init` is a call the compiler keeps out of line.)
+    shear: Option<RayShear>,
 }
 
-/// The ray's constants for the walk. The triangle test's are made when the ray first reaches
-/// a group: most rays of a scene with open space (three in four of the dragon's primary rays)
-/// never do.
+/// The ray's constants for the walk (the triangle test's are [`WideWalk`]'s, made when first
+/// needed).
 pub(super) struct WideRay<'r> {
     pub(super) boxes: FmaRay,
     ray: &'r Ray,
-    shear: std::cell::OnceCell<RayShear>,
     tmin: f32,
 }
 
@@ -64,7 +66,7 @@ thread_local! {
     pub(super) static WIDE_STACK: std::cell::Cell<Vec<(u32, f32)>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
-impl Tree<'_> {
+impl<'a> Tree<'a> {
     /// Closest hit (any hit with `ANY`) of `ray` by the wide walk, with the thread's stack
     /// ([`Self::wide_ray`]).
     #[inline(always)]
@@ -75,7 +77,7 @@ impl Tree<'_> {
         c: &mut Counters,
     ) -> Result<Option<HitInfo>, TraceError> {
         let mut stack = WIDE_STACK.take();
-        let result = self.wide_ray::<ANY, S>(isa, ray, c, &mut stack);
+        let result = self.wide_ray::<ANY, S>(isa, ray, c, &mut stack, &mut None);
         WIDE_STACK.set(stack);
         result
     }
@@ -84,6 +86,11 @@ impl Tree<'_> {
     /// deepest stack a valid file needs, and kept for the next ray); a ray the node test's bound
     /// does not cover (spec §8.7: `tmin < 0`, a direction too small or too large for f32) is
     /// walked top-down instead (the same answers).
+    ///
+    /// `kept` is the view of the last block entered straight from the file (admitted, and the
+    /// pager never evicts, [`Self::fetch`]), kept for the next ray of a batch: rays traced one
+    /// after the other mostly enter the same block, and entering it again then costs no
+    /// directory lookup and no cast (counted as the fetch counts it).
     #[inline(always)]
     pub(super) fn wide_ray<const ANY: bool, S: Simd8>(
         &self,
@@ -91,8 +98,14 @@ impl Tree<'_> {
         ray: &Ray,
         c: &mut Counters,
         stack: &mut Vec<(u32, f32)>,
+        kept: &mut Option<WideHeld<'a>>,
     ) -> Result<Option<HitInfo>, TraceError> {
-        let boxes = FmaRay::new(ray, self.coord_bound);
+        // Made in place (it is not small), before the checks that may send the ray elsewhere.
+        let r = WideRay {
+            boxes: FmaRay::new(ray, self.coord_bound),
+            ray,
+            tmin: ray.tmin,
+        };
         // The occluders and the SATO order are the top-down walk's (research variants).
         let research = ANY && (self.occluders || self.sato);
         if stack.len() < STACK {
@@ -100,19 +113,13 @@ impl Tree<'_> {
         }
         // The stack is there (grown just above).
         let st = match stack.first_chunk_mut::<STACK>() {
-            Some(st) if boxes.eligible() && ray.is_valid() && !research => st,
+            Some(st) if r.boxes.eligible() && ray.is_valid() && !research => st,
             _ => return self.descend_all::<ANY, S>(isa, ray, c),
         };
         c.rays += 1;
         if self.wide_top.is_empty() {
             return Ok(None);
         }
-        let r = WideRay {
-            boxes,
-            ray,
-            shear: std::cell::OnceCell::new(),
-            tmin: ray.tmin,
-        };
         st[0] = (0, ray.tmin);
         let mut w = WideWalk {
             st,
@@ -120,15 +127,33 @@ impl Tree<'_> {
             budget: self.wide_top.len(),
             best: None,
             t_best: ray.tmax,
+            shear: None,
         };
         let mut need: Option<u32> = None;
         loop {
-            let fetched = match need.take() {
+            // A block from the pager, held for this turn only.
+            let paged;
+            let paged_view;
+            let view = match need.take() {
                 None => None,
-                Some(b) => Some(self.fetch(b, &mut c.page)?),
+                Some(b) if kept.as_ref().is_some_and(|h| h.id == b) => {
+                    c.page.requested += 1;
+                    c.page.hits += 1;
+                    kept.as_ref()
+                }
+                Some(b) => match self.fetch(b, &mut c.page)? {
+                    (b, Fetched::Direct(raw), ready) => {
+                        *kept = Some(ready.wide(b, raw));
+                        kept.as_ref()
+                    }
+                    fetched => {
+                        paged = fetched;
+                        paged_view = paged.2.wide(paged.0, &paged.1);
+                        Some(&paged_view)
+                    }
+                },
             };
-            let view = fetched.as_ref().map(|(b, raw, ready)| ready.wide(*b, raw));
-            match self.run_wide::<ANY, S>(isa, &r, &mut w, c, view.as_ref())? {
+            match self.run_wide::<ANY, S>(isa, &r, &mut w, c, view)? {
                 Some(b) => need = Some(b),
                 None => return Ok(w.best),
             }
@@ -295,8 +320,8 @@ impl Tree<'_> {
                 .groups
                 .get(gi as usize)
                 .ok_or_else(|| bad("triangle group index out of range", Some(h.id)))?;
-            let ray = (r.shear.get_or_init(|| RayShear::new(r.ray)), r.tmin);
-            if test_group::<ANY, S>(isa, ray, &mut w.best, &mut w.t_best, g, k) {
+            let shear = w.shear.get_or_insert_with(|| RayShear::new(r.ray));
+            if test_group::<ANY, S>(isa, (shear, r.tmin), &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);
             }
         }
