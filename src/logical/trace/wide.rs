@@ -46,10 +46,6 @@ pub(in crate::logical) struct WideWalk<'s> {
     budget: usize,
     pub(super) best: Option<HitInfo>,
     pub(super) t_best: f32,
-    /// The triangle test's constants, made when the ray first reaches a group: most rays of a
-    /// scene with open space (three in four of the dragon's primary rays) never do. (Here, not
-    /// in a `OnceCell`, whose first `get_or_init` is a call the compiler keeps out of line.)
-    shear: Option<RayShear>,
 }
 
 /// The ray's constants for the walk (the triangle test's are [`WideWalk`]'s, made when first
@@ -57,6 +53,7 @@ pub(in crate::logical) struct WideWalk<'s> {
 pub(super) struct WideRay<'r> {
     pub(super) boxes: FmaRay,
     ray: &'r Ray,
+    shear: std::cell::OnceCell<RayShear>,
     tmin: f32,
 }
 
@@ -104,6 +101,7 @@ impl<'a> Tree<'a> {
         let r = WideRay {
             boxes: FmaRay::new(ray, self.coord_bound),
             ray,
+            shear: std::cell::OnceCell::new(),
             tmin: ray.tmin,
         };
         // The occluders and the SATO order are the top-down walk's (research variants).
@@ -127,7 +125,6 @@ impl<'a> Tree<'a> {
             budget: self.wide_top.len(),
             best: None,
             t_best: ray.tmax,
-            shear: None,
         };
         let mut need: Option<u32> = None;
         loop {
@@ -320,7 +317,7 @@ impl<'a> Tree<'a> {
                 .groups
                 .get(gi as usize)
                 .ok_or_else(|| bad("triangle group index out of range", Some(h.id)))?;
-            let shear = w.shear.get_or_insert_with(|| RayShear::new(r.ray));
+            let shear = r.shear.get_or_init(|| RayShear::new(r.ray));
             if test_group::<ANY, S>(isa, (shear, r.tmin), &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);
             }
