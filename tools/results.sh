@@ -11,8 +11,9 @@
 # over the dragon's decimations for build-time scaling, the shadow-ray walks (standard, SATO,
 # multi-index tree) over four scenes, renders the kitchen from its own viewpoint, and writes the
 # page with tools/results.py. The JSON is kept in target/results/ (not in git; RESULTS_DIR=DIR
-# puts it elsewhere). About 40 minutes on a 2-core machine, the shadow rays 25 more, the
-# animations (Table 3, with 2 GB of Rain frames in RESULTS_DIR/rain) 30 more.
+# puts it elsewhere). With --reps 2, about 35 minutes in all on a 2-core AMD EPYC at format 6
+# (commit 2848123), the shadow rays and the animations (Table 3, with 2 GB of Rain frames in
+# RESULTS_DIR/rain, made once and kept) included; the first run adds the frames' making.
 #
 # --anim-only runs just the animation benchmark (tools/anim_bench.rs) into RESULTS_DIR/anim*.json
 # and writes docs/results.md again from the JSON already in RESULTS_DIR (so that a page measured
