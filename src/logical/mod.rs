@@ -28,5 +28,7 @@ pub use scene::{
     BYTES_PER_RAY, BlockReads, FALLBACK_MEM_BUDGET, IO_THREADS_PER_CORE, Scene, SceneInfo,
     SceneOptions, default_mem_budget, max_rays, max_rays_in_memory,
 };
+#[cfg(feature = "group-trace")]
+pub use trace::group_trace;
 pub use trace::{Counters, HitInfo, TraceError, Tree, Walk};
 pub use verify::VerifyReport;

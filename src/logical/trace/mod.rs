@@ -29,6 +29,28 @@ mod ropes;
 mod topdown;
 mod wide;
 
+/// The triangle groups the wide walk tests, recorded per thread (the `group-trace` feature, for
+/// research tools only: a push per group tested).
+#[cfg(feature = "group-trace")]
+pub mod group_trace {
+    use std::cell::RefCell;
+
+    thread_local! {
+        static SEEN: RefCell<Vec<(u32, u32)>> = const { RefCell::new(Vec::new()) };
+    }
+
+    /// Group `group` of block `block` was tested.
+    #[inline]
+    pub(super) fn record(block: u32, group: u32) {
+        SEEN.with(|s| s.borrow_mut().push((block, group)));
+    }
+
+    /// The groups this thread's walks tested since the last call, in the order tested.
+    pub fn take() -> Vec<(u32, u32)> {
+        SEEN.with(|s| std::mem::take(&mut *s.borrow_mut()))
+    }
+}
+
 use std::sync::OnceLock;
 
 use serde::Serialize;

@@ -317,6 +317,8 @@ impl<'a> Tree<'a> {
                 .groups
                 .get(gi as usize)
                 .ok_or_else(|| bad("triangle group index out of range", Some(h.id)))?;
+            #[cfg(feature = "group-trace")]
+            super::group_trace::record(h.id, gi as u32);
             let shear = r.shear.get_or_init(|| RayShear::new(r.ray));
             if test_group::<ANY, S>(isa, (shear, r.tmin), &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);
