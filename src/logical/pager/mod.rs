@@ -234,6 +234,16 @@ pub struct PageCounters {
     pub bytes_decompressed: u64,
 }
 
+impl PageCounters {
+    /// A get answered from a block that is already resident (read from the map, or kept by the
+    /// caller from an earlier such get): one request, one hit.
+    #[inline(always)]
+    pub(crate) fn resident_hit(&mut self) {
+        self.requested += 1;
+        self.hits += 1;
+    }
+}
+
 impl std::ops::AddAssign for PageCounters {
     fn add_assign(&mut self, o: PageCounters) {
         self.requested += o.requested;

@@ -542,8 +542,7 @@ impl<'a> Tree<'a> {
                 .file
                 .get(e.offset as usize..(e.offset as usize).saturating_add(e.raw_len as usize))
         {
-            c.requested += 1;
-            c.hits += 1;
+            c.resident_hit();
             return Ok((b, Fetched::Direct(bytes), ready));
         }
         let (bytes, ready) = self.blocks.fetch(b, c)?;

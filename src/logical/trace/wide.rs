@@ -136,8 +136,8 @@ impl<'a> Tree<'a> {
             let view = match need.take() {
                 None => None,
                 Some(b) if kept.as_ref().is_some_and(|h| h.id == b) => {
-                    c.page.requested += 1;
-                    c.page.hits += 1;
+                    // Counted as `fetch` counts a block read from the map.
+                    c.page.resident_hit();
                     kept.as_ref()
                 }
                 Some(b) => match self.fetch(b, &mut c.page)? {
