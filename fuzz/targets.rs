@@ -126,6 +126,7 @@ pub fn pack(data: &[u8]) {
     let blocks = BlockOptions {
         block_size: 4096,
         compress: (h >> 7 & 1 == 0).then_some(1),
+        chunk_groups: 1 + (h >> 8 & 15) as u32,
     };
     pool().install(|| {
         let Ok((parts, _)) = oavm::pack::build(&mesh, &opts, &oavm::pack::Quiet) else {
@@ -350,6 +351,9 @@ fn open_verify_trace(data: &[u8]) {
             check_blocks: false,
             block_reads: BlockReads::Auto,
             walk: Walk::Auto,
+            // Chunked where the file stores chunks (format-spec §8.3): the chunk table and
+            // chunks' checksums are read on that path only.
+            chunks: true,
         };
         if let Ok(scene) =
             Scene::from_bytes_with(AlignedBytes::from_slice(data), "fuzz.oavm", &tiny)
@@ -487,7 +491,7 @@ pub fn probe_rays(lo: [f32; 3], hi: [f32; 3]) -> Vec<Ray> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Recomputing an `.oavm` file's checksums (format-spec.md §1-§3, §8.2)
+// Recomputing an `.oavm` file's checksums (format-spec.md §1-§3, §8.2, §8.3)
 
 // Offsets, from format-spec.md, as the tests state them (a mismatch with the code would only
 // make the fuzzing weaker, never wrong: everything here is bounds-checked).
@@ -497,6 +501,13 @@ use layout::*;
 
 /// At most this many directory entries are fixed up (each costs a hash of its block).
 const MAX_FIXED_BLOCKS: usize = 4096;
+/// At most this many chunk table entries of a block are fixed up, and at most this many bytes
+/// hashed for them (a table read from garbage may be long, its chunks overlapping).
+const MAX_FIXED_CHUNKS: usize = 4096;
+const MAX_CHUNK_BYTES_HASHED: usize = 1 << 26;
+/// The largest zstd head decoded to recompute its chunk table's checksums (a head that claims
+/// more keeps its table as it is; the pager's own limit is the header's `max_block_raw_len`).
+const MAX_DECODED_HEAD: usize = 16 << 20;
 
 fn read_u32(b: &[u8], at: usize) -> Option<u32> {
     Some(u32::from_le_bytes(
@@ -522,6 +533,44 @@ fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
     (end <= size as u64).then_some(at as usize..end as usize)
 }
 
+/// §8.3: recomputes the checksum of each entry of the chunk table of the decoded head `head`
+/// (where its block header places the table, if inside the head) over that chunk's stored
+/// bytes, which lie in `chunks` (the block's stored bytes after its head's) at the entry's
+/// `offset`, `stored_len` bytes long; entries whose chunk does not lie inside `chunks` are left
+/// alone. Returns whether a checksum changed.
+fn fix_chunk_table(head: &mut [u8], chunks: &[u8]) -> bool {
+    let Some((parts, _)) = block_layout(head) else {
+        return false;
+    };
+    let table = parts[PART_CHUNKS].clone();
+    if table.end > head.len() {
+        return false;
+    }
+    let mut changed = false;
+    let mut hashed = 0usize;
+    for e in table.step_by(CHUNK_ENTRY_LEN).take(MAX_FIXED_CHUNKS) {
+        let (Some(offset), Some(len)) = (
+            read_u32(head, e + CE_OFFSET),
+            read_u32(head, e + CE_STORED_LEN),
+        ) else {
+            continue;
+        };
+        let Some(r) = range(u64::from(offset), u64::from(len), chunks.len()) else {
+            continue;
+        };
+        hashed += r.len();
+        if hashed > MAX_CHUNK_BYTES_HASHED {
+            break;
+        }
+        let sum = xxh3_64(&chunks[r]);
+        if read_u64(head, e + CE_CHECKSUM) != Some(sum) {
+            write_u64(head, e + CE_CHECKSUM, sum);
+            changed = true;
+        }
+    }
+    changed
+}
+
 /// Rewrites `b` as a tool that edits a file in place would, so that only the structural checks
 /// can tell what changed. For each header slot that holds a header (slot 0 always, slot 1 when
 /// it starts with the magic; §2.1), the newer generation first, with the flags and the section
@@ -532,14 +581,22 @@ fn range(at: u64, len: u64, size: usize) -> Option<std::ops::Range<usize>> {
 ///    buffer, else to the buffer's length (so inserting or removing bytes, or appending them,
 ///    still gets past the first header check);
 /// 2. every directory entry (§8.2, in the directory section as the section table places it)
-///    but a free one (all zero) whose stored bytes lie in the file gets their checksum. A block
-///    marked zstd (codec 1) whose stored bytes are a decoded block (they start with the tag
-///    `OBLK`, §8.3) is compressed first, in place: the rest of its old bytes zeroed, the frame
-///    written at its offset, or, if the block ended the data region (the region ends where the
-///    directory starts, §3, at the next multiple of 64 after its last item), at the last
-///    multiple of 64 that keeps it ending there; `offset`, `stored_len` and `raw_len` set. So a
-///    seed whose blocks are raw but marked zstd lets the mutator change the *contents* of
-///    compressed blocks, which it could not reach through a frame's bytes;
+///    but a free one (all zero) whose stored bytes, and its head's within them, lie in the file
+///    gets its checksums: first each chunk's, into the head's chunk table (§8.3: over the
+///    chunk's stored bytes, which follow the head's at the entry's `offset`), then the head's,
+///    into the directory entry. A raw head's table is fixed in place. A zstd head (one frame)
+///    is decoded (up to [`MAX_DECODED_HEAD`] bytes); if a chunk's checksum changed, the head is
+///    compressed again and stored with the chunks right behind it, where the block was (as
+///    below), if that fits in the block's old bytes (else left as it was). A block marked zstd
+///    (codec 1) whose head is a decoded head (it starts with the tag `OBLK`, §8.3) is
+///    compressed, its head only, into one frame, its chunks left raw behind it, in place: the
+///    rest of its old bytes zeroed, the frame and the chunks written at its offset, or, if the
+///    block ended the data region (the region ends where the directory starts, §3, at the next
+///    multiple of 64 after its last item), at the last multiple of 64 that keeps it ending
+///    there; `offset`, `stored_len`, `raw_len` (the old stored length), `head_stored_len` and
+///    `head_raw_len` set (the chunks' offsets in the table, counted from the head's end, stay
+///    right). So a seed whose blocks are raw but marked zstd lets the mutator change the
+///    *contents* of compressed blocks, which it could not reach through a frame's bytes;
 /// 3. every primitive chunk (§8.6, in the chunk directory) whose records lie in the file gets
 ///    their checksum;
 /// 4. every section's checksum but the blocks' (§3), over the range its entry gives;
@@ -558,6 +615,98 @@ pub fn fix_checksums(b: &mut [u8]) {
     for slot in slots {
         fix_slot(b, slot);
     }
+}
+
+/// Step 2 of [`fix_checksums`] for the directory entry at `e` (not free), in a file whose data
+/// region ends at `region_end`.
+fn fix_block(b: &mut [u8], e: usize, region_end: Option<u64>) {
+    let (Some(at), Some(len), Some(codec), Some(head_len)) = (
+        read_u64(b, e + DIR_OFFSET),
+        read_u64(b, e + DIR_STORED_LEN),
+        read_u32(b, e + DIR_CODEC),
+        read_u64(b, e + DIR_HEAD_STORED_LEN),
+    ) else {
+        return;
+    };
+    let Some(stored) = range(at, len, b.len()) else {
+        return;
+    };
+    let Some(head) = range(at, head_len, b.len()).filter(|h| h.end <= stored.end) else {
+        return;
+    };
+    if codec != CODEC_ZSTD || b[head.clone()].starts_with(BLOCK_TAG) {
+        // A decoded head: its table fixed in place.
+        let (left, right) = b.split_at_mut(head.end);
+        fix_chunk_table(&mut left[head.start..], &right[..stored.end - head.end]);
+    }
+    // The head to store compressed instead of its stored bytes, decoded: a decoded head marked
+    // zstd, or a zstd head (one frame) whose table changed.
+    let raw_head = match codec {
+        CODEC_ZSTD if b[head.clone()].starts_with(BLOCK_TAG) => b[head.clone()].to_vec(),
+        CODEC_ZSTD => {
+            let raw_len = read_u64(b, e + DIR_HEAD_RAW_LEN).unwrap_or(0);
+            let Some(raw_len) = usize::try_from(raw_len)
+                .ok()
+                .filter(|&n| n <= MAX_DECODED_HEAD)
+            else {
+                return set_head_checksum(b, e, head);
+            };
+            match zstd::bulk::decompress(&b[head.clone()], raw_len) {
+                Ok(mut d) if d.len() == raw_len => {
+                    if !fix_chunk_table(&mut d, &b[head.end..stored.end]) {
+                        return set_head_checksum(b, e, head);
+                    }
+                    d
+                }
+                _ => return set_head_checksum(b, e, head),
+            }
+        }
+        _ => return set_head_checksum(b, e, head),
+    };
+    // A decoded head is compressed if that shrinks it (as a raw-looking block was compressed
+    // whole before the chunks); a zstd head whose table changed is stored again if it still
+    // fits with the chunks in the block's bytes.
+    let Some(frame) = zstd::bulk::compress(&raw_head, 1)
+        .ok()
+        .filter(|f| f.len() <= head.len())
+    else {
+        return set_head_checksum(b, e, head);
+    };
+    let decoded = b[head.clone()].starts_with(BLOCK_TAG);
+    let chunks = b[head.end..stored.end].to_vec();
+    let total = frame.len() + chunks.len();
+    // A block that ended the data region still ends it (§3: the directory starts at the next
+    // multiple of 64 after the region's last item).
+    let region_end = region_end.and_then(|end| usize::try_from(end).ok());
+    let ends_region = region_end.filter(|&end| stored.end.next_multiple_of(ALIGN) == end);
+    let (start, limit) = match ends_region {
+        Some(end) => (
+            (end.saturating_sub(total) / ALIGN * ALIGN).max(stored.start),
+            end,
+        ),
+        None => (stored.start, stored.end),
+    };
+    if start + total > limit.min(b.len()) {
+        return set_head_checksum(b, e, head);
+    }
+    b[stored.clone()].fill(0);
+    b[start..start + frame.len()].copy_from_slice(&frame);
+    b[start + frame.len()..start + total].copy_from_slice(&chunks);
+    write_u64(b, e + DIR_OFFSET, start as u64);
+    write_u64(b, e + DIR_STORED_LEN, total as u64);
+    write_u64(b, e + DIR_HEAD_STORED_LEN, frame.len() as u64);
+    if decoded {
+        // Its stored bytes were the decoded block, its head the decoded head.
+        write_u64(b, e + DIR_RAW_LEN, stored.len() as u64);
+        write_u64(b, e + DIR_HEAD_RAW_LEN, head.len() as u64);
+    }
+    set_head_checksum(b, e, start..start + frame.len());
+}
+
+/// Writes the checksum of the head's stored bytes `head` into the directory entry at `e`.
+fn set_head_checksum(b: &mut [u8], e: usize, head: std::ops::Range<usize>) {
+    let sum = xxh3_64(&b[head]);
+    write_u64(b, e + DIR_CHECKSUM, sum);
 }
 
 /// [`fix_checksums`] for the header slot at offset `slot`.
@@ -589,51 +738,7 @@ fn fix_slot(b: &mut [u8], slot: usize) {
             if b[e..e + DIR_LEN].iter().all(|&x| x == 0) {
                 continue; // a free entry (§8.2)
             }
-            let (Some(at), Some(len), Some(codec)) = (
-                read_u64(b, e + DIR_OFFSET),
-                read_u64(b, e + DIR_STORED_LEN),
-                read_u32(b, e + DIR_CODEC),
-            ) else {
-                continue;
-            };
-            let Some(stored) = range(at, len, b.len()) else {
-                continue;
-            };
-            if codec == CODEC_ZSTD && b[stored.clone()].starts_with(BLOCK_TAG) {
-                if let Ok(frame) = zstd::bulk::compress(&b[stored.clone()], 1)
-                    && frame.len() <= stored.len()
-                {
-                    let raw_len = stored.len() as u64;
-                    // A block that ended the data region still ends it (§3: the directory
-                    // starts at the next multiple of 64 after the region's last item).
-                    let ends_region = region_end.is_some_and(|end| {
-                        (stored.end as u64).next_multiple_of(ALIGN as u64) == end
-                    });
-                    let start = match region_end {
-                        Some(end) if ends_region => {
-                            let at = (end as usize - frame.len()) / ALIGN * ALIGN;
-                            at.max(stored.start)
-                        }
-                        _ => stored.start,
-                    };
-                    if start + frame.len() <= b.len() {
-                        b[stored.clone()].fill(0);
-                        b[start..start + frame.len()].copy_from_slice(&frame);
-                        write_u64(b, e + DIR_OFFSET, start as u64);
-                        write_u64(b, e + DIR_STORED_LEN, frame.len() as u64);
-                        write_u64(b, e + DIR_RAW_LEN, raw_len);
-                    }
-                }
-                let at = read_u64(b, e + DIR_OFFSET).unwrap_or(0);
-                let len = read_u64(b, e + DIR_STORED_LEN).unwrap_or(0);
-                if let Some(r) = range(at, len, b.len()) {
-                    let sum = xxh3_64(&b[r]);
-                    write_u64(b, e + DIR_CHECKSUM, sum);
-                }
-                continue;
-            }
-            let sum = xxh3_64(&b[stored]);
-            write_u64(b, e + DIR_CHECKSUM, sum);
+            fix_block(b, e, region_end);
         }
     }
     let prims = section_position(flags, KIND_PRIMS).and_then(|i| section(b, i));

@@ -51,7 +51,7 @@ def zmark(out, paths):
 
     The oavm_fixed target's fix-up compresses such blocks before opening (fuzz/targets.rs,
     fix_checksums), so mutations reach the decoded contents of compressed blocks. Laid out again
-    (format-spec.md version 5, §2, §3, §8.2, §8.6) with every block, primitive chunk and section
+    (format-spec.md version 7, §2, §3, §8.2, §8.6) with every block, primitive chunk and section
     at the next multiple of 64 (what §8.2 asks of compressed blocks), not of 4096, to keep them
     small: header slot 0, slot 1 (zero: generation 1 only), the data region from 4096 (the
     blocks in directory order, then the primitive chunks, if the file has the table), ending at
@@ -64,12 +64,13 @@ def zmark(out, paths):
             b = fh.read()
         assert not any(b[2048:4096]), f"{path}: zmark lays out files of generation 1"
         flags = struct.unpack_from("<I", b, 12)[0]
-        kinds = list(range(1, 8)) + [8] * bool(flags & 8) + [9] * bool(flags & 32)
+        kinds = (list(range(1, 8)) + [10, 11] * bool(flags & 4) + [8] * bool(flags & 8)
+                 + [9] * bool(flags & 32))
         sec = [struct.unpack_from("<QQ", b, entry(i) + 8) for i in range(len(kinds))]
         new = bytearray(b[:4096])
         struct.pack_into("<I", new, 12, flags | 2)  # §2: COMPRESSED
         directory = bytearray(b[sec[1][0]:sec[1][0] + sec[1][1]])
-        for e in range(0, len(directory), 48):  # §8.2: each block, 64-aligned
+        for e in range(0, len(directory), 64):  # §8.2: each block, 64-aligned
             off, stored = struct.unpack_from("<QQ", directory, e)
             new += bytes(up(len(new)) - len(new))
             struct.pack_into("<Q", directory, e, len(new))

@@ -419,6 +419,7 @@ fn open(
         check_blocks: true,
         block_reads: BlockReads::Auto,
         walk,
+        chunks: false,
     };
     let scene = py
         .detach(|| Scene::open_with(&path, &opts))
@@ -461,6 +462,7 @@ fn pack_options(
         blocks: BlockOptions {
             block_size: block_size.unwrap_or(DEFAULT_BLOCK_SIZE),
             compress,
+            ..BlockOptions::default()
         },
         time: None,
         mem_budget,

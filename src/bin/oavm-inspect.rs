@@ -232,6 +232,13 @@ fn blocks(t: &mut String, i: &Inspection) {
             "triangle records"
         }
     );
+    if d.chunks > 0 {
+        let _ = writeln!(
+            t,
+            "  heads {} bytes stored, {} decoded; groups in {} chunks of {} groups",
+            d.head_stored_bytes, d.head_decoded_bytes, d.chunks, d.chunk_groups
+        );
+    }
     for (level, n) in &d.root_levels {
         let _ = writeln!(t, "  roots at level {level:>2}: {n} blocks");
     }

@@ -52,6 +52,10 @@ struct Args {
     #[arg(long, value_name = "LEVEL", num_args = 0..=1, require_equals = true,
           default_missing_value = "3", allow_negative_numbers = true)]
     compress: Option<i32>,
+    /// Triangle groups per chunk (160 bytes each): the unit in which a block's groups are
+    /// checked, compressed and read out of core. 128 (20 KiB) keeps raw chunks in whole pages.
+    #[arg(long, value_name = "N", default_value_t = oavm::physical::DEFAULT_CHUNK_GROUPS)]
+    chunk_groups: u32,
     /// Pack within about this much memory (e.g. 4G), streaming the mesh: for meshes whose
     /// triangles do not fit in memory. Reads binary PLY only. Without it the whole mesh is read
     /// and built in memory, unless it is a binary PLY whose triangles would take more than the
@@ -104,6 +108,7 @@ fn main() -> ExitCode {
             blocks: BlockOptions {
                 block_size: args.block_size,
                 compress: args.compress,
+                chunk_groups: args.chunk_groups,
             },
             time: args.time,
             mem_budget: args.mem_budget,

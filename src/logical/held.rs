@@ -12,8 +12,9 @@
 use crate::mapping::{LevelInfos, TreeMap};
 use crate::physical::BlockView;
 use crate::physical::format::{
-    BLOCK_PARTS, BlockEntry, ClusterNode, LevelEntry, NodeRecord, OccluderNode, RankWord,
-    RopeRecord, TriGroup, TriRecord, block_layout,
+    BLOCK_PARTS, BlockEntry, ClusterNode, LevelEntry, NodeRecord, OccluderNode, PART_GROUPS,
+    PART_LEVELS, PART_NODES, PART_OCCLUDER_NODES, PART_OCCLUDERS, PART_RANKS, PART_REFS,
+    PART_ROPES, PART_TRIANGLES, PART_WIDE, RankWord, RopeRecord, TriGroup, TriRecord, block_layout,
 };
 
 /// What a block's bytes hold, checked once ([`BlockView::parse`]): where its parts are and the
@@ -27,9 +28,18 @@ pub struct ReadyMap {
 }
 
 impl ReadyMap {
-    /// Checks the raw bytes of block `id` as [`BlockView::parse`] does and keeps what it found.
-    pub fn new(raw: &[u8], id: u32, entry: &BlockEntry) -> Result<ReadyMap, &'static str> {
-        let v = BlockView::parse(raw, id, entry)?;
+    /// Checks the raw bytes of block `id` as [`BlockView::parse`] does and keeps what it found
+    /// (with `head`, the bytes of its head, [`BlockView::parse_head`]).
+    pub fn new(
+        raw: &[u8],
+        id: u32,
+        entry: &BlockEntry,
+        head: bool,
+    ) -> Result<ReadyMap, &'static str> {
+        let v = match head {
+            true => BlockView::parse_head(raw, id, entry)?,
+            false => BlockView::parse(raw, id, entry)?,
+        };
         let (ranges, _) = block_layout(&v.header).ok_or("block counts overflow")?;
         // Parse checked the block's length against its layout; raw_len <= 2^30.
         let parts = ranges.map(|r| (r.start as u32, r.end as u32));
@@ -58,6 +68,9 @@ pub(crate) struct WideHeld<'v> {
     pub root_count: u32,
     pub nodes: &'v [ClusterNode],
     pub groups: &'v [TriGroup],
+    /// The block's bytes: its head's only, when `groups` holds none (spec §8.3), whose
+    /// chunks the walk reads one by one ([`super::trace`]'s `Chunked`).
+    pub raw: &'v [u8],
 }
 
 impl ReadyMap {
@@ -68,8 +81,9 @@ impl ReadyMap {
         WideHeld {
             id,
             root_count: self.root_count,
-            nodes: self.part(raw, 6),
-            groups: self.part(raw, 7),
+            nodes: self.part(raw, PART_WIDE),
+            groups: self.part(raw, PART_GROUPS),
+            raw,
         }
     }
 }
@@ -90,6 +104,8 @@ pub(crate) struct Held<'v> {
     /// triangles; empty in a block without them.
     pub occluder_nodes: &'v [OccluderNode],
     pub occluders: &'v [TriRecord],
+    /// The block's bytes ([`WideHeld::raw`]).
+    pub raw: &'v [u8],
 }
 
 impl Held<'_> {
@@ -118,21 +134,22 @@ impl<'v> Held<'v> {
     /// `ready` of another block gives empty or wrong slices, which every access bounds-checks.
     #[inline(always)]
     pub fn new(id: u32, ready: &'v ReadyMap, raw: &'v [u8]) -> Held<'v> {
-        let levels: &[LevelEntry] = ready.part(raw, 0);
-        let nodes: &[NodeRecord] = ready.part(raw, 1);
-        let ranks: &[RankWord] = ready.part(raw, 2);
+        let levels: &[LevelEntry] = ready.part(raw, PART_LEVELS);
+        let nodes: &[NodeRecord] = ready.part(raw, PART_NODES);
+        let ranks: &[RankWord] = ready.part(raw, PART_RANKS);
         Held {
             id,
             root_level: ready.root_level,
             root_count: ready.root_count,
             map: TreeMap::new(&ready.infos, levels, nodes, ranks),
-            refs: ready.part(raw, 4),
-            tris: ready.part(raw, 5),
-            cluster_nodes: ready.part(raw, 6),
-            groups: ready.part(raw, 7),
-            ropes: ready.part(raw, 8),
-            occluder_nodes: ready.part(raw, 9),
-            occluders: ready.part(raw, 10),
+            refs: ready.part(raw, PART_REFS),
+            tris: ready.part(raw, PART_TRIANGLES),
+            cluster_nodes: ready.part(raw, PART_WIDE),
+            groups: ready.part(raw, PART_GROUPS),
+            ropes: ready.part(raw, PART_ROPES),
+            occluder_nodes: ready.part(raw, PART_OCCLUDER_NODES),
+            occluders: ready.part(raw, PART_OCCLUDERS),
+            raw,
         }
     }
 }

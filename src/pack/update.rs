@@ -72,6 +72,7 @@ impl UpdateOptions {
         BlockOptions {
             block_size: self.block_size,
             compress: self.compress.flatten(),
+            ..BlockOptions::default()
         }
         .validate()
     }
@@ -946,6 +947,16 @@ fn block_options(header: &Header, opts: &UpdateOptions) -> BlockOptions {
     BlockOptions {
         block_size: opts.block_size,
         compress,
+        chunk_groups: file_chunk_groups(header),
+    }
+}
+
+/// Groups per chunk of the blocks an update writes: the file's (or the default, in a file
+/// with no groups).
+fn file_chunk_groups(header: &Header) -> u32 {
+    match header.chunk_groups {
+        0 => crate::physical::writer::DEFAULT_CHUNK_GROUPS,
+        n => n,
     }
 }
 
@@ -1010,6 +1021,7 @@ fn open_generation(
         FileSink::new(handle),
         start,
         generation,
+        u.file.header().chunk_groups,
         dir,
         bounds,
         boxes,
@@ -1430,6 +1442,7 @@ pub fn compact(src: &Path, dst: &Path) -> Result<CompactReport, Error> {
             let opts = BlockOptions {
                 block_size: crate::physical::DEFAULT_BLOCK_SIZE,
                 compress: (e.codec != CODEC_RAW).then_some(DEFAULT_ZSTD_LEVEL),
+                chunk_groups: file_chunk_groups(file.header()),
             };
             let stored = store_block(UnitRef::from(&view), e.root_level, id, &opts)?;
             w.push(stored).map_err(io)?;

@@ -303,8 +303,16 @@ fn check_header_frame(header: &Header, slot: usize, file_len: u64) -> Result<usi
 /// The header fields checked after the checksum: reserved bytes, the lattice, level count and
 /// depth, the root cube and the mesh bounds.
 fn check_header_fields(header: &Header) -> Result<(), FormatError> {
-    if header.reserved.iter().any(|&r| r != 0) {
+    if header.reserved.iter().any(|&r| r != 0) || header.reserved_u32 != 0 {
         return Err(header_err("reserved fields are not zero"));
+    }
+    if header.chunk_groups > MAX_CHUNK_GROUPS
+        || (header.chunk_groups != 0 && header.flags & FLAG_CLUSTERS == 0)
+    {
+        return Err(header_err(format!(
+            "chunk_groups is {}: at most {MAX_CHUNK_GROUPS}, and 0 in a file without clusters",
+            header.chunk_groups
+        )));
     }
     if header.lattice_bits != LATTICE_BITS {
         return Err(header_err(format!(

@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 pub const MAGIC: [u8; 8] = *b"\x89OAVM\r\n\x1a";
 
 /// Spec §12: the format version this code reads and writes.
-pub const VERSION: u32 = 6;
+pub const VERSION: u32 = 7;
 
 /// Spec §2: sections start at multiples of this, so records can be cast in place from a map.
 pub const SECTION_ALIGN: u64 = 64;
@@ -106,8 +106,13 @@ pub struct Header {
     pub stored_triangles: u64,
     /// Spec §2.1: 1 for a file as packed; each update writes the next in the other slot.
     pub generation: u64,
+    /// Spec §8.3: triangle groups per chunk, the unit a block's groups are checked, compressed
+    /// and read in: `1..=`[`MAX_CHUNK_GROUPS`] in a file of clusters, 0 in a file of lists.
+    pub chunk_groups: u32,
+    /// Zero.
+    pub reserved_u32: u32,
     /// Zero in this version.
-    pub reserved: [u64; 9],
+    pub reserved: [u64; 8],
     /// xxh3-64 of the header's first 248 bytes followed by the whole section table.
     pub checksum: u64,
 }
@@ -816,17 +821,17 @@ pub const CODEC_ZSTD: u32 = 1;
 /// never touches another's pages.
 pub const RAW_BLOCK_ALIGN: u64 = 4096;
 
-/// Spec §8.2: one entry of the block directory (48 bytes).
+/// Spec §8.2: one entry of the block directory (64 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable, serde::Serialize)]
 pub struct BlockEntry {
     /// Offset of the block's stored bytes in the file.
     pub offset: u64,
-    /// Bytes stored in the file.
+    /// Bytes stored in the file: the head's, then the chunks' (spec §8.3).
     pub stored_len: u64,
     /// Bytes of the block once decoded (`== stored_len` for a raw block).
     pub raw_len: u64,
-    /// [`CODEC_RAW`] or [`CODEC_ZSTD`].
+    /// The head's codec: [`CODEC_RAW`] or [`CODEC_ZSTD`] (a raw block's chunks are raw too).
     pub codec: u32,
     /// Absolute level of the block's roots.
     pub root_level: u32,
@@ -834,10 +839,45 @@ pub struct BlockEntry {
     /// Triangles stored in the block: its triangle records (lists) or its groups' lanes in use
     /// (clusters).
     pub triangles: u32,
-    /// xxh3-64 of the `stored_len` stored bytes.
+    /// xxh3-64 of the head's `head_stored_len` stored bytes (each chunk has its own, in the
+    /// head's chunk table).
+    pub checksum: u64,
+    /// Bytes of the head as stored: the first of the block's stored bytes.
+    pub head_stored_len: u64,
+    /// Bytes of the head once decoded: where the groups start in the decoded block (a multiple
+    /// of [`GROUPS_ALIGN`] when it has groups), or `raw_len` when it has none.
+    pub head_raw_len: u64,
+}
+const _: () = assert!(std::mem::size_of::<BlockEntry>() == 64);
+
+/// Spec §8.3: one chunk of a block's triangle groups (16 bytes), in the chunk table of the
+/// block's head. Chunk `c` holds groups `c * chunk_groups ..` (the last chunk fewer).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct ChunkEntry {
+    /// Offset of the chunk's stored bytes from the end of the head's stored bytes.
+    pub offset: u32,
+    /// Bytes stored: the chunk's raw length (a raw chunk) or fewer (one zstd frame).
+    pub stored_len: u32,
+    /// xxh3-64 of the stored bytes.
     pub checksum: u64,
 }
-const _: () = assert!(std::mem::size_of::<BlockEntry>() == 48);
+
+/// Spec §2: the most groups a chunk may hold (a chunk of them is 10 MiB).
+pub const MAX_CHUNK_GROUPS: u32 = 1 << 16;
+
+/// Spec §8.2: whether a zstd head of `stored` bytes may decode to `raw`: at most
+/// [`MAX_ZSTD_RATIO`] times its size, plus one page (the zero padding before the groups, which
+/// compresses to nothing).
+pub fn zstd_head_fits(raw: u64, stored: u64) -> bool {
+    raw <= stored
+        .saturating_mul(MAX_ZSTD_RATIO)
+        .saturating_add(GROUPS_ALIGN)
+}
+
+/// Spec §8.3: a block's groups start at a multiple of this from the block's start, so that a
+/// raw block's chunks can be read past the page cache, page by page.
+pub const GROUPS_ALIGN: u64 = 4096;
 
 impl BlockEntry {
     /// Spec §8.2: a free entry (all zero) stands where an update removed a block; no link
@@ -892,15 +932,30 @@ pub struct BlockHeader {
     pub occluder_node_count: u64,
     /// Occluder triangle records (spec §8.5).
     pub occluder_count: u64,
+    /// Entries of the chunk table: `ceil(group_count / chunk_groups)`.
+    pub chunk_count: u64,
 }
-const _: () = assert!(std::mem::size_of::<BlockHeader>() == 104);
+const _: () = assert!(std::mem::size_of::<BlockHeader>() == 112);
 
 /// Spec §8.3: the parts of a block, in the order they are stored.
-pub const BLOCK_PARTS: usize = 11;
+pub const BLOCK_PARTS: usize = 12;
+/// Indices of a block's parts in [`block_layout`]'s ranges.
+pub const PART_LEVELS: usize = 0;
+pub const PART_NODES: usize = 1;
+pub const PART_RANKS: usize = 2;
+pub const PART_VOLUMES: usize = 3;
+pub const PART_REFS: usize = 4;
+pub const PART_TRIANGLES: usize = 5;
+pub const PART_WIDE: usize = 6;
+pub const PART_ROPES: usize = 7;
+pub const PART_OCCLUDER_NODES: usize = 8;
+pub const PART_OCCLUDERS: usize = 9;
+pub const PART_CHUNKS: usize = 10;
+pub const PART_GROUPS: usize = 11;
 
-/// The parts added to blocks after the first version of the layout (ropes, occluder nodes,
-/// occluders), which take no place when they are empty.
-const LATE_PARTS: usize = 8;
+/// The parts that take their place in a block even when empty (the first seven); the others
+/// take none when empty.
+const FIXED_PARTS: usize = 7;
 
 /// Spec §8.5: an internal node of a block that holds occluders (8 bytes): its index in the
 /// block's node records, and the index of its first occluder in the block's occluder records
@@ -930,9 +985,12 @@ pub struct RopeRecord {
     pub across: [u32; 6],
 }
 
-/// Spec §8.3: the byte ranges, from a block's start, of its level table, nodes, ranks, volumes,
-/// refs, triangles, cluster nodes and groups (each at the next multiple of [`SECTION_ALIGN`]),
-/// and the block's raw length; `None` if the counts overflow.
+/// Spec §8.3: the byte ranges, from a block's start, of its parts (indexed by `PART_*`): the
+/// level table, nodes, ranks, volumes, refs, triangles and wide nodes, each at the next
+/// multiple of [`SECTION_ALIGN`]; then the ropes, occluder nodes, occluders and chunk table,
+/// likewise but only when not empty; then the groups, when there are some, at the next multiple
+/// of [`GROUPS_ALIGN`]. Also the block's raw length; `None` if the counts overflow. The *head*
+/// is everything before the groups.
 pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; BLOCK_PARTS], u64)> {
     let sizes = [
         (h.level_count as u64, std::mem::size_of::<LevelEntry>()),
@@ -942,17 +1000,18 @@ pub fn block_layout(h: &BlockHeader) -> Option<([std::ops::Range<u64>; BLOCK_PAR
         (h.ref_count, std::mem::size_of::<u32>()),
         (h.triangle_count, std::mem::size_of::<TriRecord>()),
         (h.cluster_node_count, std::mem::size_of::<ClusterNode>()),
-        (h.group_count, std::mem::size_of::<TriGroup>()),
         (h.rope_count, std::mem::size_of::<RopeRecord>()),
         (h.occluder_node_count, std::mem::size_of::<OccluderNode>()),
         (h.occluder_count, std::mem::size_of::<TriRecord>()),
+        (h.chunk_count, std::mem::size_of::<ChunkEntry>()),
+        (h.group_count, std::mem::size_of::<TriGroup>()),
     ];
     let mut at = std::mem::size_of::<BlockHeader>() as u64;
     let mut out: [std::ops::Range<u64>; BLOCK_PARTS] = Default::default();
     for (i, (count, size)) in sizes.into_iter().enumerate() {
-        // The ropes and occluders, added later, take no place when absent: a block without
-        // them ends where it always did, at the end of its groups.
-        if i < LATE_PARTS || count > 0 {
+        if i == PART_GROUPS && count > 0 {
+            at = at.checked_next_multiple_of(GROUPS_ALIGN)?;
+        } else if i < FIXED_PARTS || count > 0 {
             at = at.checked_next_multiple_of(SECTION_ALIGN)?;
         }
         let end = at.checked_add(count.checked_mul(size as u64)?)?;

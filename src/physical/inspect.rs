@@ -82,6 +82,12 @@ pub struct DirectorySummary {
     pub decoded_bytes: u64,
     pub smallest_decoded: u64,
     pub largest_decoded: u64,
+    /// The heads' bytes (spec §8.2: everything but the groups), stored and decoded.
+    pub head_stored_bytes: u64,
+    pub head_decoded_bytes: u64,
+    /// Groups per chunk (the header's `chunk_groups`), and the chunks of all blocks.
+    pub chunk_groups: u32,
+    pub chunks: u64,
     /// The entries' `triangles` summed (spec §8.2): triangle records in a file of lists, group
     /// lanes in use in a file of clusters.
     pub triangle_records: u64,
@@ -162,6 +168,7 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
     let mut d = DirectorySummary {
         blocks: directory.len() as u64,
         smallest_decoded: directory.iter().map(|e| e.raw_len).min().unwrap_or(0),
+        chunk_groups: file.header().chunk_groups,
         ..DirectorySummary::default()
     };
     let mut root_levels = [0u64; MAX_LEVEL as usize + 1];
@@ -173,6 +180,14 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
         d.stored_bytes = d.stored_bytes.saturating_add(e.stored_len);
         d.decoded_bytes = d.decoded_bytes.saturating_add(e.raw_len);
         d.largest_decoded = d.largest_decoded.max(e.raw_len);
+        d.head_stored_bytes = d.head_stored_bytes.saturating_add(e.head_stored_len);
+        d.head_decoded_bytes = d.head_decoded_bytes.saturating_add(e.head_raw_len);
+        if let Some(per) = (file.header().chunk_groups as u64)
+            .checked_mul(160)
+            .filter(|&p| p > 0)
+        {
+            d.chunks += e.raw_len.saturating_sub(e.head_raw_len).div_ceil(per);
+        }
         d.triangle_records += e.triangles as u64;
         if let Some(n) = root_levels.get_mut(e.root_level as usize) {
             *n += 1;

@@ -29,4 +29,4 @@ pub use inspect::{
     BlockWideCounts, DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel,
     WideSummary, inspect,
 };
-pub use writer::{BlockOptions, DEFAULT_BLOCK_SIZE, DEFAULT_ZSTD_LEVEL};
+pub use writer::{BlockOptions, DEFAULT_BLOCK_SIZE, DEFAULT_CHUNK_GROUPS, DEFAULT_ZSTD_LEVEL};

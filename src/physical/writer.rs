@@ -100,6 +100,9 @@ pub struct BlockOptions {
     pub block_size: u64,
     /// zstd level for blocks (`None`: raw). A block that does not shrink is stored raw.
     pub compress: Option<i32>,
+    /// Triangle groups per chunk (spec §8.3): the unit in which a block's groups are checked,
+    /// compressed and read on their own.
+    pub chunk_groups: u32,
 }
 
 /// Default target block size: 256 KiB, a few dozen disk pages and a few thousand triangles;
@@ -108,6 +111,8 @@ pub struct BlockOptions {
 pub const DEFAULT_BLOCK_SIZE: u64 = 256 * 1024;
 /// Default zstd level of `--compress`.
 pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
+/// Default groups per chunk: 128 groups, 20 KiB, whole pages.
+pub const DEFAULT_CHUNK_GROUPS: u32 = 128;
 
 impl BlockOptions {
     pub fn validate(&self) -> Result<(), Error> {
@@ -116,6 +121,12 @@ impl BlockOptions {
                 "--block-size {} must be between 4 KiB and {} MiB",
                 self.block_size,
                 (MAX_BLOCK_RAW_LEN / 4) >> 20
+            )));
+        }
+        if !(1..=MAX_CHUNK_GROUPS).contains(&self.chunk_groups) {
+            return Err(Error::Invalid(format!(
+                "--chunk-groups {} must be between 1 and {MAX_CHUNK_GROUPS}",
+                self.chunk_groups
             )));
         }
         if let Some(level) = self.compress
@@ -135,6 +146,7 @@ impl Default for BlockOptions {
         BlockOptions {
             block_size: DEFAULT_BLOCK_SIZE,
             compress: None,
+            chunk_groups: DEFAULT_CHUNK_GROUPS,
         }
     }
 }
@@ -152,6 +164,8 @@ pub struct StoredBlock {
     /// The box of each of its roots' wide nodes (spec §8.7; empty in a file of lists), for the
     /// top tree's wide links.
     pub root_boxes: Vec<super::wide::WorldBox>,
+    /// Groups per chunk it was made with (the file's `chunk_groups`).
+    pub chunk_groups: u32,
 }
 
 /// Whether a block of `raw_len` bytes whose zstd frame is `z_len` bytes is stored compressed:
@@ -185,7 +199,7 @@ fn largest_leaf(unit: UnitRef<'_>) -> (usize, usize) {
 }
 
 /// The header of the block `unit` would make (spec §8.3).
-fn block_header(unit: UnitRef<'_>, root_level: u32, id: u32) -> BlockHeader {
+fn block_header(unit: UnitRef<'_>, root_level: u32, id: u32, chunk_groups: u32) -> BlockHeader {
     BlockHeader {
         tag: BLOCK_TAG,
         level_count: unit.levels.len() as u32,
@@ -202,34 +216,102 @@ fn block_header(unit: UnitRef<'_>, root_level: u32, id: u32) -> BlockHeader {
         rope_count: unit.ropes.len() as u64,
         occluder_node_count: unit.occluder_nodes.len() as u64,
         occluder_count: unit.occluders.len() as u64,
+        chunk_count: (unit.groups.len() as u64).div_ceil(chunk_groups.max(1) as u64),
     }
 }
 
-/// The raw bytes of a block (spec §8.3): header, level table, nodes, ranks, volumes, refs,
-/// triangles, cluster nodes, groups, each part at a multiple of 64 bytes from the start. The caller has checked its
-/// size ([`store_block`]).
-pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32) -> Vec<u8> {
-    let header = block_header(unit, root_level, id);
+/// The raw bytes of a block (spec §8.3): header, then each part where [`block_layout`] puts
+/// it; the chunk table is left zero (see [`store_block`]). The caller has checked its size.
+pub fn encode_block(unit: UnitRef<'_>, root_level: u32, id: u32, chunk_groups: u32) -> Vec<u8> {
+    let header = block_header(unit, root_level, id, chunk_groups);
     let (ranges, len) = block_layout(&header).expect("block counts fit in memory");
     let mut out = vec![0u8; len as usize];
     out[..std::mem::size_of::<BlockHeader>()].copy_from_slice(bytemuck::bytes_of(&header));
-    let parts: [&[u8]; BLOCK_PARTS] = [
-        bytemuck::cast_slice(unit.levels),
-        bytemuck::cast_slice(unit.nodes),
-        bytemuck::cast_slice(unit.ranks),
-        bytemuck::cast_slice(unit.volumes),
-        bytemuck::cast_slice(unit.refs),
-        bytemuck::cast_slice(unit.triangles),
-        bytemuck::cast_slice(unit.cluster_nodes),
-        bytemuck::cast_slice(unit.groups),
-        bytemuck::cast_slice(unit.ropes),
-        bytemuck::cast_slice(unit.occluder_nodes),
-        bytemuck::cast_slice(unit.occluders),
+    let parts: [(usize, &[u8]); BLOCK_PARTS - 1] = [
+        (PART_LEVELS, bytemuck::cast_slice(unit.levels)),
+        (PART_NODES, bytemuck::cast_slice(unit.nodes)),
+        (PART_RANKS, bytemuck::cast_slice(unit.ranks)),
+        (PART_VOLUMES, bytemuck::cast_slice(unit.volumes)),
+        (PART_REFS, bytemuck::cast_slice(unit.refs)),
+        (PART_TRIANGLES, bytemuck::cast_slice(unit.triangles)),
+        (PART_WIDE, bytemuck::cast_slice(unit.cluster_nodes)),
+        (PART_ROPES, bytemuck::cast_slice(unit.ropes)),
+        (
+            PART_OCCLUDER_NODES,
+            bytemuck::cast_slice(unit.occluder_nodes),
+        ),
+        (PART_OCCLUDERS, bytemuck::cast_slice(unit.occluders)),
+        (PART_GROUPS, bytemuck::cast_slice(unit.groups)),
     ];
-    for (r, bytes) in ranges.iter().zip(parts) {
-        out[r.start as usize..r.end as usize].copy_from_slice(bytes);
+    for (i, bytes) in parts {
+        out[ranges[i].start as usize..ranges[i].end as usize].copy_from_slice(bytes);
     }
     out
+}
+
+/// Stores the raw bytes of a block (`raw`, laid out by `header`): its groups cut into chunks of
+/// `chunk_groups`, each compressed on its own when `compress` says so and that pays (else
+/// raw), their entries written into the head's chunk table, then the head, compressed in a
+/// block whose codec is zstd. A block is zstd when its head or a chunk shrinks, and its head's
+/// frame stays within what a reader accepts ([`zstd_head_fits`]); else raw. Returns the codec,
+/// the stored bytes and the head's stored and raw lengths.
+fn store_raw(
+    mut raw: Vec<u8>,
+    header: &BlockHeader,
+    chunk_groups: u32,
+    compress: Option<i32>,
+) -> std::io::Result<(u32, Vec<u8>, u64, u64)> {
+    let (ranges, len) = block_layout(header).expect("block counts fit in memory");
+    let head_len = match header.group_count {
+        0 => len,
+        _ => ranges[PART_GROUPS].start,
+    } as usize;
+    let per = chunk_groups.max(1) as usize * std::mem::size_of::<TriGroup>();
+    let chunk = |c: &[u8], level: Option<i32>| -> std::io::Result<Vec<u8>> {
+        if let Some(level) = level {
+            let z = zstd::bulk::compress(c, level)?;
+            if worth_compressing(c.len() as u64, z.len() as u64) {
+                return Ok(z);
+            }
+        }
+        Ok(c.to_vec())
+    };
+    let table_at = ranges[PART_CHUNKS].start as usize;
+    let write_table = |raw: &mut [u8], chunks: &[Vec<u8>]| {
+        let mut at = 0u64;
+        for (i, c) in chunks.iter().enumerate() {
+            let e = ChunkEntry {
+                offset: at as u32,
+                stored_len: c.len() as u32,
+                checksum: checksum(c),
+            };
+            let p = table_at + i * std::mem::size_of::<ChunkEntry>();
+            raw[p..p + std::mem::size_of::<ChunkEntry>()].copy_from_slice(bytemuck::bytes_of(&e));
+            at += c.len() as u64;
+        }
+    };
+    if let Some(level) = compress {
+        let chunks: Vec<Vec<u8>> = raw[head_len..]
+            .chunks(per)
+            .map(|c| chunk(c, Some(level)))
+            .collect::<std::io::Result<_>>()?;
+        write_table(&mut raw, &chunks);
+        let z = zstd::bulk::compress(&raw[..head_len], level)?;
+        let shrank = z.len() < head_len
+            || chunks.iter().map(Vec::len).sum::<usize>() < len as usize - head_len;
+        if shrank && zstd_head_fits(head_len as u64, z.len() as u64) {
+            let head_stored = z.len() as u64;
+            let mut out = z;
+            for c in &chunks {
+                out.extend_from_slice(c);
+            }
+            return Ok((CODEC_ZSTD, out, head_stored, head_len as u64));
+        }
+    }
+    // Raw: the bytes as laid out, every chunk raw.
+    let chunks: Vec<Vec<u8>> = raw[head_len..].chunks(per).map(<[u8]>::to_vec).collect();
+    write_table(&mut raw, &chunks);
+    Ok((CODEC_RAW, raw, head_len as u64, head_len as u64))
 }
 
 /// Encodes block `id` and stores it as `opts` say: zstd-compressed if that makes it smaller
@@ -279,7 +361,9 @@ fn store_block_within(
         None => unit,
     };
     let root_boxes = wide.as_ref().map_or(Vec::new(), |w| w.roots.clone());
-    let raw_len = block_layout(&block_header(unit, root_level, id)).map_or(u64::MAX, |(_, n)| n);
+    let chunk_groups = opts.chunk_groups;
+    let header = block_header(unit, root_level, id, chunk_groups);
+    let raw_len = block_layout(&header).map_or(u64::MAX, |(_, n)| n);
     if raw_len > limit {
         let largest = largest_leaf(unit);
         return Err(Error::Build(format!(
@@ -293,19 +377,10 @@ fn store_block_within(
     }
     let root_bounds = super::bounds::root_bounds(unit.levels, unit.nodes)
         .map_err(|e| Error::Build(format!("block {id}: {e}")))?;
-    let raw = encode_block(unit, root_level, id);
-    let (codec, bytes) = match opts.compress {
-        Some(level) => {
-            let z = zstd::bulk::compress(&raw, level)
-                .map_err(|e| Error::Build(format!("compressing block {id}: {e}")))?;
-            if worth_compressing(raw_len, z.len() as u64) {
-                (CODEC_ZSTD, z)
-            } else {
-                (CODEC_RAW, raw)
-            }
-        }
-        None => (CODEC_RAW, raw),
-    };
+    let raw = encode_block(unit, root_level, id, chunk_groups);
+    let (codec, bytes, head_stored_len, head_raw_len) =
+        store_raw(raw, &header, chunk_groups, opts.compress)
+            .map_err(|e| Error::Build(format!("compressing block {id}: {e}")))?;
     Ok(StoredBlock {
         entry: BlockEntry {
             offset: 0,
@@ -315,13 +390,16 @@ fn store_block_within(
             root_level,
             root_count: unit.levels.first().map_or(0, |l| l.node_count as u32),
             triangles: unit.stored_triangles() as u32,
-            checksum: checksum(&bytes),
+            checksum: checksum(&bytes[..head_stored_len as usize]),
+            head_stored_len,
+            head_raw_len,
         },
         bytes,
         entry_id: id,
         root_bounds,
         ropes: !unit.ropes.is_empty(),
         root_boxes,
+        chunk_groups,
     })
 }
 
@@ -406,6 +484,9 @@ pub struct FileWriter<S: Sink> {
     boxes: Vec<Vec<super::wide::WorldBox>>,
     /// Whether the blocks written carry ropes (`None` before the first).
     ropes: Option<bool>,
+    /// Groups per chunk of the blocks written (0 before the first block with groups; an
+    /// update's, the file's).
+    chunk_groups: u32,
     /// The primitive table's chunks (spec §8.6), if any.
     prims: Option<Vec<PrimChunk>>,
     /// The generation written and its header slot (spec §2.1).
@@ -428,6 +509,7 @@ impl<S: Sink> FileWriter<S> {
             bounds: Vec::new(),
             boxes: Vec::new(),
             ropes: None,
+            chunk_groups: 0,
             prims: None,
             generation: FIRST_GENERATION,
             durable: false,
@@ -440,10 +522,12 @@ impl<S: Sink> FileWriter<S> {
     /// roots' link bounds, and `boxes`, their wide nodes' boxes (spec §8.7); `prims` its primitive chunks (changed ones are replaced with
     /// [`Self::replace_prim_chunk`]). Ropes are not carried over (a file that has them is not
     /// updated).
+    #[allow(clippy::too_many_arguments)]
     pub fn resume(
         sink: S,
         at: u64,
         generation: u64,
+        chunk_groups: u32,
         directory: Vec<BlockEntry>,
         bounds: Vec<Vec<LinkBounds>>,
         boxes: Vec<Vec<super::wide::WorldBox>>,
@@ -468,6 +552,7 @@ impl<S: Sink> FileWriter<S> {
             bounds,
             boxes,
             ropes: Some(false),
+            chunk_groups,
             prims,
             generation,
             durable: true,
@@ -537,6 +622,17 @@ impl<S: Sink> FileWriter<S> {
                     "have them"
                 },
             )));
+        }
+        if block.entry.head_raw_len < block.entry.raw_len {
+            if self.chunk_groups == 0 {
+                self.chunk_groups = block.chunk_groups;
+            }
+            if self.chunk_groups != block.chunk_groups {
+                return Err(std::io::Error::other(format!(
+                    "block {} has chunks of {} groups, the file {}",
+                    block.entry_id, block.chunk_groups, self.chunk_groups
+                )));
+            }
         }
         let mut entry = block.entry;
         entry.offset = self.at;
@@ -777,7 +873,9 @@ impl<S: Sink> FileWriter<S> {
             block_triangles,
             stored_triangles: meta.stored_triangles,
             generation: self.generation,
-            reserved: [0; 9],
+            chunk_groups: self.chunk_groups,
+            reserved_u32: 0,
+            reserved: [0; 8],
             checksum: 0,
         }
     }

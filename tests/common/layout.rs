@@ -2,13 +2,14 @@
 //! out by hand for the tests and the fuzz targets that build or damage files byte by byte: they
 //! must not take offsets from the code they check. Shared by the `tests/corrupt_*.rs` files
 //! (`tests/common/corrupt`) and `fuzz/targets.rs` (through `#[path]`); a change of the format
-//! changes this file with the spec. As of format version 6 (generations in two header slots, the
+//! changes this file with the spec. As of format version 7 (generations in two header slots, the
 //! primitive table; the wide nodes of §8.7: the top tree's wide nodes and wide links, two
-//! sections of a file of clusters).
+//! sections of a file of clusters; a block's groups at its end, in chunks checked and stored
+//! on their own, §8.2–§8.3).
 #![allow(dead_code)]
 
 /// §12: the version this layout describes.
-pub const VERSION: u32 = 6;
+pub const VERSION: u32 = 7;
 /// §2: the magic bytes a header starts with.
 pub const MAGIC: &[u8; 8] = b"\x89OAVM\r\n\x1a";
 /// §2: the header is 256 bytes; its last 8 are the checksum of the bytes before them and of the
@@ -26,8 +27,13 @@ pub const ROOT_SIZE_AT: usize = 64;
 pub const INPUT_TRIANGLES_AT: usize = 96;
 pub const MAX_BLOCK_RAW_LEN_AT: usize = 144;
 pub const GENERATION_AT: usize = 168;
-/// §2: `reserved`, u64[9], zero.
-pub const RESERVED_AT: usize = 176;
+/// §2, §8.3: `chunk_groups` (u32): triangle groups per chunk, `1..=MAX_CHUNK_GROUPS` in a file
+/// of clusters that has groups, 0 in a file of lists.
+pub const CHUNK_GROUPS_AT: usize = 176;
+pub const MAX_CHUNK_GROUPS: u32 = 1 << 16;
+/// §2: `reserved_u32` (u32) and `reserved` (u64[8]), zero, up to the checksum.
+pub const RESERVED_U32_AT: usize = 180;
+pub const RESERVED_AT: usize = 184;
 /// §2, §2.1: the two header slots, each a header and its section table, zero after the table
 /// to the slot's end. Generation `g` is in slot `(g - 1) mod 2`; a file as packed is
 /// generation 1, in slot 0, and its slot 1 is all zero.
@@ -68,8 +74,9 @@ pub const WL_LO: usize = 8;
 pub const WL_HI: usize = 20;
 /// §2, §3: the blocks section (the data region) starts at offset 4096, after both slots.
 pub const BLOCKS_START: usize = 4096;
-/// §8.2: a directory entry and its fields.
-pub const DIR_LEN: usize = 48;
+/// §8.2: a directory entry and its fields. `checksum` covers the head's stored bytes only (the
+/// first `head_stored_len` of the block's); each chunk's checksum is in the head's chunk table.
+pub const DIR_LEN: usize = 64;
 pub const DIR_OFFSET: usize = 0;
 pub const DIR_STORED_LEN: usize = 8;
 pub const DIR_RAW_LEN: usize = 16;
@@ -78,11 +85,16 @@ pub const DIR_ROOT_LEVEL: usize = 28;
 pub const DIR_ROOT_COUNT: usize = 32;
 pub const DIR_TRIANGLES: usize = 36;
 pub const DIR_CHECKSUM: usize = 40;
+pub const DIR_HEAD_STORED_LEN: usize = 48;
+pub const DIR_HEAD_RAW_LEN: usize = 56;
 /// §8.2: codecs, and where blocks of each start.
 pub const CODEC_RAW: u32 = 0;
 pub const CODEC_ZSTD: u32 = 1;
 pub const RAW_ALIGN: usize = 4096;
 pub const ALIGN: usize = 64;
+/// §8.2: a zstd frame (a head, or a chunk) decodes to at most this many times its size (a
+/// head: plus one page, `GROUPS_ALIGN`, the zero padding before its groups).
+pub const MAX_ZSTD_RATIO: usize = 64;
 /// §2: flag bits.
 pub const FLAG_MERGED: u32 = 1;
 pub const FLAG_COMPRESSED: u32 = 2;
@@ -101,22 +113,104 @@ pub const PC_RESERVED: usize = 24;
 pub const PRIM_RECORD_LEN: usize = 36;
 pub const PRIMS_PER_CHUNK: usize = 4096;
 pub const PRIM_ABSENT: u32 = 0xffff_ffff;
-/// §8.3: a block's header (104 bytes), and where its counts are: `level_count` (u32), then from
-/// `node_count` on seven u64 counts, one per part after the level table, in part order (nodes,
-/// ranks, volumes, refs, triangles, cluster nodes, groups), then `block_id`, then the counts of
-/// the parts added later: `rope_count`, `occluder_node_count`, `occluder_count` (bytes 80..104
-/// were padding before ropes and occluders; the level table still starts at 128).
-pub const BLOCK_HEADER_LEN: usize = 104;
+/// §8.3: a block's header (112 bytes), and where its counts are: `level_count` (u32), then from
+/// `node_count` on seven u64 counts (nodes, ranks, volumes, refs, triangles, wide nodes,
+/// groups), then `block_id`, then `rope_count`, `occluder_node_count`, `occluder_count` and
+/// `chunk_count`. The level table still starts at 128.
+pub const BLOCK_HEADER_LEN: usize = 112;
 pub const BH_LEVEL_COUNT: usize = 4;
 pub const BH_NODE_COUNT: usize = 16;
+pub const BH_GROUP_COUNT: usize = 64;
 pub const BH_BLOCK_ID: usize = 72;
 pub const BH_ROPE_COUNT: usize = 80;
 pub const BH_OCCLUDER_NODE_COUNT: usize = 88;
 pub const BH_OCCLUDER_COUNT: usize = 96;
-/// §8.3: a block's parts, the level table first, the ropes ninth, the occluder nodes and the
-/// occluders tenth and eleventh; the parts from the ninth on take no place when empty.
-pub const BLOCK_PART_COUNT: usize = 11;
-pub const FIRST_LATE_PART: usize = 8;
+pub const BH_CHUNK_COUNT: usize = 104;
+/// §8.3: a block's parts, in the order they are stored: the level table, nodes, ranks,
+/// volumes, refs, triangles and wide nodes (these seven have their place even when empty, each
+/// at the next multiple of 64), then the ropes, the occluder nodes, the occluders and the chunk
+/// table (each only when not empty, at the next multiple of 64), then the groups (only when
+/// there are some, at the next multiple of `GROUPS_ALIGN`). The *head* is everything before
+/// the groups.
+pub const BLOCK_PART_COUNT: usize = 12;
+pub const FIXED_PARTS: usize = 7;
+pub const PART_LEVELS: usize = 0;
+pub const PART_NODES: usize = 1;
+pub const PART_RANKS: usize = 2;
+pub const PART_VOLUMES: usize = 3;
+pub const PART_REFS: usize = 4;
+pub const PART_TRIANGLES: usize = 5;
+pub const PART_CLUSTER_NODES: usize = 6;
+pub const PART_ROPES: usize = 7;
+pub const PART_OCCLUDER_NODES: usize = 8;
+pub const PART_OCCLUDERS: usize = 9;
+pub const PART_CHUNKS: usize = 10;
+pub const PART_GROUPS: usize = 11;
+/// §8.3: the size of a record of each part, in part order.
+pub const PART_RECORD_LEN: [usize; BLOCK_PART_COUNT] =
+    [32, 8, 16, 24, 4, 40, 80, 24, 8, 40, 16, 160];
+/// §8.3: where in a block's header the count of each part is (`level_count` is a u32, the
+/// others u64), in part order.
+pub const PART_COUNT_AT: [usize; BLOCK_PART_COUNT] = [
+    BH_LEVEL_COUNT,
+    BH_NODE_COUNT,
+    BH_NODE_COUNT + 8,
+    BH_NODE_COUNT + 16,
+    BH_NODE_COUNT + 24,
+    BH_NODE_COUNT + 32,
+    BH_NODE_COUNT + 40,
+    BH_ROPE_COUNT,
+    BH_OCCLUDER_NODE_COUNT,
+    BH_OCCLUDER_COUNT,
+    BH_CHUNK_COUNT,
+    BH_GROUP_COUNT,
+];
+/// §8.3: the groups start at a multiple of this from the block's start.
+pub const GROUPS_ALIGN: usize = 4096;
+/// §8.3: an entry of the chunk table (`ChunkEntry`, 16 bytes): `offset` (u32, from the end of
+/// the head's stored bytes), `stored_len` (u32: the chunk's raw length, a raw chunk; shorter,
+/// one zstd frame), `checksum` (u64, xxh3-64 of the chunk's stored bytes).
+pub const CHUNK_ENTRY_LEN: usize = 16;
+pub const CE_OFFSET: usize = 0;
+pub const CE_STORED_LEN: usize = 4;
+pub const CE_CHECKSUM: usize = 8;
+
+/// §8.3: the byte ranges of a decoded block's parts (indexed by `PART_*`) from the counts in
+/// its header (the first `BLOCK_HEADER_LEN` bytes of `raw`), and the block's length (the end of
+/// its last part); `None` if `raw` is shorter than a header or the counts overflow. Checked
+/// arithmetic throughout: the fuzz targets call it on any bytes.
+pub fn block_layout(raw: &[u8]) -> Option<([std::ops::Range<usize>; BLOCK_PART_COUNT], usize)> {
+    let header = raw.get(..BLOCK_HEADER_LEN)?;
+    let mut out: [std::ops::Range<usize>; BLOCK_PART_COUNT] = Default::default();
+    let mut at = BLOCK_HEADER_LEN;
+    for (i, range) in out.iter_mut().enumerate() {
+        let c = PART_COUNT_AT[i];
+        let count = match i {
+            PART_LEVELS => u64::from(u32::from_le_bytes(header[c..c + 4].try_into().ok()?)),
+            _ => u64::from_le_bytes(header[c..c + 8].try_into().ok()?),
+        };
+        let count = usize::try_from(count).ok()?;
+        if i == PART_GROUPS && count > 0 {
+            at = at.checked_next_multiple_of(GROUPS_ALIGN)?;
+        } else if i < FIXED_PARTS || count > 0 {
+            at = at.checked_next_multiple_of(ALIGN)?;
+        }
+        let end = at.checked_add(count.checked_mul(PART_RECORD_LEN[i])?)?;
+        *range = at..end;
+        at = end;
+    }
+    Some((out, at))
+}
+
+/// §8.3: the length of a decoded block's head: where its groups start, or its whole length
+/// when it has none.
+pub fn head_len(raw: &[u8]) -> Option<usize> {
+    let (parts, len) = block_layout(raw)?;
+    Some(match parts[PART_GROUPS].is_empty() {
+        true => len,
+        false => parts[PART_GROUPS].start,
+    })
+}
 /// §7.1: a cluster node (80 bytes) and the fields these tests rewrite.
 pub const CLUSTER_NODE_LEN: usize = 80;
 pub const CN_ORIGIN: usize = 0;

@@ -32,10 +32,11 @@ fn open_error_names(region: &Region) -> Vec<String> {
     }
 }
 
-/// Words a defect about a flipped bit in `region` must contain (one of them).
-fn defect_names(region: &Region) -> Vec<String> {
+/// Words a defect about a flipped bit in `region` (at file offset `at`) must contain (one of
+/// them): in a block, the checksum of its head or of the chunk holding the byte (§8.2, §8.3).
+fn defect_names(fix: &Fixture, region: &Region, at: usize) -> Vec<String> {
     match (region.kind, region.block(), &region.defect) {
-        (_, Some(b), _) => vec![format!("block {b}: checksum mismatch")],
+        (_, Some(b), _) => vec![fix.checksum_error(b, at)],
         (RegionKind::Chunk(c), ..) => vec![format!("primitive chunk {c}: checksum mismatch")],
         (.., Some(defect)) => vec![defect.clone()],
         _ => vec![region.name.clone()],
@@ -252,7 +253,10 @@ fn check_bit_flips(
                         Err(panic) => {
                             failures.add(panic_kind("verify", &panic), format!("{what}: {panic}"))
                         }
-                        Ok(d) if d.iter().any(|d| names(d, defect_names(region))) => {
+                        Ok(d)
+                            if d.iter()
+                                .any(|d| names(d, defect_names(fix, region, file_at))) =>
+                        {
                             tally.by_verify += 1
                         }
                         Ok(d) => failures.add(
@@ -831,6 +835,9 @@ struct MutTally {
 /// must form the cluster's tree, which verify checks (a box grown, or children reordered, must
 /// leave the answers as they were); nor a group's lane count or reserved bytes.
 ///
+/// - A chunk's checksum in its block's chunk table (§8.3), which the checksums recomputed
+///   after a change to the chunk's stored bytes change with it.
+///
 /// A change is judged by the bytes of the decoded block it changes (`m` for a change made in a
 /// block's parts; for one made to a block's stored bytes, a zstd frame or a raw block taken
 /// whole, the block decoded again): allowed if every byte it changes is one of those above.
@@ -851,16 +858,10 @@ fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8], m: &Mutat
             .filter(|&i| m.new[i] != m.old[i])
             .all(|i| is_mesh(blk, m.at + i)),
         RegionKind::Stored(blk) => {
-            let e = fix.dir[blk];
-            let Some(stored) = bytes.get(e.stored()) else {
+            // Decoded as a reader decodes it (its head, then its chunks, §8.3), from the entry
+            // as it now is.
+            let Ok(decoded) = decode_block(bytes, &directory(bytes)[blk], fix.chunk_groups) else {
                 return false;
-            };
-            let decoded = match e.codec {
-                CODEC_RAW => stored.to_vec(),
-                _ => match zstd::bulk::decompress(stored, e.raw_len) {
-                    Ok(d) => d,
-                    Err(_) => return false,
-                },
             };
             let old = &fix.decoded[blk];
             if decoded.len() != old.len() {
@@ -875,8 +876,20 @@ fn unseen_change_allowed(fix: &Fixture, region: &Region, bytes: &[u8], m: &Mutat
                 let tris = tris.get_or_init(|| block_triangles(&decoded));
                 tris.iter().any(|t| t[..] == decoded[at..at + TRI_LEN])
             };
+            // A chunk's checksum in the head's chunk table (§8.3), recomputed over the chunk
+            // the change made.
+            let table = block_parts(old)[PART_CHUNKS].clone();
+            let chunk_sum = |i: usize| {
+                table.contains(&i)
+                    && ((i - table.start) % CHUNK_ENTRY_LEN)
+                        .checked_sub(CE_CHECKSUM)
+                        .is_some_and(|f| f < 8)
+            };
             (0..old.len()).all(|i| {
-                decoded[i] == old[i] || is_mesh(blk, i) || occ.contains(&i) && occluder_of_mesh(i)
+                decoded[i] == old[i]
+                    || is_mesh(blk, i)
+                    || chunk_sum(i)
+                    || occ.contains(&i) && occluder_of_mesh(i)
             })
         }
         _ => false,

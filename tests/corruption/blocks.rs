@@ -8,6 +8,7 @@
 //! (its module doc), with the fixtures and the harness these files share.
 
 use oavm::Scene;
+use oavm::logical::{SceneOptions, Walk};
 use oavm::physical::AlignedBytes;
 
 use crate::fixtures::*;
@@ -33,7 +34,8 @@ fn directory_entries_rewritten_field_by_field_are_caught() {
             let e = fix.dir[blk];
             let entry = dir_entry_at(&fix.bytes, blk);
             let neighbour = fix.dir[if blk == 0 { 1 } else { blk - 1 }];
-            let u64_cases: [(usize, &str, Vec<u64>); 3] = [
+            let (hs, hr) = (e.head_stored_len as u64, e.head_raw_len as u64);
+            let u64_cases: [(usize, &str, Vec<u64>); 5] = [
                 (
                     DIR_OFFSET,
                     "offset",
@@ -69,6 +71,37 @@ fn directory_entries_rewritten_field_by_field_are_caught() {
                         e.raw_len as u64 + 8,
                         fix.max_raw + 1,
                         1 << 30,
+                        u64::MAX,
+                    ],
+                ),
+                // §8.2: the head's lengths (the head checksum recomputed over the head the
+                // entry now gives; the chunks' offsets count from its end).
+                (
+                    DIR_HEAD_STORED_LEN,
+                    "head_stored_len",
+                    vec![
+                        0,
+                        1,
+                        hs - 1,
+                        hs + 1,
+                        hs + 64,
+                        e.stored_len as u64,
+                        e.stored_len as u64 + 1,
+                        u64::MAX,
+                    ],
+                ),
+                (
+                    DIR_HEAD_RAW_LEN,
+                    "head_raw_len",
+                    vec![
+                        0,
+                        hr - 1,
+                        hr + 1,
+                        hr + 160,
+                        hr.saturating_sub(4096),
+                        hr + 4096,
+                        e.raw_len as u64,
+                        e.raw_len as u64 + 1,
                         u64::MAX,
                     ],
                 ),
@@ -122,7 +155,7 @@ fn directory_entries_rewritten_field_by_field_are_caught() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
-/// Free directory entries (§8.2: all 48 bytes zero, what an update leaves where it removed a
+/// Free directory entries (§8.2: all 64 bytes zero, what an update leaves where it removed a
 /// block): a file as packed has none, so an entry zeroed there is reported, naming the block,
 /// and tracing, which needs it, fails naming it. A later generation may have them (the updated
 /// fixture has some and verifies clean), but no link may lead to one (nor, in a file of
@@ -208,95 +241,191 @@ fn a_block_in_another_blocks_place_is_caught() {
 // ---------------------------------------------------------------------------------------------
 // Compressed blocks, and blocks under a budget (§8.2, §8.3)
 
-/// Compressed blocks whose frame lies about the block (checksums recomputed): content longer
-/// or shorter than `raw_len`, a truncated frame, two frames, another block's frame, a frame
-/// that decodes to far more than `max_block_raw_len` (which must not be allocated), garbage.
-/// Verify names the block, tracing fails naming it. And a frame without a recorded content
-/// size, which the spec allows, is read as the intact block.
+/// Compressed blocks whose head's frame lies about the head (§8.2; checksums recomputed):
+/// content longer or shorter than `head_raw_len`, a truncated frame, two frames, another
+/// block's head, a frame that decodes to far more than `max_block_raw_len` (which must not be
+/// allocated), garbage. Verify names the block, tracing fails naming it. And a frame without a
+/// recorded content size, which the spec allows, is read as the intact block. Then the same for
+/// one chunk's frame (§8.3: the chunk table made to describe the lying chunk, its checksum
+/// recomputed, the head compressed again): the error names the block and the chunk.
 #[test]
 fn zstd_frames_that_lie_are_caught() {
     let mut problems = Vec::new();
     for fix in [default_zstd_file(), list_zstd_file(), deep_zstd_file()] {
         let blk = fix.largest;
+        let e = fix.dir[blk];
         let raw = &fix.decoded[blk];
-        let frame = &fix.bytes[fix.dir[blk].stored()];
-        let other = if blk == 0 { 1 } else { 0 };
-        let mut longer = raw.clone();
-        longer.extend_from_slice(&[0u8; 100]);
-        let mut twice = frame.to_vec();
-        twice.extend_from_slice(frame);
-        let bomb = zstd_frame(&vec![0u8; 64 << 20]);
-        let mut garbage = frame.to_vec();
-        for (i, x) in garbage.iter_mut().enumerate().skip(4) {
-            *x = (i * 131) as u8;
-        }
-        let cases: Vec<(&str, Vec<u8>)> = vec![
-            ("content 100 bytes longer", zstd_frame(&longer)),
-            (
-                "content 64 bytes shorter",
-                zstd_frame(&raw[..raw.len() - 64]),
-            ),
-            ("frame cut by 1 byte", frame[..frame.len() - 1].to_vec()),
-            ("frame cut in half", frame[..frame.len() / 2].to_vec()),
-            ("the frame twice", twice),
-            (
-                "another block's frame",
-                fix.bytes[fix.dir[other].stored()].to_vec(),
-            ),
-            ("64 MiB of zeros", bomb),
-            ("garbage after the magic", garbage),
-            ("empty", Vec::new()),
-        ];
-        for (what, stored) in cases {
-            let b = relayout(&fix.bytes, blk, &stored, raw.len());
-            let what = format!("{}: block {blk}: {what}", fix.name);
+        let head = &raw[..e.head_raw_len];
+        let frame = &fix.bytes[e.head()];
+        let chunks = &fix.bytes[e.head().end..e.stored().end];
+        let other = fix.dir[if blk == 0 { 1 } else { 0 }];
+        let stored = |lie: &[u8]| StoredBlock {
+            bytes: [lie, chunks].concat(),
+            head_stored_len: lie.len(),
+            head_raw_len: e.head_raw_len,
+            raw_len: e.raw_len,
+        };
+        for (what, lie) in lies(head, frame, &fix.bytes[other.head()]) {
+            let b = relayout(&fix.bytes, blk, &stored(&lie));
+            let what = format!("{}: block {blk}'s head: {what}", fix.name);
             expect_caught(fix, what, b, &format!("block {blk}"), &[blk], &mut problems);
         }
         // No content size in the frame: the same block.
-        let mut c = zstd::bulk::Compressor::new(3).expect("zstd");
-        c.set_parameter(zstd::zstd_safe::CParameter::ContentSizeFlag(false))
-            .expect("zstd parameter");
-        let bare = c.compress(raw).expect("compress");
+        let bare = bare_frame(head);
         assert_ne!(bare, frame, "the frame changed");
-        let b = relayout(&fix.bytes, blk, &bare, raw.len());
-        let what = format!("{}: block {blk} without its content size", fix.name);
-        match evaluate_guarded(fix, b, true, &what) {
-            Ok(Verdict::Opened {
-                generation,
-                traced: Ok(Traced::Same),
-                tight: Some(Ok(Traced::Same)),
-                defects: Ok(d),
-            }) if d.is_empty() && generation == fix.generation => {}
-            v => problems.push(format!("{what}: should read as the intact file: {v:?}")),
+        let b = relayout(&fix.bytes, blk, &stored(&bare));
+        let what = format!("{}: block {blk}'s head without its content size", fix.name);
+        expect_intact(fix, what, b, &mut problems);
+
+        // A chunk's frame (§8.3): the first compressed chunk of the block, and its last chunk
+        // if that is compressed too.
+        let table = chunk_table(head);
+        let compressed: Vec<usize> = (0..table.len())
+            .filter(|&c| table[c].stored_len < fix.chunk_raw_len(blk, c))
+            .collect();
+        if fix.clusters {
+            assert!(
+                !compressed.is_empty(),
+                "{}: block {blk} has no compressed chunk ({} chunks)",
+                fix.name,
+                table.len()
+            );
+        }
+        let mut tried = compressed.first().copied().into_iter().collect::<Vec<_>>();
+        tried.extend(compressed.last().copied().filter(|&c| c + 1 == table.len()));
+        tried.dedup();
+        for c in tried {
+            let ce = table[c];
+            let groups = &raw[e.head_raw_len..][c * fix.chunk_groups * TRI_GROUP_LEN..]
+                [..fix.chunk_raw_len(blk, c)];
+            let frame = &chunks[ce.offset..ce.offset + ce.stored_len];
+            let another = &chunks[..table[0].stored_len];
+            let stored_with = |lie: &[u8]| {
+                let mut stored: Vec<Vec<u8>> = table
+                    .iter()
+                    .map(|ce| chunks[ce.offset..ce.offset + ce.stored_len].to_vec())
+                    .collect();
+                stored[c] = lie.to_vec();
+                let mut head = head.to_vec();
+                write_chunk_table(&mut head, &stored);
+                store_head(&head, &stored, CODEC_ZSTD, e.raw_len)
+            };
+            let mut cases = lies(groups, frame, another);
+            // A raw chunk one byte short (§8.3: shorter than its groups, so taken for a frame).
+            cases.push(("its groups raw, one byte short", groups[1..].to_vec()));
+            for (what, lie) in cases {
+                if lie == frame {
+                    continue; // another chunk's frame, when the chunk is the first
+                }
+                let b = relayout(&fix.bytes, blk, &stored_with(&lie));
+                let what = format!("{}: block {blk} chunk {c}: {what}", fix.name);
+                let said = format!("block {blk}: chunk {c}: ");
+                let reported = |d: &str| d.starts_with(&said);
+                expect_reported(fix, what, b, &said, &reported, &[blk], &mut problems);
+            }
+            let b = relayout(&fix.bytes, blk, &stored_with(&bare_frame(groups)));
+            let what = format!(
+                "{}: block {blk} chunk {c} without its content size",
+                fix.name
+            );
+            expect_intact(fix, what, b, &mut problems);
         }
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
+/// zstd frames that lie about `raw`, whose frame is `frame` (§8.2, §8.3): content longer or
+/// shorter, cut, twice, `another` frame, a frame of 64 MiB of zeros, garbage after the magic,
+/// nothing.
+fn lies(raw: &[u8], frame: &[u8], another: &[u8]) -> Vec<(&'static str, Vec<u8>)> {
+    let mut longer = raw.to_vec();
+    longer.extend_from_slice(&[0u8; 100]);
+    let mut twice = frame.to_vec();
+    twice.extend_from_slice(frame);
+    let mut garbage = frame.to_vec();
+    for (i, x) in garbage.iter_mut().enumerate().skip(4) {
+        *x = (i * 131) as u8;
+    }
+    vec![
+        ("content 100 bytes longer", zstd_frame(&longer)),
+        (
+            "content 64 bytes shorter",
+            zstd_frame(&raw[..raw.len() - 64]),
+        ),
+        ("frame cut by 1 byte", frame[..frame.len() - 1].to_vec()),
+        ("frame cut in half", frame[..frame.len() / 2].to_vec()),
+        ("the frame twice", twice),
+        ("another frame", another.to_vec()),
+        ("64 MiB of zeros", zstd_frame(&vec![0u8; 64 << 20])),
+        ("garbage after the magic", garbage),
+        ("empty", Vec::new()),
+    ]
+}
+
+/// `raw` compressed as the writer does (zstd level 3), but without the content size in the
+/// frame (which the spec allows).
+fn bare_frame(raw: &[u8]) -> Vec<u8> {
+    let mut c = zstd::bulk::Compressor::new(3).expect("zstd");
+    c.set_parameter(zstd::zstd_safe::CParameter::ContentSizeFlag(false))
+        .expect("zstd parameter");
+    c.compress(raw).expect("compress")
+}
+
+/// `bytes` must read as the intact file: open as its generation, trace (unbounded and under a
+/// tight budget) as it does, verify clean.
+fn expect_intact(fix: &'static Fixture, what: String, bytes: Vec<u8>, problems: &mut Vec<String>) {
+    match evaluate_guarded(fix, bytes, true, &what) {
+        Ok(Verdict::Opened {
+            generation,
+            traced: Ok(Traced::Same),
+            tight: Some(Ok(Traced::Same)),
+            defects: Ok(d),
+        }) if d.is_empty() && generation == fix.generation => {}
+        v => problems.push(format!("{what}: should read as the intact file: {v:?}")),
+    }
+}
+
 /// Under a budget of a few blocks on 2 threads, the intact files trace as without a budget
 /// (blocks evicted and read again); with three blocks damaged on disk, every batch fails,
 /// naming a damaged block, again and again (a failed block stays failed), and never panics.
+/// Streamed, and chunked where the file has chunks (§8.3: heads paged, chunks read as walks
+/// reach them, a damaged one named with its block).
 #[test]
 fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
-    for fix in [
+    let fixtures = [
         default_file(),
         default_zstd_file(),
         list_zstd_file(),
         deep_file(),
         roped_file(),
         occluded_zstd_file(),
-    ] {
-        let opts = tight_options(fix);
+    ];
+    for (fix, chunks) in fixtures.into_iter().flat_map(|f| [(f, false), (f, true)]) {
+        let opts = SceneOptions {
+            chunks,
+            ..tight_options(fix)
+        };
         let scene =
             Scene::from_bytes_with(AlignedBytes::from_slice(&fix.bytes), "tight.oavm", &opts)
                 .expect("opens");
+        let walks_clusters =
+            fix.clusters && matches!(fix.walk, Walk::Auto | Walk::Wide | Walk::TopDown);
+        assert_eq!(
+            scene.chunked(),
+            chunks && walks_clusters,
+            "{}: chunked",
+            fix.name
+        );
         for round in 0..2 {
             let t = pool2().install(|| trace(fix, &scene));
             assert_eq!(t, Traced::Same, "{}: intact, round {round}", fix.name);
         }
         let budget = scene.budget();
         assert_eq!(budget, 5 * fix.held, "{}: never raised", fix.name);
-        assert_eq!(scene.threads(), 2, "{}", fix.name);
+        // (Chunked, a thread also needs a chunk's slot: the budget may hold one thread.)
+        if !scene.chunked() {
+            assert_eq!(scene.threads(), 2, "{}", fix.name);
+        }
         assert!(
             scene.peak_resident_bytes() <= budget,
             "{}: peak {} over the budget {budget}",
@@ -308,10 +437,14 @@ fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
         damaged.sort_unstable();
         damaged.dedup();
         let mut b = fix.bytes.clone();
+        // What the pager says of each: its head's checksum or a chunk's (§8.2, §8.3).
+        let mut errors = Vec::new();
         for &blk in &damaged {
-            b[fix.dir[blk].offset + fix.dir[blk].stored_len / 2] ^= 0x40;
+            let at = fix.dir[blk].offset + fix.dir[blk].stored_len / 2;
+            b[at] ^= 0x40;
+            errors.push(fix.checksum_error(blk, at));
         }
-        let what = format!("{}: blocks {damaged:?} damaged", fix.name);
+        let what = format!("{}: blocks {damaged:?} damaged, chunks {chunks}", fix.name);
         let w = what.clone();
         let result = guarded(&|| w.clone(), move || {
             let scene = Scene::from_bytes_with(AlignedBytes::from_slice(&b), "tight.oavm", &opts)
@@ -325,16 +458,165 @@ fn damaged_blocks_under_a_tiny_budget_fail_by_name() {
             Ok(rounds) => {
                 for t in rounds {
                     match t {
-                        Traced::Error(e)
-                            if damaged.iter().any(|&blk| {
-                                e.contains(&format!("block {blk}: checksum mismatch"))
-                            }) => {}
+                        Traced::Error(e) if errors.iter().any(|x| e.contains(x.as_str())) => {}
                         t => panic!("{what}: should fail naming a damaged block: {t:?}"),
                     }
                 }
             }
         }
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Chunks (§8.2, §8.3): a block's groups stored in chunks, each under its own checksum in the
+//    head's chunk table
+
+/// The chunks of block `blk` tried: the first, one in the middle and the last; the block
+/// must have several (the fixtures cut blocks into chunks of 8 groups).
+fn tried_chunks(fix: &Fixture, blk: usize) -> Vec<usize> {
+    let e = fix.dir[blk];
+    let n = chunk_table(&fix.decoded[blk][..e.head_raw_len]).len();
+    assert!(
+        n >= 3,
+        "{}: block {blk} has {n} chunks, want several",
+        fix.name
+    );
+    let mut tried = vec![0, n / 2, n - 1];
+    tried.dedup();
+    tried
+}
+
+/// A chunk's stored bytes damaged (§8.3): a byte flipped on disk, nothing recomputed (in the
+/// middle of the chunk, and its last byte); its groups changed with every other checksum
+/// recomputed (a compressed block decoded, changed, stored again: the chunk's new bytes under
+/// its old checksum); its checksum in the head's chunk table changed, every other checksum
+/// recomputed. In raw and compressed blocks, and in an updated file's block: the pager refuses
+/// the block and verify reports it, naming the block and the chunk, word for word.
+#[test]
+fn damaged_chunks_are_caught_by_their_checksum() {
+    let mut problems = Vec::new();
+    for fix in [
+        default_file(),
+        default_zstd_file(),
+        deep_file(),
+        deep_zstd_file(),
+        updated_file(),
+    ] {
+        let blk = fix.largest;
+        let e = fix.dir[blk];
+        let raw = &fix.decoded[blk];
+        let table = chunk_table(&raw[..e.head_raw_len]);
+        for c in tried_chunks(fix, blk) {
+            let ce = table[c];
+            let text = format!("block {blk}: chunk {c}: checksum mismatch");
+            let start = e.head().end + ce.offset;
+            for at in [start + ce.stored_len / 2, start + ce.stored_len - 1] {
+                assert_eq!(fix.chunk_of(blk, at), Some(c));
+                let mut b = fix.bytes.clone();
+                b[at] ^= 0x08;
+                let what = format!("{}: block {blk} chunk {c}: byte {at} flipped", fix.name);
+                expect_error_text(fix, what, b, &text, &mut problems);
+            }
+            // The lowest bit of the first x of the chunk's first group (§7.2), the chunk
+            // stored again and every checksum but its own recomputed.
+            let group = e.head_raw_len + c * fix.chunk_groups * TRI_GROUP_LEN;
+            let b = fix.rewrite_with(Space::Block(blk), group, &[raw[group] ^ 1], false);
+            let what = format!(
+                "{}: block {blk} chunk {c}: its first group changed, its checksum kept",
+                fix.name
+            );
+            expect_error_text(fix, what, b, &text, &mut problems);
+            let sum = ce.at + CE_CHECKSUM;
+            for (how, at, new) in [
+                ("bit 0 flipped", sum, raw[sum] ^ 1),
+                ("byte 7 zeroed", sum + 7, 0),
+            ] {
+                if raw[at] == new {
+                    continue;
+                }
+                let b = fix.rewrite_with(Space::Block(blk), at, &[new], false);
+                assert!(b != fix.bytes, "{}: nothing changed", fix.name);
+                let what = format!(
+                    "{}: block {blk} chunk {c}: its checksum's {how}, the head's recomputed",
+                    fix.name
+                );
+                expect_error_text(fix, what, b, &text, &mut problems);
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// A chunk table entry's `offset` or `stored_len` rewritten (§8.3; every checksum recomputed
+/// over what the entries then give, the head's too): chunks must follow each other from the
+/// head's end, each as long as its groups (raw) or shorter and within 64 times (a frame, in a
+/// compressed block only), the last ending the block. The pager refuses the block and verify
+/// reports it, naming the block and the first chunk that breaks the rule, word for word.
+#[test]
+fn chunk_table_entries_rewritten_are_caught() {
+    let mut problems = Vec::new();
+    for fix in [
+        default_file(),
+        default_zstd_file(),
+        deep_zstd_file(),
+        updated_file(),
+    ] {
+        let blk = fix.largest;
+        let e = fix.dir[blk];
+        let raw = &fix.decoded[blk];
+        let table = chunk_table(&raw[..e.head_raw_len]);
+        let n = table.len();
+        for c in tried_chunks(fix, blk) {
+            let ce = table[c];
+            let raw_len = fix.chunk_raw_len(blk, c);
+            // (what, field, new value, the text the error must contain)
+            let mut cases: Vec<(String, usize, u32, String)> = Vec::new();
+            let chunk_c = format!("block {blk}: chunk {c}: ");
+            let off = ce.offset as u32;
+            let mut offsets = vec![off + 1, off + 64, u32::MAX, 0];
+            offsets.extend(off.checked_sub(1));
+            offsets.extend(table.get(c + 1).map(|n| n.offset as u32));
+            for v in offsets.into_iter().filter(|&v| v != off) {
+                // Where the chunk was expected, and is not (§8.3).
+                let text = format!(
+                    "{chunk_c}{} bytes stored at {v} after the head",
+                    ce.stored_len
+                );
+                cases.push((format!("offset {v}"), CE_OFFSET, v, text));
+            }
+            let len = ce.stored_len as u32;
+            let mut lens = vec![0, len + 1, raw_len as u32 + 1, raw_len as u32, u32::MAX];
+            lens.extend(len.checked_sub(1));
+            for v in lens.into_iter().filter(|&v| v != len) {
+                let v64 = v as usize;
+                let fits = v64 == raw_len
+                    || e.codec == CODEC_ZSTD && v64 < raw_len && raw_len <= MAX_ZSTD_RATIO * v64;
+                // A length the chunk cannot have is its own error; one it could have moves
+                // the next chunk, or the end of the chunks, off the block's.
+                let text = match (fits, c + 1 < n) {
+                    (false, _) => format!("{chunk_c}{v} bytes stored at {off}"),
+                    (true, true) => format!(
+                        "block {blk}: chunk {}: {} bytes stored at {} after the head",
+                        c + 1,
+                        table[c + 1].stored_len,
+                        table[c + 1].offset
+                    ),
+                    (true, false) => format!(
+                        "block {blk}: chunks end {} bytes after the head",
+                        ce.offset + v64
+                    ),
+                };
+                cases.push((format!("stored_len {v}"), CE_STORED_LEN, v, text));
+            }
+            for (change, field, v, text) in cases {
+                let b = fix.rewrite(Space::Block(blk), ce.at + field, &v.to_le_bytes());
+                assert!(b != fix.bytes, "{}: {change}: nothing changed", fix.name);
+                let what = format!("{}: block {blk} chunk {c}'s entry: {change}", fix.name);
+                expect_error_text(fix, what, b, &text, &mut problems);
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
 // ---------------------------------------------------------------------------------------------

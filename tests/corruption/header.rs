@@ -12,8 +12,8 @@
 use oavm::pack::TreeParts;
 use oavm::physical::AlignedBytes;
 use oavm::physical::format::{
-    BlockEntry, BlockHeader, ClusterNode, Header, LevelEntry, NodeRecord, OccluderNode, RankWord,
-    RopeRecord, SectionEntry, SectionKind, TriGroup, TriRecord, VolumeRecord,
+    BlockEntry, BlockHeader, ChunkEntry, ClusterNode, Header, LevelEntry, NodeRecord, OccluderNode,
+    RankWord, RopeRecord, SectionEntry, SectionKind, TriGroup, TriRecord, VolumeRecord,
 };
 use oavm::{Error, FormatError, Hit, Scene};
 use xxhash_rust::xxh3::xxh3_64;
@@ -52,9 +52,23 @@ fn layout_matches_the_spec() {
         offset_of!(Header, block_triangles),
         offset_of!(Header, stored_triangles),
         offset_of!(Header, generation),
+        offset_of!(Header, chunk_groups),
+        offset_of!(Header, reserved_u32),
         offset_of!(Header, reserved),
     ];
-    assert_eq!(header_fields, [136, 152, 160, 168, RESERVED_AT]);
+    assert_eq!(
+        header_fields,
+        [
+            136,
+            152,
+            160,
+            168,
+            CHUNK_GROUPS_AT,
+            RESERVED_U32_AT,
+            RESERVED_AT
+        ]
+    );
+    assert_eq!(f::MAX_CHUNK_GROUPS, MAX_CHUNK_GROUPS, "§2");
     assert_eq!(
         HEADER_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>(),
         [
@@ -81,12 +95,16 @@ fn layout_matches_the_spec() {
             offset_of!(Header, block_triangles),
             offset_of!(Header, stored_triangles),
             offset_of!(Header, generation),
+            offset_of!(Header, chunk_groups),
+            offset_of!(Header, reserved_u32),
             offset_of!(Header, reserved),
             offset_of!(Header, checksum),
         ]
     );
-    // §2: reserved is u64[9], up to the checksum.
-    assert_eq!(RESERVED_AT + 9 * 8, HEADER_CHECKSUM);
+    // §2: chunk_groups and reserved_u32 are u32, reserved u64[8], up to the checksum.
+    assert_eq!(CHUNK_GROUPS_AT + 4, RESERVED_U32_AT);
+    assert_eq!(RESERVED_U32_AT + 4, RESERVED_AT);
+    assert_eq!(RESERVED_AT + 8 * 8, HEADER_CHECKSUM);
     // §2.1: the two header slots and the data region after them.
     assert_eq!(HEADER_SLOTS.map(|s| s as u64), f::HEADER_SLOTS);
     assert_eq!(HEADER_SLOTS[1], SLOT_LEN);
@@ -122,6 +140,8 @@ fn layout_matches_the_spec() {
         offset_of!(BlockEntry, root_count),
         offset_of!(BlockEntry, triangles),
         offset_of!(BlockEntry, checksum),
+        offset_of!(BlockEntry, head_stored_len),
+        offset_of!(BlockEntry, head_raw_len),
     ];
     assert_eq!(
         dir_fields.to_vec(),
@@ -144,6 +164,7 @@ fn layout_matches_the_spec() {
         offset_of!(BlockHeader, rope_count),
         offset_of!(BlockHeader, occluder_node_count),
         offset_of!(BlockHeader, occluder_count),
+        offset_of!(BlockHeader, chunk_count),
     ];
     assert_eq!(
         bh_fields.to_vec(),
@@ -157,12 +178,57 @@ fn layout_matches_the_spec() {
         size_of::<u32>(),
         size_of::<TriRecord>(),
         size_of::<ClusterNode>(),
-        size_of::<TriGroup>(),
         size_of::<RopeRecord>(),
         size_of::<OccluderNode>(),
         size_of::<TriRecord>(),
+        size_of::<ChunkEntry>(),
+        size_of::<TriGroup>(),
     ];
     assert_eq!(part_sizes, BLOCK_PARTS.map(|p| p.1));
+    assert_eq!(part_sizes, PART_RECORD_LEN);
+    // §8.3: the parts' indices, the groups' alignment and the chunk table's entries.
+    assert_eq!(
+        [
+            f::PART_LEVELS,
+            f::PART_NODES,
+            f::PART_RANKS,
+            f::PART_VOLUMES,
+            f::PART_REFS,
+            f::PART_TRIANGLES,
+            f::PART_WIDE,
+            f::PART_ROPES,
+            f::PART_OCCLUDER_NODES,
+            f::PART_OCCLUDERS,
+            f::PART_CHUNKS,
+            f::PART_GROUPS,
+        ],
+        [
+            PART_LEVELS,
+            PART_NODES,
+            PART_RANKS,
+            PART_VOLUMES,
+            PART_REFS,
+            PART_TRIANGLES,
+            PART_CLUSTER_NODES,
+            PART_ROPES,
+            PART_OCCLUDER_NODES,
+            PART_OCCLUDERS,
+            PART_CHUNKS,
+            PART_GROUPS,
+        ]
+    );
+    assert_eq!(f::GROUPS_ALIGN, GROUPS_ALIGN as u64);
+    assert_eq!(f::MAX_ZSTD_RATIO, MAX_ZSTD_RATIO as u64);
+    assert_eq!(size_of::<ChunkEntry>(), CHUNK_ENTRY_LEN);
+    assert_eq!(
+        [
+            offset_of!(ChunkEntry, offset),
+            offset_of!(ChunkEntry, stored_len),
+            offset_of!(ChunkEntry, checksum),
+        ]
+        .to_vec(),
+        CHUNK_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
     assert_eq!(
         [
             offset_of!(OccluderNode, node),
@@ -316,21 +382,34 @@ fn layout_matches_the_spec() {
             "{}: checksums recomputed differently",
             fix.name
         );
-        // Laying the file out again, each detailed block stored again (compressed as the
-        // writer compresses), gives the same bytes: the tests lay files out as the writer does
-        // (a file as packed; an update's blocks lie anywhere, §2.1).
+        // Laying the file out again, each detailed block stored again (its head and chunks
+        // compressed as the writer compresses them, its chunk table written for them), gives
+        // the same bytes: the tests lay files out as the writer does (a file as packed; an
+        // update's blocks lie anywhere, §2.1); and stored again through `Fixture::restore`,
+        // unchanged, too.
         for &blk in fix.detailed.iter().filter(|_| fix.generation == 1) {
             let e = fix.dir[blk];
-            let stored = match e.codec {
-                CODEC_RAW => fix.decoded[blk].clone(),
-                _ => zstd_frame(&fix.decoded[blk]),
-            };
-            let b = relayout(&fix.bytes, blk, &stored, e.raw_len);
+            let stored = store_block(&fix.decoded[blk], e.codec, fix.chunk_groups);
+            assert_eq!(
+                (stored.head_stored_len, stored.head_raw_len, stored.raw_len),
+                (e.head_stored_len, e.head_raw_len, e.raw_len),
+                "{}: block {blk} stored differently",
+                fix.name
+            );
+            let b = relayout(&fix.bytes, blk, &stored);
             assert!(
                 b == fix.bytes,
                 "{}: block {blk} laid out differently",
                 fix.name
             );
+            if e.codec != CODEC_RAW {
+                let again = fix.restore(blk, &fix.decoded[blk], true);
+                assert!(
+                    again == stored,
+                    "{}: block {blk} restored differently",
+                    fix.name
+                );
+            }
         }
         // Every link is found, one per root of every block.
         let roots: usize = fix.dir.iter().map(|e| e.root_count as usize).sum();
@@ -370,31 +449,34 @@ fn layout_matches_the_spec() {
             .start;
         let mut raw = fix.decoded[blk].clone();
         // The lowest mantissa bit of the block's first triangle's first x (§7), or of its
-        // first group's first corner's (§7.2).
+        // first group's first corner's (§7.2), the checksum that covers it left as it was: the
+        // block's (§8.2: of its head, where a block of lists keeps its triangles) or its first
+        // chunk's (§8.3: a block of clusters keeps its groups in chunks).
         raw[r] ^= 1;
-        let stored = match fix.dir[blk].codec {
-            CODEC_RAW => raw.clone(),
-            _ => zstd_frame(&raw),
-        };
-        let mut b = fix.bytes.clone();
         let e = fix.dir[blk];
-        if e.codec == CODEC_RAW {
-            b[e.stored()].copy_from_slice(&stored);
-        } else {
-            b = relayout(&fix.bytes, blk, &stored, raw.len());
-            // Leave the old checksum: relayout recomputed it.
-            let at = dir_entry_at(&b, blk) + DIR_CHECKSUM;
-            write_u64(&mut b, at, xxh3_64(&fix.bytes[e.stored()]));
-            fix_header_checksum(&mut b);
-            let (o, l) = section(&b, DIRECTORY);
-            let sum = xxh3_64(&b[o..o + l]);
-            write_u64(
-                &mut b,
-                HEADER_LEN + DIRECTORY * ENTRY_LEN + ENTRY_CHECKSUM,
-                sum,
-            );
-            fix_header_checksum(&mut b);
-        }
+        let b = match (e.codec, fix.clusters) {
+            (CODEC_RAW, _) => {
+                let mut b = fix.bytes.clone();
+                b[e.offset + r] = raw[r];
+                b
+            }
+            (_, true) => fix.rewrite_with(Space::Block(blk), r, &raw[r..r + 1], false),
+            (_, false) => {
+                let mut b = fix.rewrite(Space::Block(blk), r, &raw[r..r + 1]);
+                // Leave the old checksum: relayout recomputed it.
+                let at = dir_entry_at(&b, blk) + DIR_CHECKSUM;
+                write_u64(&mut b, at, xxh3_64(&fix.bytes[e.head()]));
+                let (o, l) = section(&b, DIRECTORY);
+                let sum = xxh3_64(&b[o..o + l]);
+                write_u64(
+                    &mut b,
+                    HEADER_LEN + DIRECTORY * ENTRY_LEN + ENTRY_CHECKSUM,
+                    sum,
+                );
+                fix_header_checksum(&mut b);
+                b
+            }
+        };
         let checksum_defect = |b: &[u8]| {
             let scene = open_walking(b, fix.walk).expect("opens");
             let defects = scene
@@ -930,8 +1012,9 @@ fn assert_version_error(err: &FormatError, v: u32, what: &str) {
 #[test]
 fn wrong_version_fails_at_open_and_says_to_repack() {
     let fix = default_file();
-    // Every version but this one (§12: 6, the wide nodes of §8.7).
-    for v in [0u32, 1, 2, 3, 4, 5, 7, 0x100, u32::MAX] {
+    // Every version but this one (§12: 7, the chunks of §8.3), 6 (the wide nodes of §8.7) the
+    // one before it.
+    for v in [0u32, 1, 2, 3, 4, 5, 6, 8, 0x100, u32::MAX] {
         for fix_checksum in [false, true] {
             let mut b = fix.bytes.clone();
             write_u32(&mut b, VERSION_AT, v);
@@ -1060,6 +1143,112 @@ fn max_block_raw_len_is_checked() {
             fix.name
         );
         expect_caught(fix, what, b, "max_block_raw_len", &[largest], &mut problems);
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// The header's `chunk_groups` (§2, §8.3) and `reserved_u32`, checksum recomputed: beyond
+/// `MAX_CHUNK_GROUPS`, non-zero in a file of lists, or `reserved_u32` non-zero, the file fails
+/// at open naming the field. A value in range that cuts a block's groups into chunks other than
+/// its chunk table's (the largest block of each file has several) is caught when the block is
+/// read: the pager refuses it and verify reports it, naming the block and its table; 0 in a
+/// file of clusters leaves its blocks' groups in a file without chunks, likewise.
+#[test]
+fn chunk_groups_is_checked() {
+    let mut problems = Vec::new();
+    let rewritten = |fix: &Fixture, at: usize, v: u32| {
+        let mut b = fix.bytes.clone();
+        write_u32(&mut b, at, v);
+        fix_header_checksum(&mut b);
+        b
+    };
+    for fix in [default_file(), default_zstd_file(), deep_file()] {
+        assert_eq!(fix.chunk_groups, 8, "{}", fix.name);
+        for v in [MAX_CHUNK_GROUPS + 1, 1 << 20, u32::MAX] {
+            let what = format!("{}: chunk_groups {v}", fix.name);
+            let msg = open_error(&rewritten(fix, CHUNK_GROUPS_AT, v), &what).to_string();
+            if !msg.contains(&format!("chunk_groups is {v}")) {
+                problems.push(format!("{what}: {msg}"));
+            }
+        }
+        let blk = fix.largest;
+        let e = fix.dir[blk];
+        let groups = (e.raw_len - e.head_raw_len) / TRI_GROUP_LEN;
+        let chunks = groups.div_ceil(fix.chunk_groups);
+        assert!(chunks >= 3, "{}: block {blk}: {chunks} chunks", fix.name);
+        // Every block that has groups needs chunks; a ray needs every block.
+        let all: Vec<usize> = (0..fix.dir.len()).collect();
+        // (A value that gives the block as many chunks would be caught by the chunks' lengths
+        // instead: not tried.)
+        let values: Vec<u32> = [1u32, 7, 9, 16, MAX_CHUNK_GROUPS]
+            .into_iter()
+            .filter(|&v| groups.div_ceil(v as usize) != chunks)
+            .collect();
+        assert!(
+            values.len() >= 3,
+            "{}: block {blk}: {groups} groups",
+            fix.name
+        );
+        // Verify's report is capped (the largest block may be past the cap), so what it must
+        // say is said of some block whose chunks the value changes, the largest described.
+        let groups_of = |b: usize| (fix.dir[b].raw_len - fix.dir[b].head_raw_len) / TRI_GROUP_LEN;
+        for v in values {
+            let what = format!("{}: chunk_groups {v}", fix.name);
+            let said = |b: usize| {
+                let (g, per) = (groups_of(b), fix.chunk_groups);
+                format!(
+                    "block {b}: a head with {g} groups in {} chunks, where the entry says {g} \
+                     groups in {}",
+                    g.div_ceil(per),
+                    g.div_ceil(v as usize)
+                )
+            };
+            let texts: Vec<String> = (0..fix.dir.len())
+                .filter(|&b| {
+                    groups_of(b).div_ceil(fix.chunk_groups) != groups_of(b).div_ceil(v as usize)
+                })
+                .map(said)
+                .collect();
+            let text = said(blk);
+            let b = rewritten(fix, CHUNK_GROUPS_AT, v);
+            let reported = |d: &str| texts.iter().any(|t| d.contains(t.as_str()));
+            expect_reported(fix, what, b, &text, &reported, &all, &mut problems);
+        }
+        let what = format!("{}: chunk_groups 0", fix.name);
+        let texts: Vec<String> = (0..fix.dir.len())
+            .filter(|&b| groups_of(b) > 0)
+            .map(|b| {
+                format!(
+                    "block {b}: groups of {} bytes",
+                    groups_of(b) * TRI_GROUP_LEN
+                )
+            })
+            .collect();
+        let text = format!(
+            "block {blk}: groups of {} bytes",
+            e.raw_len - e.head_raw_len
+        );
+        let reported =
+            |d: &str| d.contains("without chunks") && texts.iter().any(|t| d.contains(t.as_str()));
+        let b = rewritten(fix, CHUNK_GROUPS_AT, 0);
+        expect_reported(fix, what, b, &text, &reported, &all, &mut problems);
+    }
+    for fix in [default_file(), list_file(), list_zstd_file()] {
+        let what = format!("{}: reserved_u32 1", fix.name);
+        let msg = open_error(&rewritten(fix, RESERVED_U32_AT, 1), &what).to_string();
+        if !msg.contains("reserved fields are not zero") {
+            problems.push(format!("{what}: {msg}"));
+        }
+    }
+    for fix in [list_file(), list_zstd_file()] {
+        assert_eq!(fix.chunk_groups, 0, "{}", fix.name);
+        for v in [1, 8, MAX_CHUNK_GROUPS] {
+            let what = format!("{}: chunk_groups {v} in a file of lists", fix.name);
+            let msg = open_error(&rewritten(fix, CHUNK_GROUPS_AT, v), &what).to_string();
+            if !msg.contains(&format!("chunk_groups is {v}")) {
+                problems.push(format!("{what}: {msg}"));
+            }
+        }
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }

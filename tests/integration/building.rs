@@ -87,6 +87,7 @@ fn a_tiny_budget_gives_the_same_answers_as_the_in_memory_pack() {
         let blocks = BlockOptions {
             block_size: 16 << 10,
             compress,
+            chunk_groups: 16,
         };
         let report = pack_streaming(&ply, &out, blocks, budget).unwrap();
         let st = report.streaming.as_ref().expect("a streaming report");
@@ -193,8 +194,10 @@ fn the_cli_streaming_pack_keeps_to_its_budget() {
             assert!(peak <= bytes, "budget {budget}: peak RSS {peak}");
         }
         assert!(chunks > 1, "budget {budget}: one chunk");
+        // Each block's head is padded to a page before its groups (format-spec §8.3), and a
+        // small budget makes more, smaller blocks: about 2 KB more a block.
         assert!(
-            size as f64 <= 1.02 * memory_size as f64,
+            size as f64 <= 1.03 * memory_size as f64,
             "budget {budget}: {size} bytes, in memory {memory_size}"
         );
         let v = Scene::open(&out).unwrap().verify().unwrap();

@@ -251,6 +251,7 @@ fn checksum_fixup_keeps_files_sound() {
         blocks: BlockOptions {
             block_size: 4096,
             compress: None,
+            ..BlockOptions::default()
         },
         updatable: true,
         ..oavm::pack::PackOptions::default()
@@ -279,6 +280,7 @@ fn checksum_fixup_keeps_files_sound() {
         let opts = BlockOptions {
             block_size: 4096,
             compress,
+            ..BlockOptions::default()
         };
         let file = encode_with(&parts, &opts).expect("encode");
         assert!(

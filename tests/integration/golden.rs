@@ -21,10 +21,10 @@
 //!   `oavm-trace` (non-zero exit, nothing written).
 //! - A golden file that is missing is a failure, never a skip.
 //!
-//! When the format moves to version 7, `CURRENT` becomes 7, `v7*.oavm` and their answers join
-//! the golden files (made as the README says), and the `v6*.oavm` files move to the rejected
+//! When the format moves to version 8, `CURRENT` becomes 8, `v8*.oavm` and their answers join
+//! the golden files (made as the README says), and the `v7*.oavm` files move to the rejected
 //! versions: the recorded answers stay (and their sha256 in the README), so the files keep
-//! proving what version 6 answered.
+//! proving what version 7 answered.
 
 use crate::common;
 
@@ -40,7 +40,7 @@ use tempfile::TempDir;
 /// The format version today's code writes and reads (`format-spec.md` §12). Written out rather
 /// than taken from the crate: a version bump must come with a new golden file, and this test
 /// failing is what says so.
-const CURRENT: u32 = 6;
+const CURRENT: u32 = 7;
 
 /// A golden file of the current version: its name, whether its solid leaves are clusters (the
 /// header's `CLUSTERS` flag, format-spec.md §2), and the answers it must trace to.
@@ -76,22 +76,22 @@ const V4_ANSWERS: Answers = Answers {
 /// 3, with the dead bytes of generations 1 and 2), which answers as the packed files do.
 const CURRENT_FILES: [Current; 4] = [
     Current {
-        name: "v6.oavm",
+        name: "v7.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
     Current {
-        name: "v6-zstd.oavm",
+        name: "v7-zstd.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
     Current {
-        name: "v6-list.oavm",
+        name: "v7-list.oavm",
         clusters: false,
         answers: V3_ANSWERS,
     },
     Current {
-        name: "v6-updated.oavm",
+        name: "v7-updated.oavm",
         clusters: true,
         answers: V4_ANSWERS,
     },
@@ -101,7 +101,7 @@ const CURRENT_FILES: [Current; 4] = [
 const ALL_ANSWERS: [Answers; 2] = [V3_ANSWERS, V4_ANSWERS];
 
 /// The golden files of earlier versions, which must be rejected, and their versions.
-const REJECTED: [(&str, u32); 11] = [
+const REJECTED: [(&str, u32); 15] = [
     ("v1.oavm", 1),
     ("v2.oavm", 2),
     ("v3.oavm", 3),
@@ -113,6 +113,10 @@ const REJECTED: [(&str, u32); 11] = [
     ("v5-zstd.oavm", 5),
     ("v5-list.oavm", 5),
     ("v5-updated.oavm", 5),
+    ("v6.oavm", 6),
+    ("v6-zstd.oavm", 6),
+    ("v6-list.oavm", 6),
+    ("v6-updated.oavm", 6),
 ];
 
 /// The ray set (`RAYS.md`).

@@ -50,6 +50,7 @@ fn packed(compress: Option<i32>) -> &'static AlignedBytes {
             &BlockOptions {
                 block_size: 4096,
                 compress,
+                chunk_groups: 8,
             },
         )
         .expect("encode");
@@ -131,9 +132,15 @@ fn trace_with(
             } else {
                 BlockReads::Read
             },
+            chunks: false,
         },
     )
     .expect("open");
+    run_scene(&scene, threads, order)
+}
+
+/// Traces the ray set through `scene` on a pool of `threads`.
+fn run_scene(scene: &Scene<AlignedBytes>, threads: usize, order: Order) -> Run {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -299,6 +306,96 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
     );
 }
 
+/// Chunked reading (format-spec §8.3, [`SceneOptions::chunks`]): the pager holds blocks' heads
+/// and the walks read chunks of 8 groups. Under budgets of a twentieth and a quarter of the
+/// decoded blocks, on 1 and 2 threads, in the order given and in Morton order (a stream asked
+/// for is traced in Morton order), every answer is the unlimited run's, the walks do the same
+/// work, chunks are read (and read again under the small budget), and the counters add up.
+fn chunked_reads_do_not_change_answers(compress: Option<i32>) {
+    let bytes = packed(compress);
+    let rays = ray_set().len() as u64;
+    let reference = trace(bytes, u64::MAX, 1, Order::None, true);
+    let decoded = Scene::from_bytes(bytes.clone(), "bunny.oavm")
+        .expect("open")
+        .decoded_bytes();
+    let chunk_reads = |budget: u64| -> (u64, u64) {
+        let scene = open_chunked(bytes, budget, 1);
+        let r = run_scene(&scene, 1, Order::Morton);
+        (scene.chunks_read(), r.closest.page.chunk_misses)
+    };
+    for budget in [decoded / 20, decoded / 4] {
+        for threads in [1, 2] {
+            for order in [Order::None, Order::Morton, Order::Stream] {
+                let what = format!("{compress:?}: budget {budget}, {threads} threads, {order}");
+                let scene = open_chunked(bytes, budget, threads);
+                assert!(scene.chunked(), "{what}: not chunked");
+                let r = run_scene(&scene, threads, order);
+                if r.answers != reference.answers {
+                    let first = (0..rays as usize).find(|&i| {
+                        r.answers.closest[i] != reference.answers.closest[i]
+                            || r.answers.any[i] != reference.answers.any[i]
+                    });
+                    panic!("{what}: answers differ, first at ray {first:?}");
+                }
+                let work = |c: &Counters| (c.nodes_visited, c.leaves_visited, c.triangles_tested);
+                for (c, base) in [(&r.closest, &reference.closest), (&r.any, &reference.any)] {
+                    assert_eq!(work(c), work(base), "{what}");
+                    let p = &c.page;
+                    assert_eq!(
+                        p.chunk_requests,
+                        p.chunk_hits + p.chunk_misses,
+                        "{what}: {p:?}"
+                    );
+                    assert_eq!(c.walks_parked, 0, "{what}: streamed: {c:?}");
+                }
+                assert!(
+                    r.closest.page.chunk_misses > 0,
+                    "{what}: {:?}",
+                    r.closest.page
+                );
+                assert_eq!(
+                    scene.chunks_read(),
+                    r.closest.page.chunk_misses + r.any.page.chunk_misses,
+                    "{what}"
+                );
+                assert!(r.peak <= budget, "{what}: peak {} over {budget}", r.peak);
+            }
+        }
+    }
+    // The small budget reads chunks again; the larger one fewer times.
+    let (small, large) = (chunk_reads(decoded / 20), chunk_reads(decoded / 4));
+    assert!(small.0 > large.0 && large.0 > 0, "{small:?} {large:?}");
+    // A scene of the whole file, or one not asked for chunks, is not chunked.
+    assert!(!open_chunked(bytes, u64::MAX, 1).chunked());
+}
+
+/// The bunny opened under `budget` on `threads`, chunks asked for.
+fn open_chunked(bytes: &AlignedBytes, budget: u64, threads: usize) -> Scene<AlignedBytes> {
+    Scene::from_bytes_with(
+        bytes.clone(),
+        "bunny.oavm",
+        &SceneOptions {
+            walk: Walk::Auto,
+            mem_budget: Some(budget),
+            threads,
+            check_blocks: true,
+            block_reads: BlockReads::Read,
+            chunks: true,
+        },
+    )
+    .expect("open")
+}
+
+#[test]
+fn raw_chunks_give_the_same_answers_under_any_budget() {
+    chunked_reads_do_not_change_answers(None);
+}
+
+#[test]
+fn zstd_chunks_give_the_same_answers_under_any_budget() {
+    chunked_reads_do_not_change_answers(Some(3));
+}
+
 #[test]
 fn raw_blocks_give_the_same_answers_under_any_budget() {
     budgets_do_not_change_answers(None);
@@ -333,6 +430,7 @@ fn streamed_frames_give_the_direct_answers() {
                     threads,
                     check_blocks: true,
                     block_reads: BlockReads::Read,
+                    chunks: false,
                 },
             )
             .expect("open")
@@ -499,6 +597,7 @@ fn renders_are_the_same_in_rows_and_in_morton_tiles_under_any_budget() {
                 threads: 0,
                 check_blocks: true,
                 block_reads: BlockReads::Read,
+                chunks: false,
             },
         )
         .unwrap();
@@ -852,6 +951,7 @@ fn default_threads_leave_the_cache_most_of_the_budget() {
                 threads: 64,
                 check_blocks: true,
                 block_reads: BlockReads::Read,
+                chunks: false,
             },
         )
         .expect("open")
@@ -891,6 +991,7 @@ fn block_reads_follow_the_option_and_the_file_size() {
                     threads: 2,
                     check_blocks: true,
                     block_reads,
+                    chunks: false,
                 },
             )
             .expect("open")

@@ -187,6 +187,7 @@ fn edits_by_primitive_id_answer_as_fresh_packs() {
         blocks: oavm::physical::BlockOptions {
             block_size: 16 * 1024,
             compress: None,
+            chunk_groups: 8,
         },
         ..PackOptions::default()
     };

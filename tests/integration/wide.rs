@@ -105,6 +105,7 @@ fn files_of_clusters_as_packed_verify_clean() {
     let small = |compress: bool| BlockOptions {
         block_size: 16384,
         compress: compress.then_some(3),
+        chunk_groups: 8,
     };
     for (name, mesh) in [("bunny", &bunny), ("cornell box", &cornell)] {
         // (case, build, blocks, whether blocks hold octree wide nodes: at 16 KiB or more the
@@ -134,6 +135,7 @@ fn files_of_clusters_as_packed_verify_clean() {
                 BlockOptions {
                     block_size: 4096,
                     compress: None,
+                    ..BlockOptions::default()
                 },
                 true,
             ),
@@ -158,6 +160,7 @@ fn blocks_stored_again_and_files_of_lists_verify_clean() {
     let blocks = BlockOptions {
         block_size: 16384,
         compress: None,
+        ..BlockOptions::default()
     };
     let plain = packed(&bunny, &BuildOptions::default(), &blocks);
     let file = OavmFile::open(AlignedBytes::from_slice(plain.as_ref())).expect("open");

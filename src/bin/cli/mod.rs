@@ -100,6 +100,13 @@ pub struct TraceArgs {
     /// `auto` (wide for a file of clusters, else neighbours). The answers are the same.
     #[arg(long, value_enum, default_value_t = WalkArg::Auto)]
     pub walk: WalkArg,
+    /// Under a budget smaller than the file's blocks, read a file that stores its groups in
+    /// chunks (format 7) head by head and chunk by chunk: the pager holds the blocks' heads
+    /// (their wide nodes), and only the chunks of groups a ray reaches are read, ray by ray
+    /// (in morton order by default; not streamed). Off by default: a stream of whole blocks
+    /// reads fewer bytes for now.
+    #[arg(long)]
+    pub chunks: bool,
     /// Order of tracing: stream (each ray's walk parked at every block it needs and resumed
     /// when that block is served with all the walks parked there; blocks read ahead in file
     /// order; a frame's shadow rays in the same stream), morton (rays that enter the model near
@@ -148,6 +155,7 @@ impl TraceArgs {
             check_blocks: !self.no_block_checks,
             block_reads: self.block_reads.into(),
             walk: self.walk.into(),
+            chunks: self.chunks,
         }
     }
 

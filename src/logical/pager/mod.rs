@@ -232,6 +232,11 @@ pub struct PageCounters {
     pub bytes_read: u64,
     /// Bytes produced by decompressing zstd blocks on misses.
     pub bytes_decompressed: u64,
+    /// Chunks of groups asked for ([`chunks::ChunkCache`]), found resident, and read (their
+    /// stored bytes are counted in `bytes_read`).
+    pub chunk_requests: u64,
+    pub chunk_hits: u64,
+    pub chunk_misses: u64,
 }
 
 impl PageCounters {
@@ -251,6 +256,9 @@ impl std::ops::AddAssign for PageCounters {
         self.misses += o.misses;
         self.bytes_read += o.bytes_read;
         self.bytes_decompressed += o.bytes_decompressed;
+        self.chunk_requests += o.chunk_requests;
+        self.chunk_hits += o.chunk_hits;
+        self.chunk_misses += o.chunk_misses;
     }
 }
 
@@ -381,6 +389,9 @@ pub struct Pager {
     ready: Vec<OnceLock<Box<ReadyMap>>>,
     /// No block is ever evicted: every block is raw and the budget holds them all.
     keeps_everything: bool,
+    /// The directory given to each get is of blocks' heads (spec §8.2: every entry's
+    /// `raw_len` its `head_raw_len`), whose groups a [`chunks::ChunkCache`] reads.
+    heads: bool,
 }
 
 /// The slots' CLOCK state.
@@ -457,6 +468,7 @@ impl Pager {
             }),
             ready: directory.iter().map(|_| OnceLock::new()).collect(),
             keeps_everything,
+            heads: false,
         }
     }
 
@@ -478,7 +490,7 @@ impl Pager {
         if let Some(r) = cell.get() {
             return Ok(r);
         }
-        match ReadyMap::new(raw, block, entry) {
+        match ReadyMap::new(raw, block, entry, self.heads) {
             Ok(r) => Ok(cell.get_or_init(|| Box::new(r))),
             Err(what) => Err(PageError {
                 block,
@@ -490,6 +502,12 @@ impl Pager {
     /// The maps of blocks admitted so far, if no block is ever evicted (every block raw, and
     /// the budget holding them all): then a walk may read an admitted block's bytes straight
     /// from the file, without asking the pager.
+    /// Makes the pager one of blocks' heads (see [`Pager::heads`]'s field): each get is given
+    /// the heads' directory, and a block's map is made from its head.
+    pub fn set_heads(&mut self, heads: bool) {
+        self.heads = heads;
+    }
+
     pub fn resident_forever(&self) -> Option<&[OnceLock<Box<ReadyMap>>]> {
         self.keeps_everything.then_some(&self.ready[..])
     }
@@ -1110,3 +1128,5 @@ fn wait(spins: &mut u32) {
 
 #[cfg(test)]
 mod tests;
+
+pub mod chunks;

@@ -104,6 +104,8 @@ impl Synth {
                 root_count: 1,
                 triangles: 0,
                 checksum: checksum(&stored),
+                head_stored_len: stored.len() as u64,
+                head_raw_len: data.len() as u64,
             });
             file.extend_from_slice(&stored);
             blocks.push(data);
@@ -147,6 +149,7 @@ impl Synth {
             (HEAD as u64, (self.file.len() - TAIL) as u64),
             self.max_raw_len,
             self.dir.iter().any(|e| e.codec == CODEC_ZSTD),
+            0,
         )
     }
 
@@ -488,6 +491,8 @@ fn rebuild(s: &Synth) -> Synth {
             stored_len: data.len() as u64,
             raw_len: data.len() as u64,
             checksum: checksum(data),
+            head_stored_len: data.len() as u64,
+            head_raw_len: data.len() as u64,
             ..*e
         });
         file.extend_from_slice(data);
@@ -691,7 +696,9 @@ fn zstd_frames_that_do_not_decode_to_their_block_are_errors() {
     for b in 0..4 {
         for delta in [-1i64, 1] {
             let mut bad = s.clone();
+            // (A block without groups is all head.)
             bad.dir[b].raw_len = (bad.dir[b].raw_len as i64 + delta) as u64;
+            bad.dir[b].head_raw_len = bad.dir[b].raw_len;
             bad.max_raw_len += 1;
             expect_bad(&bad, b as u32, "raw_len");
         }
@@ -705,6 +712,7 @@ fn zstd_frames_that_do_not_decode_to_their_block_are_errors() {
     // A truncated frame.
     let mut bad = s.clone();
     bad.dir[3].stored_len /= 2;
+    bad.dir[3].head_stored_len = bad.dir[3].stored_len;
     bad.rechecksum(3);
     expect_bad(&bad, 3, "zstd");
 }
@@ -744,6 +752,8 @@ fn a_zstd_frame_claiming_a_huge_size_is_an_error_without_allocating_it() {
             stored_len: frame.len() as u64,
             raw_len,
             checksum: checksum(&frame),
+            head_stored_len: frame.len() as u64,
+            head_raw_len: raw_len,
             ..s.dir[5]
         };
         s.file.extend_from_slice(&frame);
@@ -752,7 +762,7 @@ fn a_zstd_frame_claiming_a_huge_size_is_an_error_without_allocating_it() {
         s.max_raw_len = s.max_raw_len.max(4096);
         let expect = if raw_len > s.max_raw_len {
             "exceeds the header's largest block"
-        } else if raw_len > 64 * frame.len() as u64 {
+        } else if !crate::physical::format::zstd_head_fits(raw_len, frame.len() as u64) {
             "times its size"
         } else {
             "content size"

@@ -3,27 +3,41 @@
 //! its own. Both walks enter clusters the same way, so they find the same hits.
 
 use super::ray::{Best, RayCtx};
-use super::{Counters, Held, HitInfo};
+use super::{Chunked, Counters, Held, HitInfo};
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::grown_exit;
 use crate::os::Simd8;
 use crate::physical::format::{CLUSTER_WIDTH, MAX_CLUSTER_DEPTH, TriGroup};
 
+/// Why a cluster's walk stopped short: bytes that are not a cluster, or a chunk of groups that
+/// could not be read.
+pub(super) enum ClusterFail {
+    Bad(&'static str),
+    Page(super::PageError),
+}
+
+impl From<&'static str> for ClusterFail {
+    fn from(what: &'static str) -> Self {
+        ClusterFail::Bad(what)
+    }
+}
+
 /// Traverses the cluster whose root is node `root` of the held block (spec §7.1), updating the
 /// walk's closest hit (ties to the smallest primitive id); with `ANY`, stops at the first hit
 /// and returns true. Bounded whatever the bytes: a tree visits each node at most once, so a
 /// walk that visits more nodes than the block has, or goes deeper than
-/// [`MAX_CLUSTER_DEPTH`], is reading something that is not a tree.
+/// [`MAX_CLUSTER_DEPTH`], is reading something that is not a tree. `chunks`: where the groups
+/// of a block of which only the head is held are read (spec §8.3).
 #[inline(always)]
 pub(super) fn trace_cluster<const ANY: bool, S: Simd8>(
     isa: S,
     r: &RayCtx,
     w: &mut Best,
-    h: &Held<'_>,
+    (h, chunks): (&Held<'_>, Option<Chunked<'_>>),
     root: u32,
     k: &mut Counters,
     stack: &mut Vec<(u32, f32, u8)>,
-) -> Result<bool, &'static str> {
+) -> Result<bool, ClusterFail> {
     stack.clear();
     stack.push((root, r.tmin, 0));
     let mut visits = 0usize;
@@ -35,11 +49,11 @@ pub(super) fn trace_cluster<const ANY: bool, S: Simd8>(
             continue;
         }
         let Some(n) = h.cluster_nodes.get(ni as usize) else {
-            return Err("cluster node index out of range");
+            return Err("cluster node index out of range".into());
         };
         visits += 1;
         if visits > h.cluster_nodes.len() {
-            return Err("cluster nodes do not form a tree");
+            return Err("cluster nodes do not form a tree".into());
         }
         k.cluster_nodes_visited += 1;
         let count = (n.child_count as usize).min(CLUSTER_WIDTH);
@@ -53,8 +67,21 @@ pub(super) fn trace_cluster<const ANY: bool, S: Simd8>(
             let i = leaf_mask.trailing_zeros();
             leaf_mask &= leaf_mask - 1;
             let gi = n.group_base as u64 + (i - inner) as u64;
-            let Some(g) = h.groups.get(gi as usize) else {
-                return Err("triangle group index out of range");
+            // A held head's groups are read chunk by chunk; the chunk is held for the test.
+            let chunk;
+            let g = match (h.groups.get(gi as usize), chunks) {
+                (Some(g), _) => g,
+                (None, Some(ch)) => {
+                    chunk = ch.group(h.id, gi, &mut k.page).map_err(ClusterFail::Page)?;
+                    chunk
+                        .0
+                        .groups()
+                        .get(chunk.1)
+                        .ok_or(ClusterFail::Bad("triangle group index out of range"))?
+                }
+                (None, None) => {
+                    return Err(ClusterFail::Bad("triangle group index out of range"));
+                }
             };
             if test_group::<ANY, S>(isa, (&r.shear, r.tmin), &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);

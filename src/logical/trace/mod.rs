@@ -56,7 +56,8 @@ use std::sync::OnceLock;
 use serde::Serialize;
 
 use super::held::{Held, ReadyMap};
-use super::pager::{BlockBytes, PageCounters, PageError};
+use super::pager::chunks::{ChunkCache, ChunkGuard};
+use super::pager::{BlockBytes, BlockSource, PageCounters, PageError};
 use super::top_bounds::LatticeBox;
 use crate::geom::Ray;
 use crate::mapping::morton::LATTICE_SIZE;
@@ -286,6 +287,49 @@ pub struct Tree<'a> {
     /// A bound on the magnitude of every coordinate a wide node holds (twice the root cube's
     /// farthest corner from 0), for the node test's eligibility (spec §8.7).
     coord_bound: f32,
+    /// Where the groups are when `blocks` gives blocks' heads (spec §8.3): read chunk by chunk.
+    chunks: Option<ChunkCtx<'a>>,
+}
+
+/// The chunks of a block of which only the head is held (spec §8.3), and the cache they are
+/// read into.
+#[derive(Clone, Copy)]
+pub(crate) struct Chunked<'v> {
+    pub cache: &'v ChunkCache,
+    pub src: &'v dyn BlockSource,
+    /// The block's entry (its real one, not its head's) and decoded head.
+    pub entry: &'v BlockEntry,
+    pub head: &'v [u8],
+}
+
+impl<'v> Chunked<'v> {
+    /// The chunk holding group `g` of block `block`, and the group's index in it.
+    #[inline(never)]
+    pub fn group(
+        &self,
+        block: u32,
+        g: u64,
+        c: &mut PageCounters,
+    ) -> Result<(ChunkGuard<'v>, usize), PageError> {
+        let per = self.cache.chunk_groups() as u64;
+        let chunk = u32::try_from(g / per).map_err(|_| PageError {
+            block,
+            what: "triangle group index out of range".into(),
+        })?;
+        let guard = self
+            .cache
+            .get(self.src, block, self.entry, self.head, chunk, c)?;
+        Ok((guard, (g % per) as usize))
+    }
+}
+
+/// The chunk cache of a tree whose pager holds blocks' heads, the file, and its real block
+/// directory (the tree's `directory` is then the heads').
+#[derive(Clone, Copy)]
+pub(crate) struct ChunkCtx<'a> {
+    pub cache: &'a ChunkCache,
+    pub src: &'a dyn BlockSource,
+    pub directory: &'a [BlockEntry],
 }
 
 impl<'a> Tree<'a> {
@@ -327,6 +371,7 @@ impl<'a> Tree<'a> {
                     .fold(0.0, f64::max);
                 (2.0 * far) as f32
             },
+            chunks: None,
         }
     }
 
@@ -340,6 +385,27 @@ impl<'a> Tree<'a> {
 
     /// The same tree, walked by `walk` ([`Walk::Ropes`] follows `top_ropes` and the blocks'
     /// ropes; the scene checked at open that the file has them).
+    /// The same tree, whose pager gives blocks' heads and whose groups `chunks` reads.
+    pub(crate) fn with_chunks(mut self, chunks: Option<ChunkCtx<'a>>) -> Tree<'a> {
+        self.chunks = chunks;
+        self
+    }
+
+    /// Where block `b`'s groups are when only its head `head` is held.
+    #[inline]
+    pub(in crate::logical) fn chunked<'v>(&self, b: u32, head: &'v [u8]) -> Option<Chunked<'v>>
+    where
+        'a: 'v,
+    {
+        let c = self.chunks?;
+        Some(Chunked {
+            cache: c.cache,
+            src: c.src,
+            entry: c.directory.get(b as usize)?,
+            head,
+        })
+    }
+
     pub(crate) fn walking(mut self, walk: Walk, top_ropes: &'a [RopeRecord]) -> Tree<'a> {
         self.top_down = match walk {
             Walk::Auto | Walk::Wide => self.clusters,
@@ -551,7 +617,10 @@ impl<'a> Tree<'a> {
 
     /// The view of a fetched block (see [`Self::fetch`]).
     #[inline(always)]
-    fn held<'f>(fetched: &'f Option<(u32, Fetched<'a>, &'a ReadyMap)>) -> Option<Held<'f>> {
+    fn held<'f>(&self, fetched: &'f Option<(u32, Fetched<'a>, &'a ReadyMap)>) -> Option<Held<'f>>
+    where
+        'a: 'f,
+    {
         fetched
             .as_ref()
             .map(|(b, bytes, ready)| Held::new(*b, ready, bytes))

@@ -33,7 +33,7 @@
 
 use std::hint::select_unpredictable;
 
-use super::cluster::trace_cluster;
+use super::cluster::{ClusterFail, trace_cluster};
 use super::ray::{Best, RayCtx, box_may_hit};
 use super::{Counters, Held, HitInfo, Tree, baseline};
 use crate::geom::Ray;
@@ -135,7 +135,7 @@ impl Tree<'_> {
                     Err(e) => break Err(e),
                 },
             };
-            let held = Self::held(&fetched);
+            let held = self.held(&fetched);
             match self.walk_in::<ANY, S>(isa, &ctx, &mut w, held.as_ref(), &mut k) {
                 Ok(Step::Done(best)) => break Ok(best),
                 Ok(Step::Need(b)) => need = Some(b),
@@ -321,8 +321,14 @@ impl Tree<'_> {
                 let found = if self.clusters {
                     k.clusters_entered += 1;
                     let stack = &mut Vec::new();
-                    let found = trace_cluster::<ANY, S>(isa, r, &mut w.s, h, rec.payload, k, stack)
-                        .map_err(bad)?;
+                    let found =
+                        trace_cluster::<ANY, S>(isa, r, &mut w.s, (h, None), rec.payload, k, stack)
+                            .map_err(|f| match f {
+                                ClusterFail::Bad(what) => bad(what),
+                                // (This walk is not given chunks: the scene holds whole blocks
+                                // for it.)
+                                ClusterFail::Page(_) => bad("a chunk of groups could not be read"),
+                            })?;
                     if found { w.s.best } else { None }
                 } else {
                     let (refs, _) = leaf_refs(h.refs, rec.payload, inline_count)

@@ -10,9 +10,9 @@
 //! form a tree, each visited at most once. One block is held at a time: a block's nodes are all
 //! above the top-tree nodes on the stack, and are done with before them.
 
-use super::cluster::trace_cluster;
+use super::cluster::{ClusterFail, trace_cluster};
 use super::ray::{Best, RayCtx, box_may_hit, leaf_may_hit};
-use super::{Counters, Held, HitInfo, TraceError, Tree};
+use super::{Chunked, Counters, Held, HitInfo, TraceError, Tree};
 use crate::geom::Ray;
 use crate::mapping::morton::{self, MAX_LEVEL};
 use crate::mapping::{Corruption, TreeMap};
@@ -137,7 +137,7 @@ impl Tree<'_> {
                 None => None,
                 Some(b) => Some(self.fetch(b, &mut k.page)?),
             };
-            let view = Self::held(&fetched);
+            let view = self.held(&fetched);
             let (stack, cluster_stack) = (&mut stacks.octree, &mut stacks.cluster);
             need = self.run_held::<ANY, S>(isa, r, w, k, stack, cluster_stack, view.as_ref())?;
             if need.is_none() {
@@ -228,7 +228,8 @@ impl Tree<'_> {
                 kind => kind,
             };
             if kind == EntryKind::Solid {
-                if enter_cluster::<ANY, S>(isa, r, w, k, &e, held, cluster_stack)? {
+                let chunks = held.and_then(|h| self.chunked(h.id, h.raw));
+                if enter_cluster::<ANY, S>(isa, r, w, k, &e, (held, chunks), cluster_stack)? {
                     return Ok(None);
                 }
                 continue;
@@ -466,7 +467,7 @@ fn enter_cluster<const ANY: bool, S: Simd8>(
     w: &mut Best,
     k: &mut Counters,
     e: &Entry,
-    held: Option<&Held<'_>>,
+    (held, chunks): (Option<&Held<'_>>, Option<Chunked<'_>>),
     cluster_stack: &mut Vec<(u32, f32, u8)>,
 ) -> Result<bool, TraceError> {
     let h = held.ok_or_else(|| e.bad("cluster outside a block"))?;
@@ -480,8 +481,11 @@ fn enter_cluster<const ANY: bool, S: Simd8>(
     }
     k.leaves_visited += 1;
     k.clusters_entered += 1;
-    let found = trace_cluster::<ANY, S>(isa, r, w, h, rec.payload, k, cluster_stack)
-        .map_err(|what| e.bad(what))?;
+    let found = trace_cluster::<ANY, S>(isa, r, w, (h, chunks), rec.payload, k, cluster_stack)
+        .map_err(|f| match f {
+            ClusterFail::Bad(what) => e.bad(what),
+            ClusterFail::Page(p) => TraceError::Page(p),
+        })?;
     if ANY && found {
         return Ok(true);
     }

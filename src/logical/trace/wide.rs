@@ -315,10 +315,17 @@ impl<'a> Tree<'a> {
             let i = leaves.trailing_zeros();
             leaves &= leaves - 1;
             let gi = n.group_base as u64 + (i - inner) as u64;
-            let g = h
-                .groups
-                .get(gi as usize)
-                .ok_or_else(|| bad("triangle group index out of range", Some(h.id)))?;
+            // A held head's groups are read chunk by chunk; the chunk is held for the test.
+            let chunk;
+            let g = match h.groups.get(gi as usize) {
+                Some(g) => g,
+                None => {
+                    let out = || bad("triangle group index out of range", Some(h.id));
+                    let ch = self.chunked(h.id, h.raw).ok_or_else(out)?;
+                    chunk = ch.group(h.id, gi, &mut k.page)?;
+                    chunk.0.groups().get(chunk.1).ok_or_else(out)?
+                }
+            };
             #[cfg(feature = "group-trace")]
             super::group_trace::record(h.id, gi as u32);
             let shear = r.shear.get_or_init(|| RayShear::new(r.ray));

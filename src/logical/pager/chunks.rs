@@ -1,0 +1,325 @@
+//! The chunk cache: a block's triangle groups, chunk by chunk (format-spec §8.3), for a tracer
+//! that keeps the blocks' heads in the pager and reads only the chunks rays reach.
+//!
+//! A file of format 7 stores each block as its head (the octree, the wide nodes, the chunk
+//! table) and its groups in chunks of `chunk_groups` groups, each with its own checksum. Out of
+//! core, the pager holds heads ([`super::PagerOptions::heads`]) and the walk asks this cache for
+//! the chunk a group is in ([`ChunkCache::get`]): a whole block is never read for the few
+//! groups a ray tests in it.
+//!
+//! **Slots.** Every chunk of a file decodes to at most `chunk_groups * 160` bytes, so the cache
+//! is a fixed set of equal slots (the budget over that size, at least one per thread and one
+//! more), each an `RwLock` over a page-aligned buffer. A get looks the chunk up in a map (key:
+//! block and chunk) under one mutex, takes the slot's read lock and checks the slot still holds
+//! it (a hit: one mutex, one read lock, no allocation). A miss, under the mutex, takes a slot by
+//! CLOCK (Corbató 1968) among those nobody reads (`try_write`), maps the chunk to it, releases
+//! the mutex, and then, under the slot's write lock only, reads the chunk's stored bytes (a
+//! direct read past the page cache, or a copy from the map), checks them against the head's
+//! chunk table and decodes them, and downgrades to the read lock it returns. Gets of the same
+//! chunk meanwhile wait on that read lock and count a hit. A chunk that fails is reported as an
+//! error naming its block and chunk, and stays failed.
+//!
+//! **No deadlock.** The mutex is never held while waiting on a slot (only `try_write`), and a
+//! slot's lock is never held while waiting on the mutex by the thread filling it. A caller holds
+//! at most one [`ChunkGuard`] at a time (the walk drops it after the group's test), so with
+//! `threads + 1` slots a sweep always finds one free soon; one that finds none yields and tries
+//! again.
+//!
+//! **Memory bound.** `slots * slot_bytes`, fixed when the cache is made: nothing grows.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Mutex, RwLock, RwLockReadGuard, RwLockWriteGuard, TryLockError};
+
+use super::{BlockSource, PageCounters, PageError, lock};
+use crate::os::PageBuf;
+use crate::physical::BlockReader;
+use crate::physical::format::{BlockEntry, CODEC_RAW, TriGroup, checksum};
+
+/// A chunk's key: its block (high 32 bits) and its index in the block (low).
+fn key(block: u32, chunk: u32) -> u64 {
+    (block as u64) << 32 | chunk as u64
+}
+
+/// No chunk.
+const EMPTY: u64 = u64::MAX;
+
+/// A slot: the chunk it holds (or [`EMPTY`]) and its decoded groups.
+struct Slot {
+    key: u64,
+    buf: PageBuf,
+    /// Where the groups start in `buf` (a direct read starts on the page before them).
+    start: usize,
+    len: usize,
+}
+
+/// The cache (see the module docs).
+pub struct ChunkCache {
+    reader: BlockReader,
+    /// Decoded bytes of a whole chunk.
+    chunk_bytes: usize,
+    /// Read chunks into the slots with direct reads (a mapped file, past the page cache) rather
+    /// than copy them from the map.
+    read_direct: bool,
+    slots: Vec<RwLock<Slot>>,
+    referenced: Vec<AtomicBool>,
+    /// Key to slot, and the CLOCK hand.
+    map: Mutex<(HashMap<u64, u32>, usize)>,
+    /// Why each bad chunk is bad.
+    bad: Mutex<HashMap<u64, String>>,
+    /// Chunks read (every miss), for [`Self::chunks_read`].
+    reads: AtomicU64,
+}
+
+/// A chunk's groups, locked for reading while this lives.
+pub struct ChunkGuard<'c> {
+    slot: RwLockReadGuard<'c, Slot>,
+}
+
+impl ChunkGuard<'_> {
+    /// The chunk's groups.
+    #[inline]
+    pub fn groups(&self) -> &[TriGroup] {
+        let s = &*self.slot;
+        bytemuck::try_cast_slice(&s.buf[s.start..s.start + s.len]).unwrap_or(&[])
+    }
+}
+
+impl ChunkCache {
+    /// A cache of `budget` bytes for a file read by `reader`, for `threads` callers at once
+    /// (at least `threads + 1` slots whatever the budget: the caller counts them in its own).
+    /// `read_direct`: read chunks with direct reads ([`BlockSource::read_at`]).
+    pub fn new(reader: BlockReader, budget: u64, threads: usize, read_direct: bool) -> ChunkCache {
+        let chunk_bytes = reader.chunk_groups() as usize * std::mem::size_of::<TriGroup>();
+        let slot_bytes = Self::slot_bytes_for(chunk_bytes) as u64;
+        let count = (budget / slot_bytes.max(1)).max(threads as u64 + 1);
+        let count = usize::try_from(count).unwrap_or(usize::MAX).min(1 << 24);
+        ChunkCache {
+            reader,
+            chunk_bytes,
+            read_direct,
+            slots: (0..count)
+                .map(|_| {
+                    RwLock::new(Slot {
+                        key: EMPTY,
+                        buf: PageBuf::default(),
+                        start: 0,
+                        len: 0,
+                    })
+                })
+                .collect(),
+            referenced: (0..count).map(|_| AtomicBool::new(false)).collect(),
+            map: Mutex::new((HashMap::new(), 0)),
+            bad: Mutex::new(HashMap::new()),
+            reads: AtomicU64::new(0),
+        }
+    }
+
+    /// The memory one slot takes: a chunk and a page on either side (a direct read of a chunk
+    /// that does not start or end on a page reads the pages around it).
+    pub fn slot_bytes_for(chunk_bytes: usize) -> usize {
+        let page = crate::os::page_size();
+        chunk_bytes.next_multiple_of(page) + 2 * page
+    }
+
+    /// Groups per chunk.
+    pub fn chunk_groups(&self) -> u32 {
+        self.reader.chunk_groups()
+    }
+
+    /// Chunks read so far.
+    pub fn chunks_read(&self) -> u64 {
+        self.reads.load(Ordering::Relaxed)
+    }
+
+    /// Chunk `chunk` of block `block` (entry `e`, decoded head `head`, both checked when the
+    /// head was admitted) of the file `src`, read if it is not resident; counted in `c`.
+    pub fn get<'c, S: BlockSource + ?Sized>(
+        &'c self,
+        src: &S,
+        block: u32,
+        e: &BlockEntry,
+        head: &[u8],
+        chunk: u32,
+        c: &mut PageCounters,
+    ) -> Result<ChunkGuard<'c>, PageError> {
+        let k = key(block, chunk);
+        loop {
+            let mut m = lock(&self.map);
+            if let Some(&s) = m.0.get(&k) {
+                drop(m);
+                let slot = self.slots[s as usize]
+                    .read()
+                    .unwrap_or_else(|p| p.into_inner());
+                if slot.key == k {
+                    self.referenced[s as usize].store(true, Ordering::Relaxed);
+                    c.chunk_requests += 1;
+                    c.chunk_hits += 1;
+                    return Ok(ChunkGuard { slot });
+                }
+                // Evicted, or its read failed, since it was looked up: look again.
+                continue;
+            }
+            if let Some(what) = lock(&self.bad).get(&k) {
+                return Err(PageError {
+                    block,
+                    what: what.clone(),
+                });
+            }
+            let Some((s, mut w)) = self.victim(&mut m) else {
+                drop(m);
+                std::thread::yield_now();
+                continue;
+            };
+            if w.key != EMPTY {
+                m.0.remove(&w.key);
+            }
+            m.0.insert(k, s as u32);
+            w.key = k;
+            drop(m);
+            self.referenced[s].store(true, Ordering::Relaxed);
+            match self.fill(src, e, head, chunk, &mut w) {
+                Ok((stored, decoded)) => {
+                    self.reads.fetch_add(1, Ordering::Relaxed);
+                    c.chunk_requests += 1;
+                    c.chunk_misses += 1;
+                    c.bytes_read += stored;
+                    c.bytes_decompressed += decoded;
+                    let slot = RwLockWriteGuard::downgrade(w);
+                    return Ok(ChunkGuard { slot });
+                }
+                Err(what) => {
+                    let what = format!("chunk {chunk}: {what}");
+                    w.key = EMPTY;
+                    lock(&self.bad).insert(k, what.clone());
+                    let mut m = lock(&self.map);
+                    if m.0.get(&k) == Some(&(s as u32)) {
+                        m.0.remove(&k);
+                    }
+                    return Err(PageError { block, what });
+                }
+            }
+        }
+    }
+
+    /// A slot nobody reads, write-locked, by CLOCK: a referenced slot loses its bit and is
+    /// passed over once; after two turns any free slot is taken. `None` if every slot is read.
+    fn victim<'c>(
+        &'c self,
+        m: &mut (HashMap<u64, u32>, usize),
+    ) -> Option<(usize, RwLockWriteGuard<'c, Slot>)> {
+        let n = self.slots.len();
+        for step in 0..3 * n {
+            let s = m.1;
+            m.1 = (m.1 + 1) % n;
+            if step < 2 * n && self.referenced[s].swap(false, Ordering::Relaxed) {
+                continue;
+            }
+            match self.slots[s].try_write() {
+                Ok(w) => return Some((s, w)),
+                Err(TryLockError::Poisoned(p)) => return Some((s, p.into_inner())),
+                Err(TryLockError::WouldBlock) => {}
+            }
+        }
+        None
+    }
+
+    /// Reads chunk `chunk` of the block `e` into `w`, checked and decoded; the stored bytes
+    /// read, and the bytes decompressed (0 for a raw chunk).
+    fn fill<S: BlockSource + ?Sized>(
+        &self,
+        src: &S,
+        e: &BlockEntry,
+        head: &[u8],
+        chunk: u32,
+        w: &mut Slot,
+    ) -> Result<(u64, u64), String> {
+        let table = self.reader.chunk_table(e, head)?;
+        let ce = table
+            .get(chunk as usize)
+            .ok_or_else(|| format!("no such chunk (the block has {})", table.len()))?;
+        let groups = (e.raw_len - e.head_raw_len) as usize / std::mem::size_of::<TriGroup>();
+        let first = chunk as usize * self.reader.chunk_groups() as usize;
+        let raw_len = (groups - first).min(self.reader.chunk_groups() as usize)
+            * std::mem::size_of::<TriGroup>();
+        let at = e.offset + e.head_stored_len + ce.offset as u64;
+        let len = ce.stored_len as usize;
+        let slot_bytes = Self::slot_bytes_for(self.chunk_bytes);
+        if w.buf.len() < slot_bytes {
+            w.buf = PageBuf::default();
+            w.buf = PageBuf::new(slot_bytes)
+                .ok_or_else(|| format!("cannot allocate {slot_bytes} bytes to read it"))?;
+        }
+        let raw_chunk = e.codec == CODEC_RAW || len == raw_len;
+        if raw_chunk && self.read_direct {
+            let page = crate::os::page_size() as u64;
+            let from = at / page * page;
+            let skip = (at - from) as usize;
+            let whole = (skip + len).next_multiple_of(page as usize);
+            src.read_at(from, &mut w.buf[..whole])
+                .map_err(|err| format!("cannot read it: {err}"))?;
+            check(ce.checksum, &w.buf[skip..skip + len])?;
+            // A raw chunk of a compressed block may start anywhere in its page: moved to the
+            // buffer's start, where the groups are aligned.
+            let start = match skip % std::mem::align_of::<TriGroup>() {
+                0 => skip,
+                _ => {
+                    w.buf.copy_within(skip..skip + len, 0);
+                    0
+                }
+            };
+            w.start = start;
+            w.len = len;
+            return Ok((len as u64, 0));
+        }
+        let bytes = src.bytes();
+        let stored = usize::try_from(at)
+            .ok()
+            .and_then(|a| bytes.get(a..a.checked_add(len)?))
+            .ok_or("stored bytes outside the file")?;
+        check(ce.checksum, stored)?;
+        if raw_chunk {
+            w.buf[..len].copy_from_slice(stored);
+        } else {
+            ZSTD.with_borrow_mut(|d| {
+                let d = match d {
+                    Some(d) => d,
+                    none => none.insert(
+                        zstd::bulk::Decompressor::new()
+                            .map_err(|err| format!("cannot create a zstd decompressor: {err}"))?,
+                    ),
+                };
+                let n = d
+                    .decompress_to_buffer(stored, &mut w.buf[..raw_len])
+                    .map_err(|err| format!("zstd: {err}"))?;
+                if n != raw_len {
+                    return Err(format!(
+                        "the zstd frame decodes to {n} bytes, its groups take {raw_len}"
+                    ));
+                }
+                Ok(())
+            })?;
+        }
+        w.start = 0;
+        w.len = raw_len;
+        Ok((len as u64, if raw_chunk { 0 } else { raw_len as u64 }))
+    }
+}
+
+thread_local! {
+    /// Each thread's zstd context for chunks.
+    static ZSTD: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Checks a chunk's stored bytes against its checksum.
+fn check(expected: u64, stored: &[u8]) -> Result<(), String> {
+    let computed = checksum(stored);
+    if computed != expected {
+        return Err(format!(
+            "checksum mismatch (stored {expected:#018x}, computed {computed:#018x}): the file \
+             is corrupt"
+        ));
+    }
+    Ok(())
+}
