@@ -115,7 +115,9 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         };
         // Per primary ray: its shadow ray's answer (for those with a hit).
         let mut occ_of = vec![0u8; rays.len()];
-        if opts.order == Order::Stream {
+        // (Chunk by chunk, the primary rays are traced, then the shadow rays, each set in
+        // Morton order: `logical::chunked`.)
+        if opts.order == Order::Stream && !self.chunked() {
             // One stream for both sets: a shadow walk begins where its primary walk ends, in
             // the block held. The time is split between the sets in proportion to the time
             // the workers spent walking each.

@@ -6,6 +6,7 @@
 //! part of full verification.
 
 mod batch;
+mod chunked;
 mod frame;
 mod held;
 mod order;

@@ -417,8 +417,6 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     pub fn default_order(&self) -> Order {
         if self.fits_in_budget() {
             Order::None
-        } else if self.chunked() {
-            Order::Morton
         } else {
             Order::Stream
         }
@@ -647,17 +645,42 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
     ) -> Result<Counters, Error> {
         let tree = self.tree();
-        if order == Order::Stream && tree.walks_top_down() && !self.chunked() {
+        if order == Order::Stream
+            && let Some((_, cache)) = &self.chunked
+        {
+            return self.by_chunks::<ANY, T>(&tree, cache, rays, out, map);
+        }
+        if order == Order::Stream && tree.walks_top_down() {
             return self.stream::<ANY, T>(&tree, rays, out, map);
         }
         let order = match order {
-            Order::Stream if self.chunked() => Order::Morton,
             Order::Stream => Order::Blocks,
             o => o,
         };
         self.batch(rays, out, order, |chunk, out, c| {
             tree.answer_each::<ANY>(chunk, c, |i, ray, h| out[i] = map(ray, h))
         })
+    }
+
+    /// [`Self::answers`] chunk by chunk ([`super::chunked`]), in Morton order.
+    fn by_chunks<const ANY: bool, T: Send + Sync + Copy>(
+        &self,
+        tree: &Tree<'_>,
+        cache: &ChunkCache,
+        rays: &[Ray],
+        out: &mut [T],
+        map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
+    ) -> Result<Counters, Error> {
+        check_room(rays.len(), out.len())?;
+        let order = self
+            .permutation(rays, Order::Morton)?
+            .unwrap_or_else(|| (0..rays.len() as u32).collect());
+        let c = super::chunked::answer::<ANY>(tree, cache, rays, &order, self.threads, |i, h| {
+            out[i as usize] = map(&rays[i as usize], h)
+        })
+        .map_err(|e| self.corrupt(e))?;
+        self.check_unchanged()?;
+        Ok(c)
     }
 
     /// [`Self::answers`] streamed ([`super::stream`]).

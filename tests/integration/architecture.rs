@@ -15,7 +15,7 @@ const STACK: [&str; 12] = [
 
 /// The files of `logical`, bottom first: each may import those before it. The walks (`trace`)
 /// know neither the stream that parks them nor the scene that runs them.
-const LOGICAL: [&str; 12] = [
+const LOGICAL: [&str; 13] = [
     "held",
     "top_bounds",
     "pager",
@@ -23,6 +23,7 @@ const LOGICAL: [&str; 12] = [
     "stream",
     "order",
     "batch",
+    "chunked",
     "report",
     "verify",
     "scene",

@@ -115,16 +115,37 @@ impl ChunkCache {
         }
     }
 
-    /// The memory one slot takes: a chunk and a page on either side (a direct read of a chunk
-    /// that does not start or end on a page reads the pages around it).
+    /// The memory one slot takes: a chunk's whole pages and one more (a direct read of a chunk
+    /// that does not start on a page starts on the page before it, less than a page before,
+    /// and ends on the page its last byte is in).
     pub fn slot_bytes_for(chunk_bytes: usize) -> usize {
         let page = crate::os::page_size();
-        chunk_bytes.next_multiple_of(page) + 2 * page
+        chunk_bytes.next_multiple_of(page) + page
     }
 
     /// Groups per chunk.
     pub fn chunk_groups(&self) -> u32 {
         self.reader.chunk_groups()
+    }
+
+    /// The most chunks resident at once.
+    pub fn slots(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Chunk `chunk` of block `block` if it is resident now (counted as a hit), without reading
+    /// it: `None` if it is not, is being read, or failed (a [`Self::get`] then says why).
+    pub fn peek(&self, block: u32, chunk: u32, c: &mut PageCounters) -> Option<ChunkGuard<'_>> {
+        let k = key(block, chunk);
+        let s = *lock(&self.map).0.get(&k)?;
+        let slot = self.slots[s as usize].try_read().ok()?;
+        if slot.key != k {
+            return None;
+        }
+        self.referenced[s as usize].store(true, Ordering::Relaxed);
+        c.chunk_requests += 1;
+        c.chunk_hits += 1;
+        Some(ChunkGuard { slot })
     }
 
     /// Chunks read so far.

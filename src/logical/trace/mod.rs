@@ -21,6 +21,7 @@
 //! Each walk is compiled for the best instruction set the CPU has ([`Tree::dispatch`]).
 
 mod cluster;
+mod deferred;
 mod neighbours;
 mod occluders;
 mod ray;
@@ -66,6 +67,7 @@ use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
     BlockEntry, ClusterNode, FLAG_CLUSTERS, FLAG_OCCLUDERS, Header, RopeRecord, WideLink,
 };
+pub(in crate::logical) use deferred::Deferred;
 pub(in crate::logical) use ray::{Best, RayCtx};
 pub(in crate::logical) use topdown::Entry;
 
@@ -118,6 +120,9 @@ pub struct Counters {
     pub boxes_tested: u64,
     /// Triangle groups (spec §7.2) tested.
     pub groups_tested: u64,
+    /// Groups whose tests were put off until their chunks were read (batches traced chunk by
+    /// chunk, spec §8.3); each is tested later or passed over, and counted again if tested.
+    pub groups_deferred: u64,
     /// Ropes followed by the leaf-to-leaf walk of [`Walk::Ropes`] (spec §8.4).
     pub ropes_followed: u64,
     /// Occluders tested at inner nodes by the shadow-ray walk of a primitive index (the
@@ -150,6 +155,7 @@ impl std::ops::AddAssign for Counters {
         self.cluster_nodes_visited += o.cluster_nodes_visited;
         self.boxes_tested += o.boxes_tested;
         self.groups_tested += o.groups_tested;
+        self.groups_deferred += o.groups_deferred;
         self.page += o.page;
         self.walks_parked += o.walks_parked;
         self.blocks_served += o.blocks_served;
@@ -570,7 +576,7 @@ impl<'a> Tree<'a> {
             let mut kept = None;
             let mut result = Ok(());
             for (i, ray) in rays.enumerate() {
-                match self.wide_ray::<ANY, S>(isa, ray, c, &mut stack, &mut kept) {
+                match self.wide_ray::<ANY, S>(isa, ray, c, (&mut stack, None), &mut kept) {
                     Ok(h) => f(i, ray, h),
                     Err(e) => {
                         result = Err(e);

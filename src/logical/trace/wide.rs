@@ -15,11 +15,13 @@
 //! capped by the depth the format allows; past either, the bytes are not a tree.
 
 use super::cluster::test_group;
+use super::deferred::Deferred;
 use super::{Counters, Fetched, HitInfo, TraceError, Tree};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::{FmaRay, grown_exit};
 use crate::logical::held::WideHeld;
+use crate::logical::pager::chunks::ChunkGuard;
 use crate::mapping::Corruption;
 use crate::os::Simd8;
 use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, MAX_CLUSTER_DEPTH};
@@ -46,6 +48,9 @@ pub(in crate::logical) struct WideWalk<'s> {
     budget: usize,
     pub(super) best: Option<HitInfo>,
     pub(super) t_best: f32,
+    /// Where a walk that defers (spec §8.3: a block's head held, its chunks read later) leaves
+    /// the groups whose chunks are not resident; `None`: such chunks are read as reached.
+    defer: Option<&'s mut Vec<Deferred>>,
 }
 
 /// The ray's constants for the walk. The triangle test's are made when the ray first reaches
@@ -76,7 +81,7 @@ impl<'a> Tree<'a> {
         c: &mut Counters,
     ) -> Result<Option<HitInfo>, TraceError> {
         let mut stack = WIDE_STACK.take();
-        let result = self.wide_ray::<ANY, S>(isa, ray, c, &mut stack, &mut None);
+        let result = self.wide_ray::<ANY, S>(isa, ray, c, (&mut stack, None), &mut None);
         WIDE_STACK.set(stack);
         result
     }
@@ -89,14 +94,16 @@ impl<'a> Tree<'a> {
     /// `kept` is the view of the last block entered straight from the file (admitted, and the
     /// pager never evicts, [`Self::fetch`]), kept for the next ray of a batch: rays traced one
     /// after the other mostly enter the same block, and entering it again then costs no
-    /// directory lookup and no cast (counted as the fetch counts it).
+    /// directory lookup and no cast (counted as the fetch counts it). `defer`: where the groups
+    /// whose chunks are not resident are left, untested ([`Deferred`]); the hit returned is
+    /// then the closest among the groups tested.
     #[inline(always)]
     pub(super) fn wide_ray<const ANY: bool, S: Simd8>(
         &self,
         isa: S,
         ray: &Ray,
         c: &mut Counters,
-        stack: &mut Vec<(u32, f32)>,
+        (stack, defer): (&mut Vec<(u32, f32)>, Option<&mut Vec<Deferred>>),
         kept: &mut Option<WideHeld<'a>>,
     ) -> Result<Option<HitInfo>, TraceError> {
         // Made in place (it is not small), before the checks that may send the ray elsewhere.
@@ -127,6 +134,7 @@ impl<'a> Tree<'a> {
             budget: self.wide_top.len(),
             best: None,
             t_best: ray.tmax,
+            defer,
         };
         let mut need: Option<u32> = None;
         loop {
@@ -272,7 +280,7 @@ impl<'a> Tree<'a> {
             let kids = mask & inner_bits(n);
             let leaves = mask ^ kids;
             if leaves != 0 {
-                if self.test_leaves::<ANY, S>(isa, r, w, k, n, leaves, h)? {
+                if self.test_leaves::<ANY, S>(isa, r, w, k, (n, &near), leaves, h)? {
                     w.sp = sp;
                     return Ok(true);
                 }
@@ -297,7 +305,7 @@ impl<'a> Tree<'a> {
         r: &WideRay,
         w: &mut WideWalk,
         k: &mut Counters,
-        n: &ClusterNode,
+        (n, near): (&ClusterNode, &[f32; CLUSTER_WIDTH]),
         mut leaves: u32,
         h: &WideHeld<'_>,
     ) -> Result<bool, TraceError> {
@@ -319,12 +327,14 @@ impl<'a> Tree<'a> {
             let chunk;
             let g = match h.groups.get(gi as usize) {
                 Some(g) => g,
-                None => {
-                    let out = || bad("triangle group index out of range", Some(h.id));
-                    let ch = self.chunked(h.id, h.raw).ok_or_else(out)?;
-                    chunk = ch.group(h.id, gi, &mut k.page)?;
-                    chunk.0.groups().get(chunk.1).ok_or_else(out)?
-                }
+                None => match self.chunk_group(w, k, h, gi, near[i as usize])? {
+                    Some(c) => {
+                        chunk = c;
+                        let out = || bad("triangle group index out of range", Some(h.id));
+                        chunk.0.groups().get(chunk.1).ok_or_else(out)?
+                    }
+                    None => continue,
+                },
             };
             #[cfg(feature = "group-trace")]
             super::group_trace::record(h.id, gi as u32);
@@ -334,6 +344,41 @@ impl<'a> Tree<'a> {
             }
         }
         Ok(false)
+    }
+
+    /// The chunk holding group `gi` of `h`, a block of which only the head is held (spec
+    /// §8.3), and the group's index in it: read if it is not resident, or, for a walk that
+    /// defers, `None` and the group (entered at `t`) left in its list.
+    #[inline(never)]
+    fn chunk_group<'v>(
+        &self,
+        w: &mut WideWalk,
+        k: &mut Counters,
+        h: &WideHeld<'v>,
+        gi: u64,
+        t: f32,
+    ) -> Result<Option<(ChunkGuard<'v>, usize)>, TraceError>
+    where
+        'a: 'v,
+    {
+        let out = || bad("triangle group index out of range", Some(h.id));
+        let ch = self.chunked(h.id, h.raw).ok_or_else(out)?;
+        let Some(defer) = &mut w.defer else {
+            return Ok(Some(ch.group(h.id, gi, &mut k.page)?));
+        };
+        let group = u32::try_from(gi).map_err(|_| out())?;
+        match self.peek_group(h.id, group, &mut k.page) {
+            Some(found) => Ok(Some(found)),
+            None => {
+                k.groups_deferred += 1;
+                defer.push(Deferred {
+                    block: h.id,
+                    group,
+                    t,
+                });
+                Ok(None)
+            }
+        }
     }
 }
 
@@ -412,7 +457,7 @@ fn push_children(
 }
 
 /// Bytes that break the format at a wide node of block `block` (or of the top tree).
-fn bad(what: &'static str, block: Option<u32>) -> TraceError {
+pub(super) fn bad(what: &'static str, block: Option<u32>) -> TraceError {
     TraceError::Corrupt(Corruption {
         what,
         block,
