@@ -78,10 +78,10 @@
 //! held only while evicting, which waits on nothing but the ring's mutex (held for one push or
 //! pop).
 //!
-//! **Memory bound.** The slots number `max(budget / MIN_SLOT_BYTES, threads + 1)` (no more
-//! than there are blocks): at least `threads + 1`, so that a free slot exists, and few enough
-//! that the slots themselves cost little; blocks smaller on average than [`MIN_SLOT_BYTES`]
-//! leave part of the budget unused. Resident bytes count each resident raw block's
+//! **Memory bound.** The slots number `max(budget / S, threads + 1)` (no more than there are
+//! blocks), `S` the blocks' average size in whole pages, at most [`MIN_SLOT_BYTES`]: at least
+//! `threads + 1`, so that a free slot exists, and few enough that the slots themselves cost
+//! little (blocks' heads, a few KiB each, get a slot each). Resident bytes count each resident raw block's
 //! `stored_len` and each slot's buffer capacity. A thread that raises them past the budget
 //! (admitting a raw block, filling a slot) evicts raw blocks and frees slot buffers until they
 //! are back under it before its `get` returns (one thread evicts raw blocks at a time; the
@@ -429,8 +429,14 @@ impl Pager {
             && opts.budget >= (directory.len() as u64).saturating_mul(reader.max_raw_len());
         let read_raw = opts.read_blocks && opts.check_raw && !keeps_everything;
         // (Slot indices are stored as u32s, NO_SLOT excluded.)
+        // Blocks' heads (a few KiB each) are smaller on average than MIN_SLOT_BYTES: the slots
+        // are planned for the blocks' average size in whole pages, when smaller.
+        let pages: u64 = directory.iter().fold(0u64, |a, e| {
+            a.saturating_add(e.raw_len.checked_next_multiple_of(4096).unwrap_or(u64::MAX))
+        });
+        let per_slot = (pages / (directory.len() as u64).max(1)).clamp(4096, MIN_SLOT_BYTES);
         let slot_count = if reader.compressed() || read_raw {
-            (opts.budget / MIN_SLOT_BYTES)
+            (opts.budget / per_slot)
                 .max(threads + 1)
                 .min(directory.len() as u64)
                 .min(u64::from(NO_SLOT) - 1)
