@@ -47,9 +47,10 @@ pub struct SceneOptions {
     pub walk: Walk,
     /// Under a budget smaller than the file's blocks, and where the file stores its groups in
     /// chunks (format-spec §8.3), let the pager hold blocks' heads and the walks read only the
-    /// chunks of groups they reach, ray by ray ([`Scene::chunked`]). Off by default: without a
-    /// stream over chunks yet, rays traced one by one read more than a stream of whole blocks
-    /// (the dragon's 10^6 random rays with an 8 MB budget: 2,575 bytes a ray against 869).
+    /// chunks of groups they reach ([`Scene::chunked`]): in [`Order::Stream`] the chunks rays
+    /// wait for are read together (`logical::chunked`), in another order each when a ray
+    /// reaches it. Off by default: it reads a half to a quarter of the bytes of whole blocks
+    /// but, on the disks measured, takes as long (docs/out-of-core.md).
     pub chunks: bool,
 }
 
@@ -511,7 +512,8 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     /// Whether the pager holds blocks' heads and the walks read groups chunk by chunk
     /// (format-spec §8.3): a file that stores its groups in chunks, a budget smaller than its
     /// blocks, a walk of clusters, and [`SceneOptions::chunks`] asked for. Such a scene traces
-    /// every batch ray by ray ([`Order::Stream`] is taken as [`Order::Morton`]).
+    /// a batch in [`Order::Stream`] chunk by chunk (`logical::chunked`), in Morton order, and
+    /// in any other order ray by ray.
     pub fn chunked(&self) -> bool {
         self.chunked.is_some()
     }

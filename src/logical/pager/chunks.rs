@@ -3,7 +3,7 @@
 //!
 //! A file of format 7 stores each block as its head (the octree, the wide nodes, the chunk
 //! table) and its groups in chunks of `chunk_groups` groups, each with its own checksum. Out of
-//! core, the pager holds heads ([`super::PagerOptions::heads`]) and the walk asks this cache for
+//! core, the pager holds heads ([`super::Pager::set_heads`]) and the walk asks this cache for
 //! the chunk a group is in ([`ChunkCache::get`]): a whole block is never read for the few
 //! groups a ray tests in it.
 //!

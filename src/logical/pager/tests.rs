@@ -514,9 +514,16 @@ fn zstd_slots_hold_at_most_their_share() {
     let src = s.source();
     for (budget, threads) in [(0, 1), (0, 8), (5 * s.max_raw_len, 2), (u64::MAX, 4)] {
         let p = Bound::new(&src, &s, s.opts(budget, threads));
-        // Slots for blocks of MIN_SLOT_BYTES (at least threads + 1, at most one per block);
-        // the budget, never raised, bounds their bytes (plus a block per thread in a get).
-        let slots = (budget / MIN_SLOT_BYTES).max(threads as u64 + 1).min(40);
+        // Slots for blocks of their average size in whole pages, at most MIN_SLOT_BYTES (at
+        // least threads + 1, at most one per block); the budget, never raised, bounds their
+        // bytes (plus a block per thread in a get).
+        let pages: u64 = s.dir.iter().map(|e| e.raw_len.next_multiple_of(4096)).sum();
+        let per_slot = (pages / 40).clamp(4096, MIN_SLOT_BYTES);
+        assert!(
+            per_slot < MIN_SLOT_BYTES,
+            "blocks of {per_slot} bytes on average"
+        );
+        let slots = (budget / per_slot).max(threads as u64 + 1).min(40);
         assert_eq!(p.slot_count() as u64, slots);
         assert_eq!(p.budget(), budget);
         let c = sum(&run_threads(&p, &s, threads, 2000, 7));
