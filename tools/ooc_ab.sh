@@ -8,11 +8,18 @@
 # Usage (as root):
 #   tools/ooc_ab.sh FILE.oavm LIMIT BUDGET REPS "A FLAGS" "B FLAGS"
 # e.g. tools/ooc_ab.sh /work/big/c150zstd.oavm 1.5G 1G 3 "--order blocks" "--order stream"
+#
+# A side may be another build on its own file (an older format against the current one):
+# A_BIN / B_BIN name its oavm-trace and A_FILE / B_FILE its file (default: this checkout's
+# release build, and FILE). The answers must still be the same on both sides.
+# e.g. A_BIN=/work/f5-target/release/oavm-trace A_FILE=/work/big/c150-v5.oavm \
+#      tools/ooc_ab.sh /work/big/c150.oavm 1.5G 1200M 3 "" "--chunks"
 set -euo pipefail
 cd "$(dirname "$0")/.."
 file=$1 limit=$2 budget=$3 reps=$4 a=$5 b=$6
 cargo build --release --bin oavm-trace >&2
 bin=$PWD/target/release/oavm-trace
+a_bin=${A_BIN:-$bin} b_bin=${B_BIN:-$bin} a_file=${A_FILE:-$file} b_file=${B_FILE:-$file}
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 for set in primary random; do
@@ -22,11 +29,12 @@ for set in primary random; do
     esac
     for ((i = 0; i < reps; i++)); do
         for side in A B; do
-            [[ $side == A ]] && flags=$a || flags=$b
+            if [[ $side == A ]]; then flags=$a run_bin=$a_bin run_file=$a_file
+            else flags=$b run_bin=$b_bin run_file=$b_file; fi
             # shellcheck disable=SC2086
             tools/ooc.sh --cold --json --report "$out/cg-$set-$side-$i.json" "$limit" -- sh -c \
                 '"$0" "$@" >"'"$out/cold-$set-$side-$i"'.json" && "$0" "$@" >"'"$out/warm-$set-$side-$i"'.json"' \
-                "$bin" "$file" $args $flags --mem-budget "$budget" --json
+                "$run_bin" "$run_file" $args $flags --mem-budget "$budget" --json
         done
     done
 done
