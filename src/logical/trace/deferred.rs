@@ -98,7 +98,7 @@ impl<'a> Tree<'a> {
             #[inline(always)]
             fn run(self, isa: Avx2) -> Self::Output {
                 self.tree
-                    .each_deferring::<ANY, Avx2>(isa, self.rays, self.c, self.f)
+                    .each_wide::<ANY, Avx2>(isa, self.rays, self.c, true, self.f)
             }
         }
         match self.avx2 {
@@ -108,27 +108,30 @@ impl<'a> Tree<'a> {
                 c,
                 f,
             }),
-            None => self.each_deferring::<ANY, _>(baseline(), rays, c, f),
+            None => self.each_wide::<ANY, _>(baseline(), rays, c, true, f),
         }
     }
 
+    /// Each ray's wide walk on the thread's stack (taken once), its hit given to `f` with the
+    /// groups left for later (none unless `defer`).
     #[inline(always)]
-    fn each_deferring<'r, const ANY: bool, S: Simd8>(
+    pub(super) fn each_wide<'r, const ANY: bool, S: Simd8>(
         &self,
         isa: S,
         rays: impl Iterator<Item = &'r Ray>,
         c: &mut Counters,
+        defer: bool,
         mut f: impl FnMut(usize, &'r Ray, Option<HitInfo>, &mut Vec<Deferred>),
     ) -> Result<(), TraceError> {
         let mut stack = WIDE_STACK.take();
-        let mut defer = Vec::new();
+        let mut deferred = Vec::new();
         let mut kept = None;
         let mut result = Ok(());
         for (i, ray) in rays.enumerate() {
-            defer.clear();
-            let walked = (&mut stack, Some(&mut defer));
+            deferred.clear();
+            let walked = (&mut stack, defer.then_some(&mut deferred));
             match self.wide_ray::<ANY, S>(isa, ray, c, walked, &mut kept) {
-                Ok(h) => f(i, ray, h, &mut defer),
+                Ok(h) => f(i, ray, h, &mut deferred),
                 Err(e) => {
                     result = Err(e);
                     break;

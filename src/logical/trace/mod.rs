@@ -572,20 +572,7 @@ impl<'a> Tree<'a> {
         mut f: impl FnMut(usize, &'r Ray, Option<HitInfo>),
     ) -> Result<(), TraceError> {
         if self.wide {
-            let mut stack = wide::WIDE_STACK.take();
-            let mut kept = None;
-            let mut result = Ok(());
-            for (i, ray) in rays.enumerate() {
-                match self.wide_ray::<ANY, S>(isa, ray, c, (&mut stack, None), &mut kept) {
-                    Ok(h) => f(i, ray, h),
-                    Err(e) => {
-                        result = Err(e);
-                        break;
-                    }
-                }
-            }
-            wide::WIDE_STACK.set(stack);
-            result
+            self.each_wide::<ANY, S>(isa, rays, c, false, |i, ray, h, _| f(i, ray, h))
         } else if self.top_down {
             for (i, ray) in rays.enumerate() {
                 f(i, ray, self.descend_all::<ANY, S>(isa, ray, c)?);
