@@ -77,39 +77,9 @@ impl<'a> Tree<'a> {
         &self,
         rays: impl Iterator<Item = &'r Ray>,
         c: &mut Counters,
-        mut f: impl FnMut(usize, &'r Ray, Option<HitInfo>, &mut Vec<Deferred>),
+        f: impl FnMut(usize, &'r Ray, Option<HitInfo>, &mut Vec<Deferred>),
     ) -> Result<(), TraceError> {
-        if !self.wide {
-            let mut none = Vec::new();
-            return self.answer_each::<ANY>(rays, c, |i, ray, h| f(i, ray, h, &mut none));
-        }
-        struct Job<'t, 'a, 'c, I, F, const ANY: bool> {
-            tree: &'t Tree<'a>,
-            rays: I,
-            c: &'c mut Counters,
-            f: F,
-        }
-        impl<'r, I, F, const ANY: bool> WithAvx2 for Job<'_, '_, '_, I, F, ANY>
-        where
-            I: Iterator<Item = &'r Ray>,
-            F: FnMut(usize, &'r Ray, Option<HitInfo>, &mut Vec<Deferred>),
-        {
-            type Output = Result<(), TraceError>;
-            #[inline(always)]
-            fn run(self, isa: Avx2) -> Self::Output {
-                self.tree
-                    .each_wide::<ANY, Avx2>(isa, self.rays, self.c, true, self.f)
-            }
-        }
-        match self.avx2 {
-            Some(isa) => isa.vectorize(Job::<_, _, ANY> {
-                tree: self,
-                rays,
-                c,
-                f,
-            }),
-            None => self.each_wide::<ANY, _>(baseline(), rays, c, true, f),
-        }
+        self.answer_each_with::<ANY>(rays, c, true, f)
     }
 
     /// Each ray's wide walk on the thread's stack (taken once), its hit given to `f` with the

@@ -531,23 +531,39 @@ impl<'a> Tree<'a> {
         &self,
         rays: impl Iterator<Item = &'r Ray>,
         c: &mut Counters,
-        f: impl FnMut(usize, &'r Ray, Option<HitInfo>),
+        mut f: impl FnMut(usize, &'r Ray, Option<HitInfo>),
+    ) -> Result<(), TraceError> {
+        self.answer_each_with::<ANY>(rays, c, false, |i, ray, h, _| f(i, ray, h))
+    }
+
+    /// [`Self::answer_each`], and with `defer` the wide walk leaving the groups whose chunks are
+    /// not resident in a list given to `f` with each ray's hit (`deferred`'s
+    /// `answer_each_deferring`; empty otherwise).
+    #[inline(always)]
+    pub(super) fn answer_each_with<'r, const ANY: bool>(
+        &self,
+        rays: impl Iterator<Item = &'r Ray>,
+        c: &mut Counters,
+        defer: bool,
+        f: impl FnMut(usize, &'r Ray, Option<HitInfo>, &mut Vec<Deferred>),
     ) -> Result<(), TraceError> {
         struct Job<'t, 'a, 'c, I, F, const ANY: bool> {
             tree: &'t Tree<'a>,
             rays: I,
             c: &'c mut Counters,
+            defer: bool,
             f: F,
         }
         impl<'r, I, F, const ANY: bool> WithAvx2 for Job<'_, '_, '_, I, F, ANY>
         where
             I: Iterator<Item = &'r Ray>,
-            F: FnMut(usize, &'r Ray, Option<HitInfo>),
+            F: FnMut(usize, &'r Ray, Option<HitInfo>, &mut Vec<Deferred>),
         {
             type Output = Result<(), TraceError>;
             #[inline(always)]
             fn run(self, isa: Avx2) -> Self::Output {
-                self.tree.each::<ANY, Avx2>(isa, self.rays, self.c, self.f)
+                self.tree
+                    .each::<ANY, Avx2>(isa, self.rays, self.c, self.defer, self.f)
             }
         }
         match self.avx2 {
@@ -555,9 +571,10 @@ impl<'a> Tree<'a> {
                 tree: self,
                 rays,
                 c,
+                defer,
                 f,
             }),
-            None => self.each::<ANY, _>(baseline(), rays, c, f),
+            None => self.each::<ANY, _>(baseline(), rays, c, defer, f),
         }
     }
 
@@ -569,18 +586,21 @@ impl<'a> Tree<'a> {
         isa: S,
         rays: impl Iterator<Item = &'r Ray>,
         c: &mut Counters,
-        mut f: impl FnMut(usize, &'r Ray, Option<HitInfo>),
+        defer: bool,
+        mut f: impl FnMut(usize, &'r Ray, Option<HitInfo>, &mut Vec<Deferred>),
     ) -> Result<(), TraceError> {
+        // (Only the wide walk leaves groups for later; the others' lists stay empty.)
+        let none = &mut Vec::new();
         if self.wide {
-            self.each_wide::<ANY, S>(isa, rays, c, false, |i, ray, h, _| f(i, ray, h))
+            self.each_wide::<ANY, S>(isa, rays, c, defer, f)
         } else if self.top_down {
             for (i, ray) in rays.enumerate() {
-                f(i, ray, self.descend_all::<ANY, S>(isa, ray, c)?);
+                f(i, ray, self.descend_all::<ANY, S>(isa, ray, c)?, none);
             }
             Ok(())
         } else {
             for (i, ray) in rays.enumerate() {
-                f(i, ray, self.walk::<ANY, S>(isa, ray, c)?);
+                f(i, ray, self.walk::<ANY, S>(isa, ray, c)?, none);
             }
             Ok(())
         }
