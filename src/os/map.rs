@@ -30,12 +30,22 @@ pub struct MappedFile {
     /// and reads through the page cache.
     file: File,
     /// The same file opened for direct reads (`O_DIRECT`), on the first [`Self::read_at`]
-    /// that can use it; `None` where it cannot be opened so.
-    direct: OnceLock<Option<File>>,
+    /// that can use it, with the alignment they need; `None` where it cannot be opened so.
+    direct: OnceLock<Option<Direct>>,
     /// The file system refused a direct read: read through the page cache from then on.
     buffered_only: AtomicBool,
     /// The file's size and change time when it was mapped.
     stamp: Stamp,
+}
+
+/// A file opened for direct reads, and the alignment the file system asks of them.
+struct Direct {
+    file: File,
+    /// What a direct read's offset and length must be multiples of (the device's logical
+    /// block, often 512 bytes, where the kernel says; else the page size).
+    offset_align: usize,
+    /// What a direct read's buffer address must be a multiple of.
+    mem_align: usize,
 }
 
 /// What identifies a version of a file's contents: its size and its inode change time (which
@@ -138,27 +148,36 @@ impl MappedFile {
 
     /// Reads the file's bytes `offset .. offset + buf.len()` into `buf` (bytes past the file's
     /// end read as zeros), with no copy in the page cache when it can: a direct read
-    /// (`O_DIRECT`) if `offset`, `buf`'s address and its length are multiples of the page size
-    /// ([`super::PageBuf`]) and the file system allows it, else an ordinary one. A direct read
-    /// costs the kernel far less than faulting the map's pages in and dropping them again, and
-    /// many at once keep the disk busy at its bandwidth.
+    /// (`O_DIRECT`) if `offset` and `buf`'s length are multiples of [`Self::direct_align`],
+    /// `buf`'s address is page-aligned ([`super::PageBuf`]) and the file system allows it, else
+    /// an ordinary one. A direct read costs the kernel far less than faulting the map's pages in
+    /// and dropping them again, and many at once keep the disk busy at its bandwidth.
     pub fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
-        let page = page_size();
-        let aligned = offset.is_multiple_of(page as u64)
-            && (buf.as_ptr() as usize).is_multiple_of(page)
-            && buf.len().is_multiple_of(page);
-        if aligned
-            && !self.buffered_only.load(Ordering::Relaxed)
+        if !self.buffered_only.load(Ordering::Relaxed)
             && let Some(direct) = self.direct.get_or_init(|| open_direct(&self.file))
+            && offset.is_multiple_of(direct.offset_align as u64)
+            && buf.len().is_multiple_of(direct.offset_align)
+            && (buf.as_ptr() as usize).is_multiple_of(direct.mem_align)
         {
-            match read_full(direct, offset, buf, true) {
+            match read_full(&direct.file, offset, buf, Some(direct.offset_align)) {
                 Err(e) if e.raw_os_error() == Some(libc::EINVAL) => {
                     self.buffered_only.store(true, Ordering::Relaxed);
                 }
                 done => return done,
             }
         }
-        read_full(&self.file, offset, buf, false)
+        read_full(&self.file, offset, buf, None)
+    }
+
+    /// What a read's offset and length must be multiples of for [`Self::read_at`] to read
+    /// directly: the device's logical block where the kernel says (`statx` `STATX_DIOALIGN`),
+    /// else the page size. A reader that rounds its reads to this reads no more of the disk
+    /// than it needs, to within one block at each end.
+    pub fn direct_align(&self) -> usize {
+        match self.direct.get_or_init(|| open_direct(&self.file)) {
+            Some(d) if !self.buffered_only.load(Ordering::Relaxed) => d.offset_align,
+            _ => page_size(),
+        }
     }
 
     /// Hints the kernel about the access pattern; failures are harmless and ignored.
@@ -228,27 +247,67 @@ impl MappedFile {
 }
 
 /// `file` opened again for direct reads, through `/proc/self/fd` (which reaches the same file
-/// even if it was renamed or unlinked since); `None` if that fails.
-fn open_direct(file: &File) -> Option<File> {
-    OpenOptions::new()
+/// even if it was renamed or unlinked since), with the alignment its file system asks of them;
+/// `None` if that fails.
+fn open_direct(file: &File) -> Option<Direct> {
+    let direct = OpenOptions::new()
         .read(true)
         .custom_flags(libc::O_DIRECT)
         .open(format!("/proc/self/fd/{}", file.as_raw_fd()))
-        .ok()
+        .ok()?;
+    let page = page_size();
+    let (offset_align, mem_align) = dio_align(&direct).unwrap_or((page, page));
+    Some(Direct {
+        file: direct,
+        offset_align,
+        mem_align,
+    })
+}
+
+/// The alignment direct reads of `file` need, `(offset and length, buffer address)`, as the
+/// kernel gives it (`statx` with `STATX_DIOALIGN`, Linux 6.1 and later); `None` where it does
+/// not say, or says something unusable (zero, not a power of two, or more than a page: the
+/// page size is used then).
+fn dio_align(file: &File) -> Option<(usize, usize)> {
+    // SAFETY: `statx` on a file descriptor we own with an empty path and `AT_EMPTY_PATH` reads
+    // the descriptor's file; it writes only the `statx` buffer we pass, which is a plain C
+    // struct (all integers) and may start zeroed.
+    let mut stx: libc::statx = unsafe { std::mem::zeroed() };
+    // SAFETY: see above; the path is a valid C string and `stx` outlives the call.
+    let rc = unsafe {
+        libc::statx(
+            file.as_raw_fd(),
+            c"".as_ptr(),
+            libc::AT_EMPTY_PATH,
+            libc::STATX_DIOALIGN,
+            &mut stx,
+        )
+    };
+    let page = page_size();
+    let usable = |a: u32| a.is_power_of_two() && a as usize <= page;
+    (rc == 0
+        && stx.stx_mask & libc::STATX_DIOALIGN != 0
+        && usable(stx.stx_dio_offset_align)
+        && usable(stx.stx_dio_mem_align))
+    .then_some((
+        stx.stx_dio_offset_align as usize,
+        stx.stx_dio_mem_align as usize,
+    ))
 }
 
 /// Fills `buf` from `file` at `offset`; what lies past the end of the file reads as zeros. A
-/// direct read that stops short of a page multiple has reached the end.
+/// direct read (`direct`: its alignment) that stops short of an aligned length has reached the
+/// end.
 fn read_full(
     file: &File,
     mut offset: u64,
     mut buf: &mut [u8],
-    direct: bool,
+    direct: Option<usize>,
 ) -> std::io::Result<()> {
     while !buf.is_empty() {
         match file.read_at(buf, offset) {
             Ok(0) => break,
-            Ok(n) if direct && !n.is_multiple_of(page_size()) => {
+            Ok(n) if direct.is_some_and(|a| !n.is_multiple_of(a)) => {
                 buf = &mut buf[n..];
                 break;
             }
@@ -315,6 +374,26 @@ mod tests {
             let mut buf = vec![0xAA; n];
             map.read_at(off as u64, &mut buf).unwrap();
             assert!(buf == expect(off, n), "unaligned read at {off}+{n}");
+        }
+        // Reads aligned to the file system's direct alignment (a device block, often smaller
+        // than a page), into a page buffer, ending short of and past the end.
+        let align = map.direct_align();
+        assert!(
+            align.is_power_of_two() && align <= page,
+            "direct alignment {align}"
+        );
+        for (off, n) in [
+            (align, 2 * align),
+            (3 * page, align),
+            (len / align * align, 2 * align),
+        ] {
+            let mut buf = PageBuf::new(n.next_multiple_of(page)).unwrap();
+            buf.fill(0xAA);
+            map.read_at(off as u64, &mut buf[..n]).unwrap();
+            assert!(
+                buf[..n] == expect(off, n)[..],
+                "read at {off}+{n} (alignment {align})"
+            );
         }
         // A direct read on a file system that allows it (the test's temporary directory).
         eprintln!(

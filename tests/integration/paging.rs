@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
-use oavm::logical::{BlockReads, FrameOptions, Order, SceneOptions, Walk};
+use oavm::logical::{BlockReads, BlockSource, FrameOptions, Order, SceneOptions, Walk};
 use oavm::pack::encode_with;
 use oavm::physical::BlockOptions;
 use oavm::physical::format::CODEC_RAW;
@@ -140,7 +140,7 @@ fn trace_with(
 }
 
 /// Traces the ray set through `scene` on a pool of `threads`.
-fn run_scene(scene: &Scene<AlignedBytes>, threads: usize, order: Order) -> Run {
+fn run_scene<D: AsRef<[u8]> + BlockSource>(scene: &Scene<D>, threads: usize, order: Order) -> Run {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -371,6 +371,32 @@ fn chunked_reads_do_not_change_answers(compress: Option<i32>) {
                 assert!(r.peak <= budget, "{what}: peak {} over {budget}", r.peak);
             }
         }
+    }
+    // The file on disk, its chunks read directly (past the page cache, rounded out to the
+    // device's block rather than the page: raw chunks of 8 groups do not start on pages).
+    let dir = TempDir::new().unwrap();
+    let path = dir.path().join("bunny.oavm");
+    std::fs::write(&path, bytes.as_ref()).unwrap();
+    for order in [Order::Morton, Order::Stream] {
+        let scene = Scene::open_with(
+            &path,
+            &SceneOptions {
+                walk: Walk::Auto,
+                mem_budget: Some(decoded / 20),
+                threads: 2,
+                check_blocks: true,
+                block_reads: BlockReads::Read,
+                chunks: true,
+            },
+        )
+        .expect("open");
+        assert!(scene.chunked());
+        let r = run_scene(&scene, 2, order);
+        assert!(
+            r.answers == reference.answers,
+            "{compress:?}, {order}, from the file: answers differ"
+        );
+        assert!(r.closest.page.chunk_misses > 0, "{:?}", r.closest.page);
     }
     // The small budget reads chunks again; the larger one fewer times.
     let (small, large) = (chunk_reads(decoded / 20), chunk_reads(decoded / 4));

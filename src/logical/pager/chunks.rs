@@ -25,7 +25,14 @@
 //! `threads + 1` slots a sweep always finds one free soon; one that finds none yields and tries
 //! again.
 //!
-//! **Memory bound.** `slots * slot_bytes`, fixed when the cache is made: nothing grows.
+//! **Direct reads.** Under [`super::PagerOptions::read_blocks`] a chunk's stored bytes are read
+//! past the page cache in one read rounded out to the device's block
+//! ([`BlockSource::read_align`], 512 bytes here), not to pages: a 5 KiB chunk costs the disk
+//! 5 KiB, not the 8-12 KiB of the pages it touches. A raw chunk is read into its slot; a zstd
+//! chunk into its thread's read buffer, then decoded into the slot.
+//!
+//! **Memory bound.** `slots * slot_bytes`, fixed when the cache is made, and one slot's size
+//! a reading thread for a zstd chunk's stored bytes: nothing grows.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -272,36 +279,29 @@ impl ChunkCache {
                 .ok_or_else(|| format!("cannot allocate {slot_bytes} bytes to read it"))?;
         }
         let raw_chunk = e.codec == CODEC_RAW || len == raw_len;
-        if raw_chunk && self.read_direct {
-            let page = crate::os::page_size() as u64;
-            let from = at / page * page;
-            let skip = (at - from) as usize;
-            let whole = (skip + len).next_multiple_of(page as usize);
-            src.read_at(from, &mut w.buf[..whole])
-                .map_err(|err| format!("cannot read it: {err}"))?;
-            check(ce.checksum, &w.buf[skip..skip + len])?;
-            // A raw chunk of a compressed block may start anywhere in its page: moved to the
-            // buffer's start, where the groups are aligned.
-            let start = match skip % std::mem::align_of::<TriGroup>() {
-                0 => skip,
-                _ => {
+        if raw_chunk {
+            let bytes = if self.read_direct {
+                let skip = read_aligned(src, at, len, &mut w.buf)?;
+                // A raw chunk of a compressed block may start anywhere: moved to the buffer's
+                // start, where the groups are aligned.
+                if !skip.is_multiple_of(std::mem::align_of::<TriGroup>()) {
                     w.buf.copy_within(skip..skip + len, 0);
                     0
+                } else {
+                    skip
                 }
+            } else {
+                let stored = mapped(src, at, len)?;
+                w.buf[..len].copy_from_slice(stored);
+                0
             };
-            w.start = start;
+            check(ce.checksum, &w.buf[bytes..bytes + len])?;
+            w.start = bytes;
             w.len = len;
             return Ok((len as u64, 0));
         }
-        let bytes = src.bytes();
-        let stored = usize::try_from(at)
-            .ok()
-            .and_then(|a| bytes.get(a..a.checked_add(len)?))
-            .ok_or("stored bytes outside the file")?;
-        check(ce.checksum, stored)?;
-        if raw_chunk {
-            w.buf[..len].copy_from_slice(stored);
-        } else {
+        let decode = |stored: &[u8], out: &mut [u8]| {
+            check(ce.checksum, stored)?;
             ZSTD.with_borrow_mut(|d| {
                 let d = match d {
                     Some(d) => d,
@@ -311,15 +311,28 @@ impl ChunkCache {
                     ),
                 };
                 let n = d
-                    .decompress_to_buffer(stored, &mut w.buf[..raw_len])
+                    .decompress_to_buffer(stored, out)
                     .map_err(|err| format!("zstd: {err}"))?;
-                if n != raw_len {
+                if n != out.len() {
                     return Err(format!(
-                        "the zstd frame decodes to {n} bytes, its groups take {raw_len}"
+                        "the zstd frame decodes to {n} bytes, its groups take {}",
+                        out.len()
                     ));
                 }
                 Ok(())
+            })
+        };
+        if self.read_direct {
+            STORED.with_borrow_mut(|stored_buf| {
+                if stored_buf.len() < slot_bytes {
+                    *stored_buf = PageBuf::new(slot_bytes)
+                        .ok_or_else(|| format!("cannot allocate {slot_bytes} bytes to read it"))?;
+                }
+                let skip = read_aligned(src, at, len, stored_buf)?;
+                decode(&stored_buf[skip..skip + len], &mut w.buf[..raw_len])
             })?;
+        } else {
+            decode(mapped(src, at, len)?, &mut w.buf[..raw_len])?;
         }
         w.start = 0;
         w.len = raw_len;
@@ -331,6 +344,40 @@ thread_local! {
     /// Each thread's zstd context for chunks.
     static ZSTD: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
         const { std::cell::RefCell::new(None) };
+    /// Each thread's buffer for a compressed chunk's stored bytes, read directly (a slot's
+    /// size: a chunk's stored bytes are never more than its decoded ones).
+    static STORED: std::cell::RefCell<PageBuf> = std::cell::RefCell::new(PageBuf::default());
+}
+
+/// Reads the stored bytes `at .. at + len` into `buf` with one read rounded out to the source's
+/// direct alignment (the device's block, [`BlockSource::read_align`]), so that it goes past the
+/// page cache and reads at most one block more at each end; where they start in `buf`. `buf`
+/// holds `len` and two alignments more (a slot: a chunk's pages and one more page).
+fn read_aligned<S: BlockSource + ?Sized>(
+    src: &S,
+    at: u64,
+    len: usize,
+    buf: &mut [u8],
+) -> Result<usize, String> {
+    let align = src.read_align().max(1) as u64;
+    let from = at / align * align;
+    let skip = (at - from) as usize;
+    let whole = (skip + len).next_multiple_of(align as usize);
+    let have = buf.len();
+    let into = buf
+        .get_mut(..whole)
+        .ok_or_else(|| format!("{whole} bytes to read do not fit a slot of {have}"))?;
+    src.read_at(from, into)
+        .map_err(|err| format!("cannot read it: {err}"))?;
+    Ok(skip)
+}
+
+/// The stored bytes `at .. at + len` in the source's map.
+fn mapped<S: BlockSource + ?Sized>(src: &S, at: u64, len: usize) -> Result<&[u8], String> {
+    usize::try_from(at)
+        .ok()
+        .and_then(|a| src.bytes().get(a..a.checked_add(len)?))
+        .ok_or_else(|| "stored bytes outside the file".to_string())
 }
 
 /// Checks a chunk's stored bytes against its checksum.

@@ -133,9 +133,15 @@ pub trait BlockSource: Sync {
     /// The bytes `off .. off + len` will not be needed for a while: their memory may be given
     /// back. They must stay readable (a later read may be slower, never wrong).
     fn release(&self, _off: usize, _len: usize) {}
+    /// What [`Self::read_at`]'s offset and length should be multiples of to read directly
+    /// (1: any read is as good as any other).
+    fn read_align(&self) -> usize {
+        1
+    }
     /// Copies the bytes `off .. off + buf.len()` into `buf` (zeros past the end). A mapped
-    /// file reads them from the disk into `buf` directly, past the page cache, when `off`,
-    /// `buf` and its length are page-aligned ([`crate::os::PageBuf`]).
+    /// file reads them from the disk into `buf` directly, past the page cache, when `off` and
+    /// `buf`'s length are multiples of [`Self::read_align`] and `buf` is page-aligned
+    /// ([`crate::os::PageBuf`]).
     fn read_at(&self, off: u64, buf: &mut [u8]) -> std::io::Result<()> {
         let bytes = self.bytes();
         let start = usize::try_from(off).unwrap_or(usize::MAX).min(bytes.len());
@@ -174,6 +180,9 @@ impl BlockSource for MappedFile {
     }
     fn release(&self, off: usize, len: usize) {
         MappedFile::release(self, off, len);
+    }
+    fn read_align(&self) -> usize {
+        self.direct_align()
     }
     fn read_at(&self, off: u64, buf: &mut [u8]) -> std::io::Result<()> {
         MappedFile::read_at(self, off, buf)
