@@ -127,6 +127,7 @@ pub fn pack(data: &[u8]) {
         block_size: 4096,
         compress: (h >> 7 & 1 == 0).then_some(1),
         chunk_groups: 1 + (h >> 8 & 15) as u32,
+        lean: h >> 7 & 1 == 1 && h >> 12 & 1 == 1,
     };
     pool().install(|| {
         let Ok((parts, _)) = oavm::pack::build(&mesh, &opts, &oavm::pack::Quiet) else {

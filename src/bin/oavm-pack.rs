@@ -56,6 +56,12 @@ struct Args {
     /// checked, compressed and read out of core. 128 (20 KiB) keeps raw chunks in whole pages.
     #[arg(long, value_name = "N", default_value_t = oavm::physical::DEFAULT_CHUNK_GROUPS)]
     chunk_groups: u32,
+    /// Store triangle groups in the lean encoding (format-spec §7.3): lossless, about two
+    /// thirds of their bytes, decoded far faster than zstd. For files traced out of core chunk
+    /// by chunk (`oavm-trace --chunks`), where the disk's bytes count; in memory a lean file's
+    /// blocks are decoded, not mapped. Not with --compress.
+    #[arg(long, conflicts_with = "compress")]
+    lean: bool,
     /// Pack within about this much memory (e.g. 4G), streaming the mesh: for meshes whose
     /// triangles do not fit in memory. Reads binary PLY only. Without it the whole mesh is read
     /// and built in memory, unless it is a binary PLY whose triangles would take more than the
@@ -109,6 +115,7 @@ fn main() -> ExitCode {
                 block_size: args.block_size,
                 compress: args.compress,
                 chunk_groups: args.chunk_groups,
+                lean: args.lean,
             },
             time: args.time,
             mem_budget: args.mem_budget,
@@ -260,6 +267,7 @@ fn file(t: &mut Lines, r: &PackReport) {
             r.blocks.block_size >> 10,
             match r.blocks.compress {
                 Some(level) => format!("zstd level {level}"),
+                None if r.blocks.lean => "groups lean".to_string(),
                 None => "raw".to_string(),
             }
         ),

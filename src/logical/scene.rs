@@ -21,7 +21,8 @@ use crate::geom::{Hit, HitAttributes, Ray};
 use crate::mapping::{Corruption, LevelInfos, TreeMap};
 use crate::os::MappedFile;
 use crate::physical::format::{
-    BlockEntry, FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_ROPES, SectionKind, TriGroup,
+    BlockEntry, CODEC_LEAN, CODEC_RAW, FLAG_CLUSTERS, FLAG_COMPRESSED, FLAG_ROPES, SectionKind,
+    TriGroup,
 };
 use crate::physical::{BlockReader, OavmFile};
 use crate::progress::Progress;
@@ -262,9 +263,14 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 .iter()
                 .map(|e| match e.is_free() {
                     true => *e,
+                    // A lean block's head is stored raw, on a page: a raw block of its own.
                     false => BlockEntry {
                         stored_len: e.head_stored_len,
                         raw_len: e.head_raw_len,
+                        codec: match e.codec {
+                            CODEC_LEAN => CODEC_RAW,
+                            codec => codec,
+                        },
                         ..*e
                     },
                 })

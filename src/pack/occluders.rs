@@ -501,6 +501,7 @@ pub fn add_occluders<D: AsRef<[u8]>, S: Sink>(
         };
         let opts = BlockOptions {
             compress: (entry.codec == CODEC_ZSTD).then_some(DEFAULT_ZSTD_LEVEL),
+            lean: entry.codec == CODEC_LEAN,
             ..BlockOptions::default()
         };
         w.push(store_block(unit, view.header.root_level, id, &opts)?)

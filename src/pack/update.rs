@@ -940,14 +940,20 @@ fn build_options(header: &Header) -> BuildOptions {
 
 /// How the new blocks are stored: compressed as asked, or as the file's blocks are.
 fn block_options(header: &Header, opts: &UpdateOptions) -> BlockOptions {
-    let compress = match opts.compress {
-        Some(c) => c,
-        None => (header.flags & FLAG_COMPRESSED != 0).then_some(DEFAULT_ZSTD_LEVEL),
+    let lean = header.flags & FLAG_LEAN != 0;
+    let (compress, lean) = match opts.compress {
+        Some(c) => (c, false),
+        None if lean => (None, true),
+        None => (
+            (header.flags & FLAG_COMPRESSED != 0).then_some(DEFAULT_ZSTD_LEVEL),
+            false,
+        ),
     };
     BlockOptions {
         block_size: opts.block_size,
         compress,
         chunk_groups: file_chunk_groups(header),
+        lean,
     }
 }
 
@@ -1441,8 +1447,9 @@ pub fn compact(src: &Path, dst: &Path) -> Result<CompactReport, Error> {
             let id = w.block_count();
             let opts = BlockOptions {
                 block_size: crate::physical::DEFAULT_BLOCK_SIZE,
-                compress: (e.codec != CODEC_RAW).then_some(DEFAULT_ZSTD_LEVEL),
+                compress: (e.codec == CODEC_ZSTD).then_some(DEFAULT_ZSTD_LEVEL),
                 chunk_groups: file_chunk_groups(file.header()),
+                lean: e.codec == CODEC_LEAN,
             };
             let stored = store_block(UnitRef::from(&view), e.root_level, id, &opts)?;
             w.push(stored).map_err(io)?;

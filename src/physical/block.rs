@@ -33,6 +33,8 @@ pub struct BlockReader {
     section: (u64, u64),
     max_raw_len: u64,
     compressed: bool,
+    /// The header's flag `LEAN`: blocks may be [`CODEC_LEAN`].
+    lean: bool,
     /// Groups per chunk (the header's `chunk_groups`; 0 in a file of lists).
     chunk_groups: u32,
 }
@@ -45,6 +47,7 @@ impl BlockReader {
             section: (s.offset, s.offset + s.length),
             max_raw_len: h.max_block_raw_len,
             compressed: h.flags & FLAG_COMPRESSED != 0,
+            lean: h.flags & FLAG_LEAN != 0,
             chunk_groups: h.chunk_groups,
         }
     }
@@ -62,6 +65,7 @@ impl BlockReader {
             section,
             max_raw_len,
             compressed,
+            lean: false,
             chunk_groups,
         }
     }
@@ -134,6 +138,22 @@ impl BlockReader {
                 e.head_stored_len, e.head_raw_len
             )),
             CODEC_ZSTD => Ok(()),
+            CODEC_LEAN if !self.lean || !self.compressed => Err(
+                "a lean block in a file whose header does not say blocks may be lean and coded"
+                    .into(),
+            ),
+            CODEC_LEAN if e.head_raw_len != e.head_stored_len || e.head_raw_len == e.raw_len => {
+                Err(format!(
+                    "a lean block with a head of {} raw bytes stored in {}, of {} raw bytes: \
+                     its head is stored raw, and it has groups",
+                    e.head_raw_len, e.head_stored_len, e.raw_len
+                ))
+            }
+            CODEC_LEAN if !e.offset.is_multiple_of(RAW_BLOCK_ALIGN) => Err(format!(
+                "lean block at offset {}, not a multiple of {RAW_BLOCK_ALIGN}",
+                e.offset
+            )),
+            CODEC_LEAN => Ok(()),
             codec => Err(format!("unknown codec {codec}")),
         }?;
         if e.head_stored_len > e.stored_len || e.head_raw_len > e.raw_len {
@@ -227,10 +247,10 @@ impl BlockReader {
             let first = c as u64 * self.chunk_groups as u64;
             let raw = (groups - first).min(self.chunk_groups as u64) * size;
             let stored = ce.stored_len as u64;
-            let fits = if stored == raw {
-                true
-            } else {
-                e.codec == CODEC_ZSTD && stored < raw && raw <= stored * MAX_ZSTD_RATIO
+            let fits = match e.codec {
+                CODEC_LEAN => stored > 0 && stored <= raw,
+                _ if stored == raw => true,
+                _ => e.codec == CODEC_ZSTD && stored < raw && raw <= stored * MAX_ZSTD_RATIO,
             };
             if ce.offset as u64 != next || !fits {
                 return Err(format!(
@@ -251,8 +271,9 @@ impl BlockReader {
         Ok(table)
     }
 
-    /// Decodes a zstd block's stored bytes into `out`, which must be `raw_len` bytes long: the
-    /// head's frame (the caller has checked its checksum, [`Self::check_sum`]), then each chunk,
+    /// Decodes a zstd or lean block's stored bytes into `out`, which must be `raw_len` bytes
+    /// long: the head's frame, or its raw bytes (a lean block; the caller has checked its
+    /// checksum, [`Self::check_sum`]), then each chunk (a lean block's: lean groups, §7.3),
     /// checked against the head's chunk table and decoded (or copied, a raw chunk) into its
     /// place. Each frame must record no content size or exactly its length, and decode to
     /// exactly that: a frame that claims more cannot make the caller allocate or write more.
@@ -272,8 +293,13 @@ impl BlockReader {
         }
         let (head, groups) = out.split_at_mut(e.head_raw_len as usize);
         let head_stored = stored.get(..e.head_stored_len as usize).unwrap_or(&[]);
-        decode_frame(head_stored, head, dctx, "the directory says head_raw_len")
-            .map_err(|w| format!("head: {w}"))?;
+        if e.codec == CODEC_LEAN {
+            // Checked by `check_entry`: a lean head is stored raw.
+            head.copy_from_slice(head_stored.get(..head.len()).ok_or("a head cut short")?);
+        } else {
+            decode_frame(head_stored, head, dctx, "the directory says head_raw_len")
+                .map_err(|w| format!("head: {w}"))?;
+        }
         if groups.is_empty() {
             return Ok(());
         }
@@ -285,7 +311,9 @@ impl BlockReader {
             check_chunk_sum(c, ce, bytes)?;
             let at = c * per;
             let dst = &mut groups[at..(at + per).min(raw_len - e.head_raw_len as usize)];
-            if bytes.len() == dst.len() {
+            if e.codec == CODEC_LEAN {
+                super::lean::decode_chunk(bytes, dst).map_err(|w| format!("chunk {c}: {w}"))?;
+            } else if bytes.len() == dst.len() {
                 dst.copy_from_slice(bytes);
             } else {
                 decode_frame(bytes, dst, dctx, "its groups take")

@@ -51,9 +51,17 @@ pub const FLAG_OCCLUDERS: u32 = 16;
 /// triangle's corners by primitive id, in chunks, so that an update (`oavm-update`) finds what
 /// changed and where it was (`oavm-pack --updatable`).
 pub const FLAG_PRIMS: u32 = 32;
+/// Spec §2, `flags` bit 6: blocks may be lean ([`CODEC_LEAN`]: groups stored in the lean
+/// encoding of spec §7.3; `oavm-pack --lean`). Such a file also has [`FLAG_COMPRESSED`].
+pub const FLAG_LEAN: u32 = 64;
 /// Every flag this version knows; any other bit set is an error at open.
-pub const KNOWN_FLAGS: u32 =
-    FLAG_MERGED | FLAG_COMPRESSED | FLAG_CLUSTERS | FLAG_ROPES | FLAG_OCCLUDERS | FLAG_PRIMS;
+pub const KNOWN_FLAGS: u32 = FLAG_MERGED
+    | FLAG_COMPRESSED
+    | FLAG_CLUSTERS
+    | FLAG_ROPES
+    | FLAG_OCCLUDERS
+    | FLAG_PRIMS
+    | FLAG_LEAN;
 
 /// Spec §2: the offsets of the two header slots. A slot is a header followed by its section
 /// table; a reader takes the valid slot of the highest generation (spec §2.1).
@@ -817,6 +825,8 @@ impl TriGroup {
 pub const CODEC_RAW: u32 = 0;
 /// Spec §8.2: one zstd frame whose content is the block's raw bytes.
 pub const CODEC_ZSTD: u32 = 1;
+/// Spec §8.2: the head stored raw, every chunk of groups in the lean encoding (spec §7.3).
+pub const CODEC_LEAN: u32 = 2;
 /// Spec §8.2: raw blocks start at multiples of this (a page), so that paging one block in or out
 /// never touches another's pages.
 pub const RAW_BLOCK_ALIGN: u64 = 4096;
@@ -831,7 +841,8 @@ pub struct BlockEntry {
     pub stored_len: u64,
     /// Bytes of the block once decoded (`== stored_len` for a raw block).
     pub raw_len: u64,
-    /// The head's codec: [`CODEC_RAW`] or [`CODEC_ZSTD`] (a raw block's chunks are raw too).
+    /// The block's codec: [`CODEC_RAW`] (chunks raw too), [`CODEC_ZSTD`] (the head a zstd
+    /// frame, each chunk raw or one) or [`CODEC_LEAN`] (the head raw, each chunk lean).
     pub codec: u32,
     /// Absolute level of the block's roots.
     pub root_level: u32,
@@ -857,7 +868,8 @@ const _: () = assert!(std::mem::size_of::<BlockEntry>() == 64);
 pub struct ChunkEntry {
     /// Offset of the chunk's stored bytes from the end of the head's stored bytes.
     pub offset: u32,
-    /// Bytes stored: the chunk's raw length (a raw chunk) or fewer (one zstd frame).
+    /// Bytes stored: the chunk's raw length (a raw chunk), fewer (one zstd frame), or its
+    /// lean encoding's (a lean block's chunks).
     pub stored_len: u32,
     /// xxh3-64 of the stored bytes.
     pub checksum: u64,

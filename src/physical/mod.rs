@@ -15,6 +15,7 @@ mod cluster_check;
 mod file;
 pub mod format;
 mod inspect;
+pub mod lean;
 pub(crate) mod verify;
 pub mod wide;
 pub(crate) mod writer;

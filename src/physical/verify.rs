@@ -126,7 +126,7 @@ pub fn check_block_placement<D: AsRef<[u8]>>(file: &OavmFile<D>, d: &mut Defects
             placed.push(false);
             continue;
         }
-        let align = if e.codec == CODEC_RAW {
+        let align = if e.codec != CODEC_ZSTD {
             RAW_BLOCK_ALIGN
         } else {
             SECTION_ALIGN

@@ -90,6 +90,7 @@ pub const DIR_HEAD_RAW_LEN: usize = 56;
 /// §8.2: codecs, and where blocks of each start.
 pub const CODEC_RAW: u32 = 0;
 pub const CODEC_ZSTD: u32 = 1;
+pub const CODEC_LEAN: u32 = 2;
 pub const RAW_ALIGN: usize = 4096;
 pub const ALIGN: usize = 64;
 /// §8.2: a zstd frame (a head, or a chunk) decodes to at most this many times its size (a
@@ -102,6 +103,7 @@ pub const FLAG_CLUSTERS: u32 = 4;
 pub const FLAG_ROPES: u32 = 8;
 pub const FLAG_OCCLUDERS: u32 = 16;
 pub const FLAG_PRIMS: u32 = 32;
+pub const FLAG_LEAN: u32 = 64;
 /// §8.6: the primitive table's chunk directory entry (`PrimChunk`, 32 bytes) and its fields,
 /// a chunk's records (`PrimRecord`, 36 bytes: three corners), primitives per chunk, and the
 /// bits of every word of an absent primitive's record.

@@ -498,6 +498,7 @@ fn damaged_chunks_are_caught_by_their_checksum() {
     for fix in [
         default_file(),
         default_zstd_file(),
+        default_lean_file(),
         deep_file(),
         deep_zstd_file(),
         updated_file(),
@@ -542,6 +543,50 @@ fn damaged_chunks_are_caught_by_their_checksum() {
                 );
                 expect_error_text(fix, what, b, &text, &mut problems);
             }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// A lean chunk (§7.3) whose bytes are malformed under a right checksum (every checksum
+/// recomputed, as a tool that wrote it would): a group's width code 3, a slot past the corners
+/// it stores, and a group cut short (the chunk's last byte dropped). The pager refuses the
+/// block and verify reports it, naming the block, the chunk and the group, word for word.
+#[test]
+fn malformed_lean_chunks_are_caught() {
+    let mut problems = Vec::new();
+    let fix = default_lean_file();
+    let blk = fix.largest;
+    let e = fix.dir[blk];
+    let table = chunk_table(&fix.decoded[blk][..e.head_raw_len]);
+    for c in tried_chunks(fix, blk) {
+        let ce = table[c];
+        let start = e.head().end + ce.offset;
+        let b0 = fix.bytes[start];
+        let corners = (b0 >> 3 & 7) as usize + 1;
+        let count = (b0 & 7) as usize + 1;
+        let prefix = format!("block {blk}: chunk {c}: lean group 0 (byte 0): ");
+        // Group 0's byte 0: width code 3; one corner fewer than its slots name (the highest
+        // slot is then past them).
+        let mut cases = vec![(
+            "width code 3".to_string(),
+            vec![b0 | 0xC0],
+            format!("{prefix}a group with an unknown id width"),
+        )];
+        if corners > 1 {
+            cases.push((
+                "one corner fewer".to_string(),
+                vec![b0 - 8],
+                format!("{prefix}lane"),
+            ));
+        }
+        for (what, new, text) in cases {
+            let b = fix.rewrite(Space::File, start, &new);
+            let what = format!(
+                "{}: block {blk} chunk {c}: {what} ({count} lanes)",
+                fix.name
+            );
+            expect_error_text(fix, what, b, &text, &mut problems);
         }
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));

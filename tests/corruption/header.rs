@@ -343,10 +343,13 @@ fn layout_matches_the_spec() {
     }
     assert_eq!(oavm::physical::format::CODEC_RAW, CODEC_RAW);
     assert_eq!(oavm::physical::format::CODEC_ZSTD, CODEC_ZSTD);
+    assert_eq!(oavm::physical::format::CODEC_LEAN, CODEC_LEAN);
+    assert_eq!(oavm::physical::format::FLAG_LEAN, FLAG_LEAN);
     assert_eq!(oavm::physical::format::RAW_BLOCK_ALIGN, RAW_ALIGN as u64);
     for fix in [
         default_file(),
         default_zstd_file(),
+        default_lean_file(),
         list_file(),
         list_zstd_file(),
         deep_file(),

@@ -88,6 +88,7 @@ fn a_tiny_budget_gives_the_same_answers_as_the_in_memory_pack() {
             block_size: 16 << 10,
             compress,
             chunk_groups: 16,
+            lean: false,
         };
         let report = pack_streaming(&ply, &out, blocks, budget).unwrap();
         let st = report.streaming.as_ref().expect("a streaming report");

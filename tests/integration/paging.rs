@@ -37,12 +37,28 @@ fn bunny() -> &'static Mesh {
     MESH.get_or_init(|| oavm::mesh::load(&bunny_ply()).expect("load the bunny"))
 }
 
+/// How the bunny's blocks are stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Coding {
+    Raw,
+    Zstd,
+    /// Groups in the lean encoding (format-spec §7.3).
+    Lean,
+}
+
 /// The bunny packed with 4 KiB blocks: raw (`compress: None`) or zstd level 3.
 fn packed(compress: Option<i32>) -> &'static AlignedBytes {
-    static RAW: OnceLock<AlignedBytes> = OnceLock::new();
-    static ZSTD: OnceLock<AlignedBytes> = OnceLock::new();
-    let cell = if compress.is_some() { &ZSTD } else { &RAW };
-    cell.get_or_init(|| {
+    packed_as(match compress {
+        None => Coding::Raw,
+        Some(_) => Coding::Zstd,
+    })
+}
+
+/// The bunny packed with 4 KiB blocks and chunks of 8 groups, stored as `coding` says.
+fn packed_as(coding: Coding) -> &'static AlignedBytes {
+    static CELLS: [OnceLock<AlignedBytes>; 3] = [const { OnceLock::new() }; 3];
+    let compress = (coding == Coding::Zstd).then_some(3);
+    CELLS[coding as usize].get_or_init(|| {
         let (parts, _) = oavm::pack::build(bunny(), &BuildOptions::default(), &oavm::pack::Quiet)
             .expect("build");
         let bytes = encode_with(
@@ -51,6 +67,7 @@ fn packed(compress: Option<i32>) -> &'static AlignedBytes {
                 block_size: 4096,
                 compress,
                 chunk_groups: 8,
+                lean: coding == Coding::Lean,
             },
         )
         .expect("encode");
@@ -59,10 +76,14 @@ fn packed(compress: Option<i32>) -> &'static AlignedBytes {
         assert!(report.is_ok(), "verify: {:?}", report.defects);
         let dir = scene.file().directory();
         assert!(dir.len() > 500, "only {} blocks", dir.len());
-        let zstd = dir.iter().filter(|e| e.codec != CODEC_RAW).count();
-        match compress {
-            None => assert_eq!(zstd, 0),
-            Some(_) => assert!(zstd > dir.len() / 2, "{zstd} of {} blocks zstd", dir.len()),
+        let coded = dir.iter().filter(|e| e.codec != CODEC_RAW).count();
+        match coding {
+            Coding::Raw => assert_eq!(coded, 0),
+            _ => assert!(
+                coded > dir.len() / 2,
+                "{coded} of {} blocks {coding:?}",
+                dir.len()
+            ),
         }
         bytes
     })
@@ -204,9 +225,9 @@ fn check_counters(what: &str, c: &Counters, raw: bool, rays: u64, misses: bool) 
 
 /// Every budget, thread count and order against the unlimited single-threaded run in the
 /// order given, for one codec.
-fn budgets_do_not_change_answers(compress: Option<i32>) {
-    let bytes = packed(compress);
-    let raw = compress.is_none();
+fn budgets_do_not_change_answers(coding: Coding) {
+    let bytes = packed_as(coding);
+    let raw = coding == Coding::Raw;
     let rays = ray_set().len() as u64;
     let reference = trace(bytes, u64::MAX, 1, Order::None, true);
     let hits = reference
@@ -312,8 +333,8 @@ fn budgets_do_not_change_answers(compress: Option<i32>) {
 /// direct walk's work) and streamed (groups put off until their chunks are read together,
 /// `logical::chunked`), every answer is the unlimited run's, chunks are read (and read again
 /// under the small budget), and the counters add up.
-fn chunked_reads_do_not_change_answers(compress: Option<i32>) {
-    let bytes = packed(compress);
+fn chunked_reads_do_not_change_answers(compress: Coding) {
+    let bytes = packed_as(compress);
     let rays = ray_set().len() as u64;
     let reference = trace(bytes, u64::MAX, 1, Order::None, true);
     let decoded = Scene::from_bytes(bytes.clone(), "bunny.oavm")
@@ -424,22 +445,32 @@ fn open_chunked(bytes: &AlignedBytes, budget: u64, threads: usize) -> Scene<Alig
 
 #[test]
 fn raw_chunks_give_the_same_answers_under_any_budget() {
-    chunked_reads_do_not_change_answers(None);
+    chunked_reads_do_not_change_answers(Coding::Raw);
 }
 
 #[test]
 fn zstd_chunks_give_the_same_answers_under_any_budget() {
-    chunked_reads_do_not_change_answers(Some(3));
+    chunked_reads_do_not_change_answers(Coding::Zstd);
+}
+
+#[test]
+fn lean_chunks_give_the_same_answers_under_any_budget() {
+    chunked_reads_do_not_change_answers(Coding::Lean);
 }
 
 #[test]
 fn raw_blocks_give_the_same_answers_under_any_budget() {
-    budgets_do_not_change_answers(None);
+    budgets_do_not_change_answers(Coding::Raw);
 }
 
 #[test]
 fn zstd_blocks_give_the_same_answers_under_any_budget() {
-    budgets_do_not_change_answers(Some(3));
+    budgets_do_not_change_answers(Coding::Zstd);
+}
+
+#[test]
+fn lean_blocks_give_the_same_answers_under_any_budget() {
+    budgets_do_not_change_answers(Coding::Lean);
 }
 
 /// The file with every link's bounds (format-spec §8.1) widened to its whole cell, the

@@ -188,6 +188,7 @@ fn edits_by_primitive_id_answer_as_fresh_packs() {
             block_size: 16 * 1024,
             compress: None,
             chunk_groups: 8,
+            lean: false,
         },
         ..PackOptions::default()
     };

@@ -106,6 +106,7 @@ fn files_of_clusters_as_packed_verify_clean() {
         block_size: 16384,
         compress: compress.then_some(3),
         chunk_groups: 8,
+        lean: false,
     };
     for (name, mesh) in [("bunny", &bunny), ("cornell box", &cornell)] {
         // (case, build, blocks, whether blocks hold octree wide nodes: at 16 KiB or more the

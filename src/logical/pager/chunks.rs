@@ -41,7 +41,7 @@ use std::sync::{Mutex, RwLock, RwLockReadGuard, RwLockWriteGuard, TryLockError};
 use super::{BlockSource, PageCounters, PageError, lock};
 use crate::os::PageBuf;
 use crate::physical::BlockReader;
-use crate::physical::format::{BlockEntry, CODEC_RAW, TriGroup, checksum};
+use crate::physical::format::{BlockEntry, CODEC_LEAN, CODEC_RAW, CODEC_ZSTD, TriGroup, checksum};
 
 /// A chunk's key: its block (high 32 bits) and its index in the block (low).
 fn key(block: u32, chunk: u32) -> u64 {
@@ -278,7 +278,7 @@ impl ChunkCache {
             w.buf = PageBuf::new(slot_bytes)
                 .ok_or_else(|| format!("cannot allocate {slot_bytes} bytes to read it"))?;
         }
-        let raw_chunk = e.codec == CODEC_RAW || len == raw_len;
+        let raw_chunk = e.codec == CODEC_RAW || (e.codec == CODEC_ZSTD && len == raw_len);
         if raw_chunk {
             let bytes = if self.read_direct {
                 let skip = read_aligned(src, at, len, &mut w.buf)?;
@@ -302,6 +302,9 @@ impl ChunkCache {
         }
         let decode = |stored: &[u8], out: &mut [u8]| {
             check(ce.checksum, stored)?;
+            if e.codec == CODEC_LEAN {
+                return crate::physical::lean::decode_chunk(stored, out);
+            }
             ZSTD.with_borrow_mut(|d| {
                 let d = match d {
                     Some(d) => d,

@@ -118,7 +118,7 @@ use std::sync::{
 
 use super::held::ReadyMap;
 use crate::os::{Changed, MappedFile, PageBuf};
-use crate::physical::format::{BlockEntry, CODEC_RAW, CODEC_ZSTD, Header};
+use crate::physical::format::{BlockEntry, CODEC_LEAN, CODEC_RAW, CODEC_ZSTD, Header};
 use crate::physical::{AlignedBytes, BlockError, BlockReader};
 
 /// Where the pager reads blocks from: the whole file's bytes, with hints for the kernel.
@@ -554,7 +554,7 @@ impl Pager {
         let bytes = match entry.codec {
             CODEC_RAW if self.read_raw => self.get_slot(src, block, entry, c)?,
             CODEC_RAW => self.get_raw(src, block, entry, c)?,
-            CODEC_ZSTD => self.get_slot(src, block, entry, c)?,
+            CODEC_ZSTD | CODEC_LEAN => self.get_slot(src, block, entry, c)?,
             codec => {
                 let what = match self.check_entry(src, entry) {
                     Err(what) => what,
@@ -980,7 +980,7 @@ impl Pager {
                 let read = RwLockWriteGuard::downgrade(write);
                 c.misses += 1;
                 c.bytes_read += entry.stored_len;
-                if entry.codec == CODEC_ZSTD {
+                if entry.codec != CODEC_RAW {
                     c.bytes_decompressed += entry.raw_len;
                 }
                 self.evict_slots();
