@@ -216,10 +216,14 @@ fn blocks(t: &mut String, i: &Inspection) {
     let d = &i.directory;
     let _ = writeln!(
         t,
-        "\nblocks: {} ({} raw, {} zstd), {} bytes stored, {} decoded (largest {}, smallest {}), {} {}",
+        "\nblocks: {} ({} raw, {} zstd{}), {} bytes stored, {} decoded (largest {}, smallest {}), {} {}",
         d.blocks,
         d.raw_blocks,
         d.zstd_blocks,
+        match d.lean_blocks {
+            0 => String::new(),
+            n => format!(", {n} lean"),
+        },
         d.stored_bytes,
         d.decoded_bytes,
         d.largest_decoded,
@@ -258,6 +262,7 @@ fn blocks(t: &mut String, i: &Inspection) {
             match e.codec {
                 oavm::physical::format::CODEC_RAW => "raw",
                 oavm::physical::format::CODEC_ZSTD => "zstd",
+                oavm::physical::format::CODEC_LEAN => "lean",
                 _ => "?",
             },
             e.root_level,

@@ -78,6 +78,8 @@ pub struct DirectorySummary {
     pub blocks: u64,
     pub raw_blocks: u64,
     pub zstd_blocks: u64,
+    /// Lean blocks (spec §7.3).
+    pub lean_blocks: u64,
     pub stored_bytes: u64,
     pub decoded_bytes: u64,
     pub smallest_decoded: u64,
@@ -125,6 +127,7 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
         (FLAG_ROPES, "ropes"),
         (FLAG_OCCLUDERS, "occluders"),
         (FLAG_PRIMS, "prims"),
+        (FLAG_LEAN, "lean"),
     ];
     let flags = names
         .iter()
@@ -175,6 +178,7 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
     for e in directory {
         match e.codec {
             CODEC_RAW => d.raw_blocks += 1,
+            CODEC_LEAN => d.lean_blocks += 1,
             _ => d.zstd_blocks += 1,
         }
         d.stored_bytes = d.stored_bytes.saturating_add(e.stored_len);
