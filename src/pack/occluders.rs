@@ -502,6 +502,8 @@ pub fn add_occluders<D: AsRef<[u8]>, S: Sink>(
         let opts = BlockOptions {
             compress: (entry.codec == CODEC_ZSTD).then_some(DEFAULT_ZSTD_LEVEL),
             lean: entry.codec == CODEC_LEAN,
+            // The file's chunks: a block rebuilt keeps the size all its blocks share.
+            chunk_groups: super::update::file_chunk_groups(&header),
             ..BlockOptions::default()
         };
         w.push(store_block(unit, view.header.root_level, id, &opts)?)

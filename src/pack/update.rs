@@ -959,7 +959,7 @@ fn block_options(header: &Header, opts: &UpdateOptions) -> BlockOptions {
 
 /// Groups per chunk of the blocks an update writes: the file's (or the default, in a file
 /// with no groups).
-fn file_chunk_groups(header: &Header) -> u32 {
+pub(super) fn file_chunk_groups(header: &Header) -> u32 {
     match header.chunk_groups {
         0 => crate::physical::writer::DEFAULT_CHUNK_GROUPS,
         n => n,

@@ -154,28 +154,47 @@ fn files_of_clusters_as_packed_verify_clean() {
 }
 
 /// The passes that decode every block and store it again (ropes, occluders) keep the wide
-/// nodes as verify lays them out (the layout is idempotent), and a file of lists has none.
+/// nodes as verify lays them out (the layout is idempotent), the file's chunks of groups (16
+/// here, not the default 128) and its blocks' codec (raw or lean); a file of lists has none.
 #[test]
 fn blocks_stored_again_and_files_of_lists_verify_clean() {
     let bunny = load_shared("bunny/bun_zipper.ply");
+    for lean in [false, true] {
+        let blocks = BlockOptions {
+            block_size: 16384,
+            compress: None,
+            chunk_groups: 16,
+            lean,
+        };
+        let plain = packed(&bunny, &BuildOptions::default(), &blocks);
+        let file = OavmFile::open(AlignedBytes::from_slice(plain.as_ref())).expect("open");
+        let codecs = |f: &OavmFile<&[u8]>| {
+            let mut c: Vec<u32> = f.directory().iter().map(|e| e.codec).collect();
+            c.dedup();
+            c
+        };
+        let (roped, ..) = oavm::pack::ropes::add_ropes(&file, Vec::new()).expect("ropes");
+        let scene = verified(&roped, "bunny with ropes");
+        check_counts(scene.file(), false, "bunny with ropes");
+        let (occluded, ..) = oavm::pack::occluders::add_occluders(
+            &file,
+            &oavm::pack::occluders::ShadowParams::default(),
+            Vec::new(),
+        )
+        .expect("occluders");
+        let scene = verified(&occluded, "bunny with occluders");
+        check_counts(scene.file(), false, "bunny with occluders");
+        for (what, bytes) in [("ropes", &roped), ("occluders", &occluded)] {
+            let f = OavmFile::open(&bytes[..]).expect("open");
+            assert_eq!(f.header().chunk_groups, 16, "lean {lean}, {what}");
+            assert_eq!(codecs(&f), vec![lean as u32 * 2], "lean {lean}, {what}");
+        }
+    }
     let blocks = BlockOptions {
         block_size: 16384,
         compress: None,
         ..BlockOptions::default()
     };
-    let plain = packed(&bunny, &BuildOptions::default(), &blocks);
-    let file = OavmFile::open(AlignedBytes::from_slice(plain.as_ref())).expect("open");
-    let (roped, ..) = oavm::pack::ropes::add_ropes(&file, Vec::new()).expect("ropes");
-    let scene = verified(&roped, "bunny with ropes");
-    check_counts(scene.file(), false, "bunny with ropes");
-    let (occluded, ..) = oavm::pack::occluders::add_occluders(
-        &file,
-        &oavm::pack::occluders::ShadowParams::default(),
-        Vec::new(),
-    )
-    .expect("occluders");
-    let scene = verified(&occluded, "bunny with occluders");
-    check_counts(scene.file(), false, "bunny with occluders");
 
     let lists = packed(&bunny, &BuildOptions::with_leaf(LeafKind::List), &blocks);
     let scene = verified(lists.as_ref(), "bunny, lists");
