@@ -371,8 +371,9 @@ fn check_chunk_sum(c: usize, ce: &ChunkEntry, bytes: &[u8]) -> Result<(), String
     Ok(())
 }
 
-/// Decodes one zstd frame into `out`, exactly filling it.
-fn decode_frame(
+/// Decodes one zstd frame into `out`, exactly filling it (`what` names `out`'s length in an
+/// error: "its groups take").
+pub(crate) fn decode_frame(
     stored: &[u8],
     out: &mut [u8],
     dctx: &mut zstd::bulk::Decompressor<'_>,

@@ -20,6 +20,7 @@ pub(crate) mod verify;
 pub mod wide;
 pub(crate) mod writer;
 
+pub(crate) use block::decode_frame;
 pub use block::{BlockError, BlockReader, BlockView, ReadBlock};
 pub(crate) use cluster_check::check_node;
 #[cfg(test)]

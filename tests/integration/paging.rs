@@ -399,18 +399,7 @@ fn chunked_reads_do_not_change_answers(compress: Coding) {
     let path = dir.path().join("bunny.oavm");
     std::fs::write(&path, bytes.as_ref()).unwrap();
     for order in [Order::Morton, Order::Stream] {
-        let scene = Scene::open_with(
-            &path,
-            &SceneOptions {
-                walk: Walk::Auto,
-                mem_budget: Some(decoded / 20),
-                threads: 2,
-                check_blocks: true,
-                block_reads: BlockReads::Read,
-                chunks: true,
-            },
-        )
-        .expect("open");
+        let scene = Scene::open_with(&path, &chunked_options(decoded / 20, 2)).expect("open");
         assert!(scene.chunked());
         let r = run_scene(&scene, 2, order);
         assert!(
@@ -431,16 +420,21 @@ fn open_chunked(bytes: &AlignedBytes, budget: u64, threads: usize) -> Scene<Alig
     Scene::from_bytes_with(
         bytes.clone(),
         "bunny.oavm",
-        &SceneOptions {
-            walk: Walk::Auto,
-            mem_budget: Some(budget),
-            threads,
-            check_blocks: true,
-            block_reads: BlockReads::Read,
-            chunks: true,
-        },
+        &chunked_options(budget, threads),
     )
     .expect("open")
+}
+
+/// Options of a scene read chunk by chunk under `budget` on `threads`, blocks read directly.
+fn chunked_options(budget: u64, threads: usize) -> SceneOptions {
+    SceneOptions {
+        walk: Walk::Auto,
+        mem_budget: Some(budget),
+        threads,
+        check_blocks: true,
+        block_reads: BlockReads::Read,
+        chunks: true,
+    }
 }
 
 #[test]

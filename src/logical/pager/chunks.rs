@@ -313,16 +313,7 @@ impl ChunkCache {
                             .map_err(|err| format!("cannot create a zstd decompressor: {err}"))?,
                     ),
                 };
-                let n = d
-                    .decompress_to_buffer(stored, out)
-                    .map_err(|err| format!("zstd: {err}"))?;
-                if n != out.len() {
-                    return Err(format!(
-                        "the zstd frame decodes to {n} bytes, its groups take {}",
-                        out.len()
-                    ));
-                }
-                Ok(())
+                crate::physical::decode_frame(stored, out, d, "its groups take")
             })
         };
         if self.read_direct {
