@@ -25,8 +25,10 @@ pub enum Order {
     Blocks,
     /// Streamed: each ray's walk is parked at every block it needs that is not the one being
     /// traced, and blocks are read ahead and served with all the walks parked at them
-    /// (`super::stream`); rays are started in [`Order::Morton`]'s order. For a budget smaller
-    /// than the file. Files of leaf lists are traced as [`Order::Blocks`].
+    /// (`super::stream`); rays are started in [`Order::Morton`]'s order, and walked wide
+    /// while every block they need is resident. For a budget smaller than the file: under one
+    /// that holds it, [`Order::None`] ([`super::Scene::streamed`]). Files of leaf lists are
+    /// traced as [`Order::Blocks`].
     Stream,
     /// As given, handed to the threads in chunks in that order (like the sorted orders): for
     /// rays the caller has already sorted, e.g. a slice of [`Scene::block_order`]'s order.

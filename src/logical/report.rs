@@ -94,6 +94,8 @@ pub struct StreamReport {
     pub walks_parked_per_ray: f64,
     pub blocks_served: u64,
     pub peak_parked_bytes: u64,
+    /// Walks answered wide as they started (every block they needed resident), never parked.
+    pub walks_unparked: u64,
 }
 
 /// What a set's rays answered: how many hit (closest hit) or were occluded (any hit).
@@ -145,6 +147,7 @@ impl SetReport {
                 walks_parked_per_ray: per_ray(c.walks_parked),
                 blocks_served: c.blocks_served,
                 peak_parked_bytes: c.peak_parked_bytes,
+                walks_unparked: c.walks_unparked,
             }),
             page: PageReport::new(c),
         }

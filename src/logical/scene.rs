@@ -429,6 +429,19 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         }
     }
 
+    /// The order `order` traces in here: [`Order::Stream`] is [`Order::None`] when the budget
+    /// holds every decoded block. A stream is for reading each block once for all the walks
+    /// that need it; a pager that never evicts reads each block once anyway, and the stream's
+    /// sort and scheduling would only cost (format 7, the dragon in memory: streamed at
+    /// 0.24-0.41x of the direct walk before, 1.0x now; docs/out-of-core.md "A cheaper
+    /// stream").
+    pub fn streamed(&self, order: Order) -> Order {
+        match order {
+            Order::Stream if self.fits_in_budget() => Order::None,
+            o => o,
+        }
+    }
+
     /// The threads to trace on when none are asked for, out of `cores`: one per core, or
     /// [`IO_THREADS_PER_CORE`] per core when the budget is smaller than the file's decoded
     /// blocks (some trace while others wait for the disk), but then no more than leave three
@@ -653,6 +666,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         map: impl Fn(&Ray, Option<HitInfo>) -> T + Sync,
     ) -> Result<Counters, Error> {
         let tree = self.tree();
+        let order = self.streamed(order);
         if order == Order::Stream
             && let Some((_, cache)) = &self.chunked
         {
@@ -744,7 +758,7 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         occluded: &mut [u8],
     ) -> Result<Option<([Counters; 2], f64)>, Error> {
         let tree = self.tree();
-        if !tree.walks_top_down() {
+        if !tree.walks_top_down() || self.streamed(Order::Stream) != Order::Stream {
             return Ok(None);
         }
         if occluded.len() != rays.len() {

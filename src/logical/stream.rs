@@ -53,7 +53,7 @@ use std::sync::{Condvar, Mutex, MutexGuard};
 
 use super::held::Held;
 use super::pager::PageCounters;
-use super::trace::{Best, Counters, Entry, HitInfo, RayCtx, TraceError, Tree};
+use super::trace::{Best, Counters, Entry, HitInfo, RayCtx, TraceError, Tree, WideEnd};
 use crate::geom::Ray;
 use crate::progress::Progress;
 use crate::rays::shadow_ray;
@@ -678,6 +678,23 @@ impl Stream<'_, '_> {
     ) -> Result<(), TraceError> {
         let ray = self.ray_of(kind, i, aux, job);
         let set = (kind == Kind::Shadow) as usize;
+        // Walked wide while every block it needs is resident (no block held: the pager gives
+        // a thread one block at a time); parked only where a block must be read.
+        if held.is_none() {
+            let timed = job.light.map(|_| Instant::now());
+            let k = &mut f.k[set];
+            let end = match kind {
+                Kind::Closest => self.tree.wide_if_resident::<false>(&ray, k)?,
+                Kind::Any | Kind::Shadow => self.tree.wide_if_resident::<true>(&ray, k)?,
+            };
+            if let Some(t) = timed {
+                f.nanos[set] += t.elapsed().as_nanos() as u64;
+            }
+            if let WideEnd::Answered(best) = end {
+                f.k[set].walks_unparked += 1;
+                return self.finish(kind, i, best, job, f, out, x, held);
+            }
+        }
         match self.tree.begin(&ray, &mut x.stack, &mut f.k[set])? {
             None => self.finish(kind, i, None, job, f, out, x, held),
             Some((r, w)) => self.advance(kind, i, aux, &r, w, job, f, out, x, held),

@@ -201,14 +201,13 @@ fn check_counters(what: &str, c: &Counters, raw: bool, rays: u64, misses: bool) 
     assert_eq!(c.rays, rays, "{what}");
     assert_eq!(p.requested, p.hits + p.misses, "{what}: {p:?}");
     // Rays reach blocks: each asks the pager for every block it moves into, or (streamed) is
-    // parked at it, and each block served is asked for once.
+    // parked at it, and each block served is asked for once; a streamed walk goes wide
+    // through the blocks that are resident while it can, asking for them (and parks at the
+    // first that is not).
     if c.blocks_served > 0 {
         assert!(c.walks_parked >= rays / 10, "{what}: {c:?}");
-        // (Readers' admissions are gets too, each a miss.)
-        assert!(
-            p.requested >= c.blocks_served && p.requested <= c.blocks_served + p.misses,
-            "{what}: {c:?}"
-        );
+        assert!(c.walks_unparked > 0, "{what}: {c:?}");
+        assert!(p.requested >= c.blocks_served, "{what}: {c:?}");
     } else {
         assert!(p.requested >= rays / 10, "{what}: {p:?}");
     }
@@ -246,7 +245,6 @@ fn budgets_do_not_change_answers(coding: Coding) {
         assert!(c.page.misses <= reference.blocks, "{what}: {:?}", c.page);
     }
     let max = reference.max_raw_len;
-    let stream_reference = OnceLock::new();
     let mut misses = Vec::new();
     // Unlimited; three blocks, the least any file allows (one thread: a block read, a block
     // admitted, one to evict), without block checks; nine, four threads' worth.
@@ -279,23 +277,22 @@ fn budgets_do_not_change_answers(coding: Coding) {
                     panic!("{what}: answers differ, first at ray {first:?}");
                 }
                 let tight = budget != u64::MAX;
-                // A stream parks walks and serves blocks; a direct walk does neither.
+                // A stream parks walks and serves blocks; a direct walk does neither, and nor
+                // does a stream under a budget that holds every block (it is the direct walk).
                 for c in [&r.closest, &r.any] {
                     let streamed = c.walks_parked > 0 && c.blocks_served > 0;
-                    assert_eq!(streamed, order == Order::Stream, "{what}: {c:?}");
+                    assert_eq!(streamed, order == Order::Stream && tight, "{what}: {c:?}");
                 }
                 check_counters(&format!("{what}, closest"), &r.closest, raw, rays, true);
                 check_counters(&format!("{what}, any"), &r.any, raw, rays, tight);
-                // The work of the walks does not depend on paging (streamed batches walk
-                // top-down, the others by the wide nodes: each against its own walk's).
-                let base = if order == Order::Stream {
-                    stream_reference.get_or_init(|| trace(bytes, u64::MAX, 1, Order::Stream, true))
-                } else {
-                    &reference
-                };
+                // The work of the walks does not depend on paging, but for a stream's: its
+                // walks go wide while their blocks are resident, and one stopped at a block
+                // that is not is walked again top-down, parked at the blocks it needs.
                 let work = |c: &Counters| (c.nodes_visited, c.leaves_visited, c.triangles_tested);
-                assert_eq!(work(&r.closest), work(&base.closest), "{what}");
-                assert_eq!(work(&r.any), work(&base.any), "{what}");
+                if !(order == Order::Stream && tight) {
+                    assert_eq!(work(&r.closest), work(&reference.closest), "{what}");
+                    assert_eq!(work(&r.any), work(&reference.any), "{what}");
+                }
                 // The budget is never raised; threads are lowered to what it holds (two blocks
                 // a thread and one more).
                 assert_eq!(r.budget, budget, "{what}");
@@ -536,7 +533,13 @@ fn streamed_frames_give_the_direct_answers() {
                 assert!(f.occluded == occluded, "{what}: shadow answers differ");
                 assert_eq!(f.primary.counters.rays, rays.len() as u64, "{what}");
                 assert_eq!(f.shadow.counters.rays, shadow.len() as u64, "{what}");
-                assert!(f.primary.counters.walks_parked > 0, "{what}");
+                // Streamed under a budget; the direct walk under one that holds the file.
+                let parked = f.primary.counters.walks_parked;
+                assert_eq!(
+                    parked > 0,
+                    budget != u64::MAX,
+                    "{what}: {parked} walks parked"
+                );
                 assert!(f.primary.seconds > 0.0 && f.shadow.seconds > 0.0, "{what}");
                 if budget == 64 * max && threads == 1 {
                     // A shadow walk starts in the block held: one stream reads fewer blocks

@@ -108,9 +108,10 @@ pub struct TraceArgs {
     /// long.
     #[arg(long)]
     pub chunks: bool,
-    /// Order of tracing: stream (each ray's walk parked at every block it needs and resumed
-    /// when that block is served with all the walks parked there; blocks read ahead in file
-    /// order; a frame's shadow rays in the same stream), morton (rays that enter the model near
+    /// Order of tracing: stream (each ray walked while its blocks are resident, and parked at
+    /// every block it needs that is not, resumed when that block is served with all the walks
+    /// parked there; blocks read ahead in file order; a frame's shadow rays in the same stream;
+    /// under a budget that holds the file, none), morton (rays that enter the model near
     /// each other, in the same direction octant, together; image tiles in Morton order),
     /// blocks (rays binned by the first block they need, found in the top tree, then as
     /// morton) or none (as given; image tiles row by row). The answers are the same; the

@@ -51,7 +51,8 @@ fn run(args: &Args, start: Instant) -> Result<(), Error> {
     // Streamed batches draw their rays done and blocks read (on a terminal, after a second).
     scene.set_progress(Some(std::sync::Arc::new(cli::progress_bar())));
     let threads = args.trace.threads_after_open(&scene, "oavm-trace");
-    let order = args.trace.order.unwrap_or_else(|| scene.default_order());
+    // (Reported as traced: a stream asked for under a budget that holds the file is not.)
+    let order = scene.streamed(args.trace.order.unwrap_or_else(|| scene.default_order()));
     let mut ctx = Run {
         run: TraceRun::new(start, open_ms, threads, order, &opts),
         spec: args.camera.spec(args.time, args.width, args.height),

@@ -70,6 +70,7 @@ use crate::physical::format::{
 pub(in crate::logical) use deferred::Deferred;
 pub(in crate::logical) use ray::{Best, RayCtx};
 pub(in crate::logical) use topdown::Entry;
+pub(in crate::logical) use wide::WideEnd;
 
 /// Which walk traces a scene's rays. Every walk gives the same answers.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -137,6 +138,9 @@ pub struct Counters {
     pub walks_parked: u64,
     pub blocks_served: u64,
     pub peak_parked_bytes: u64,
+    /// Streamed batches: walks answered wide as they started, every block they needed being
+    /// resident (never parked).
+    pub walks_unparked: u64,
 }
 
 impl std::ops::AddAssign for Counters {
@@ -160,6 +164,7 @@ impl std::ops::AddAssign for Counters {
         self.walks_parked += o.walks_parked;
         self.blocks_served += o.blocks_served;
         self.peak_parked_bytes = self.peak_parked_bytes.max(o.peak_parked_bytes);
+        self.walks_unparked += o.walks_unparked;
     }
 }
 

@@ -16,14 +16,14 @@
 
 use super::cluster::test_group;
 use super::deferred::Deferred;
-use super::{Counters, Fetched, HitInfo, TraceError, Tree};
+use super::{Counters, Direct, Fetched, HitInfo, TraceError, Tree, baseline};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::{FmaRay, grown_exit};
 use crate::logical::held::WideHeld;
 use crate::logical::pager::chunks::ChunkGuard;
 use crate::mapping::Corruption;
-use crate::os::Simd8;
+use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{CLUSTER_WIDTH, ClusterNode, MAX_CLUSTER_DEPTH};
 
 /// A stack entry's reference: the index of a wide node of its unit, or with this bit a link
@@ -51,6 +51,15 @@ pub(in crate::logical) struct WideWalk<'s> {
     /// Where a walk that defers (spec §8.3: a block's head held, its chunks read later) leaves
     /// the groups whose chunks are not resident; `None`: such chunks are read as reached.
     defer: Option<&'s mut Vec<Deferred>>,
+}
+
+/// How a walk that may stop short of blocks that are not resident ended
+/// ([`Tree::wide_if_resident`]).
+pub(in crate::logical) enum WideEnd {
+    /// The closest hit (any hit with `ANY`), if any.
+    Answered(Option<HitInfo>),
+    /// Stopped where it needed a block that was not resident.
+    Stopped,
 }
 
 /// The ray's constants for the walk. The triangle test's are made when the ray first reaches
@@ -86,6 +95,60 @@ impl<'a> Tree<'a> {
         result
     }
 
+    /// The wide walk of `ray` if every block it needs is resident now: its closest hit (any
+    /// hit with `ANY`), the same answer as [`Self::intersect`]'s (or [`Self::occluded`]'s);
+    /// else [`WideEnd::Stopped`] where it needs a block that is not, before reading any, the
+    /// ray not counted (the nodes it visited are). Also stopped: a tree that does not walk
+    /// wide, and a ray the wide walk hands to the top-down walk. For a stream's walks, which
+    /// need to park only when a block must be read.
+    pub(in crate::logical) fn wide_if_resident<const ANY: bool>(
+        &self,
+        ray: &Ray,
+        c: &mut Counters,
+    ) -> Result<WideEnd, TraceError> {
+        struct Job<'t, 'a, 'r, const ANY: bool> {
+            tree: &'t Tree<'a>,
+            ray: &'r Ray,
+            c: &'r mut Counters,
+        }
+        impl<const ANY: bool> WithAvx2 for Job<'_, '_, '_, ANY> {
+            type Output = Result<WideEnd, TraceError>;
+            #[inline(always)]
+            fn run(self, isa: Avx2) -> Self::Output {
+                self.tree.wide_stack::<ANY, Avx2>(isa, self.ray, self.c)
+            }
+        }
+        if !self.wide {
+            return Ok(WideEnd::Stopped);
+        }
+        match self.avx2 {
+            Some(isa) => isa.vectorize(Job::<ANY> { tree: self, ray, c }),
+            None => self.wide_stack::<ANY, _>(baseline(), ray, c),
+        }
+    }
+
+    /// [`Self::wide_if_resident`] with the instruction set `isa`, on the thread's stack.
+    #[inline(always)]
+    fn wide_stack<const ANY: bool, S: Simd8>(
+        &self,
+        isa: S,
+        ray: &Ray,
+        c: &mut Counters,
+    ) -> Result<WideEnd, TraceError> {
+        let mut stack = WIDE_STACK.take();
+        let end = self.wide_ray_until::<ANY, true, S>(isa, ray, c, (&mut stack, None), &mut None);
+        WIDE_STACK.set(stack);
+        end
+    }
+
+    /// Whether block `b` is resident now (a hint: admitted to a pager that never evicts, or
+    /// the pager says so).
+    #[inline]
+    fn resident_now(&self, b: u32) -> bool {
+        let admitted = |d: &Direct| d.ready.get(b as usize).is_some_and(|r| r.get().is_some());
+        self.direct.as_ref().is_some_and(admitted) || self.blocks.resident(b)
+    }
+
     /// Closest hit (any hit with `ANY`) of `ray` by the wide walk on `stack` (grown once to the
     /// deepest stack a valid file needs, and kept for the next ray); a ray the node test's bound
     /// does not cover (spec §8.7: `tmin < 0`, a direction too small or too large for f32) is
@@ -103,9 +166,27 @@ impl<'a> Tree<'a> {
         isa: S,
         ray: &Ray,
         c: &mut Counters,
-        (stack, defer): (&mut Vec<(u32, f32)>, Option<&mut Vec<Deferred>>),
+        walked: (&mut Vec<(u32, f32)>, Option<&mut Vec<Deferred>>),
         kept: &mut Option<WideHeld<'a>>,
     ) -> Result<Option<HitInfo>, TraceError> {
+        match self.wide_ray_until::<ANY, false, S>(isa, ray, c, walked, kept)? {
+            WideEnd::Answered(h) => Ok(h),
+            WideEnd::Stopped => Err(bad("a walk stopped that may not", None)),
+        }
+    }
+
+    /// [`Self::wide_ray`], which with `STOP` does not read blocks: it stops
+    /// ([`WideEnd::Stopped`], the ray not counted) where it needs a block that is not resident
+    /// now, and for a ray the wide walk does not take.
+    #[inline(always)]
+    fn wide_ray_until<const ANY: bool, const STOP: bool, S: Simd8>(
+        &self,
+        isa: S,
+        ray: &Ray,
+        c: &mut Counters,
+        (stack, defer): (&mut Vec<(u32, f32)>, Option<&mut Vec<Deferred>>),
+        kept: &mut Option<WideHeld<'a>>,
+    ) -> Result<WideEnd, TraceError> {
         // Made in place (it is not small), before the checks that may send the ray elsewhere.
         let r = WideRay {
             boxes: FmaRay::new(ray, self.coord_bound),
@@ -121,11 +202,16 @@ impl<'a> Tree<'a> {
         // The stack is there (grown just above).
         let st = match stack.first_chunk_mut::<STACK>() {
             Some(st) if r.boxes.eligible() && ray.is_valid() && !research => st,
-            _ => return self.descend_all::<ANY, S>(isa, ray, c),
+            _ if STOP => return Ok(WideEnd::Stopped),
+            _ => {
+                return self
+                    .descend_all::<ANY, S>(isa, ray, c)
+                    .map(WideEnd::Answered);
+            }
         };
         c.rays += 1;
         if self.wide_top.is_empty() {
-            return Ok(None);
+            return Ok(WideEnd::Answered(None));
         }
         st[0] = (0, ray.tmin);
         let mut w = WideWalk {
@@ -148,6 +234,10 @@ impl<'a> Tree<'a> {
                     c.page.resident_hit();
                     kept.as_ref()
                 }
+                Some(b) if STOP && !self.resident_now(b) => {
+                    c.rays -= 1;
+                    return Ok(WideEnd::Stopped);
+                }
                 Some(b) => match self.fetch(b, &mut c.page)? {
                     (b, Fetched::Direct(raw), ready) => {
                         *kept = Some(ready.wide(b, raw));
@@ -162,7 +252,7 @@ impl<'a> Tree<'a> {
             };
             match self.run_wide::<ANY, S>(isa, &r, &mut w, c, view)? {
                 Some(b) => need = Some(b),
-                None => return Ok(w.best),
+                None => return Ok(WideEnd::Answered(w.best)),
             }
         }
     }
