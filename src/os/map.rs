@@ -169,6 +169,49 @@ impl MappedFile {
         read_full(&self.file, offset, buf, None)
     }
 
+    /// Reads each `(offset, buf)` of `reads` as [`Self::read_at`] would, but all at once when
+    /// each can be read directly: submitted together to an io_uring from this thread, at most
+    /// `depth` in flight (`super::uring`); else, or where the kernel has no io_uring, one by
+    /// one. Each read's result, in order.
+    pub fn read_many(
+        &self,
+        reads: &mut [(u64, &mut [u8])],
+        depth: usize,
+    ) -> Vec<std::io::Result<()>> {
+        let direct = match self.direct.get_or_init(|| open_direct(&self.file)) {
+            Some(d) if !self.buffered_only.load(Ordering::Relaxed) => Some(d),
+            _ => None,
+        };
+        let batched = direct.filter(|d| {
+            reads.iter().all(|(offset, buf)| {
+                offset.is_multiple_of(d.offset_align as u64)
+                    && buf.len().is_multiple_of(d.offset_align)
+            })
+        });
+        let done = batched.and_then(|d| super::uring::read_many(&d.file, reads, depth));
+        let Some(done) = done else {
+            return reads
+                .iter_mut()
+                .map(|(offset, buf)| self.read_at(*offset, buf))
+                .collect();
+        };
+        reads
+            .iter_mut()
+            .zip(done)
+            .map(|((offset, buf), got)| match got {
+                Ok(n) if n == buf.len() => Ok(()),
+                // Short (at the file's end, or cut off) or refused: read again as `read_at`
+                // reads, which zero-fills past the end and falls back to the page cache.
+                Err(e) if e.raw_os_error() == Some(libc::EINVAL) => {
+                    self.buffered_only.store(true, Ordering::Relaxed);
+                    self.read_at(*offset, buf)
+                }
+                Ok(_) => self.read_at(*offset, buf),
+                Err(e) => Err(e),
+            })
+            .collect()
+    }
+
     /// What a read's offset and length must be multiples of for [`Self::read_at`] to read
     /// directly: the device's logical block where the kernel says (`statx` `STATX_DIOALIGN`),
     /// else the page size. A reader that rounds its reads to this reads no more of the disk
@@ -394,6 +437,30 @@ mod tests {
                 buf[..n] == expect(off, n)[..],
                 "read at {off}+{n} (alignment {align})"
             );
+        }
+        // Many at once (an io_uring where the kernel has one): the same bytes as one by one,
+        // in any buffers, with reads ending past the end and wholly past it, and more reads
+        // than the depth; and with one unaligned read among them (then one by one).
+        let mut offs: Vec<(usize, usize)> = (0..40)
+            .map(|i| ((i * 3 % (len / align + 2)) * align, align * (1 + i % 3)))
+            .collect();
+        offs.push((len / align * align, 2 * align));
+        for unaligned in [false, true] {
+            if unaligned {
+                offs.push((7, 100));
+            }
+            let mut bufs: Vec<Vec<u8>> = offs.iter().map(|&(_, n)| vec![0xAA; n]).collect();
+            let mut reads: Vec<(u64, &mut [u8])> = offs
+                .iter()
+                .zip(bufs.iter_mut())
+                .map(|(&(off, _), b)| (off as u64, &mut b[..]))
+                .collect();
+            let results = map.read_many(&mut reads, 8);
+            assert_eq!(results.len(), offs.len());
+            for ((&(off, n), b), r) in offs.iter().zip(&bufs).zip(results) {
+                r.unwrap();
+                assert!(b[..] == expect(off, n)[..], "read_many at {off}+{n}");
+            }
         }
         // A direct read on a file system that allows it (the test's temporary directory).
         eprintln!(

@@ -1,5 +1,5 @@
 //! The operating system and the processor: the crate's only `unsafe` code (mapping files,
-//! page-aligned buffers for direct reads, dropping their pages, the SIGBUS guard, naming an unnamed file, the SIMD instructions of the
+//! page-aligned buffers for direct reads and many of them at once (io_uring), dropping their pages, the SIGBUS guard, naming an unnamed file, the SIMD instructions of the
 //! tracer's kernels), and what `/proc` says about the process.
 //!
 //! Every `unsafe` block here carries a `// SAFETY:` comment; the rest of the crate is compiled
@@ -11,6 +11,7 @@ mod link;
 mod map;
 mod proc;
 mod simd;
+mod uring;
 
 pub use buf::PageBuf;
 pub use link::link_unnamed;

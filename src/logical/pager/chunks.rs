@@ -31,8 +31,16 @@
 //! 5 KiB, not the 8-12 KiB of the pages it touches. A raw chunk is read into its slot; a zstd
 //! chunk into its thread's read buffer, then decoded into the slot.
 //!
+//! **Many at once.** [`ChunkCache::read_many`] takes slots for a list of chunks, reads them all
+//! from the calling thread with [`BlockSource::read_many`] (an io_uring over the direct file,
+//! many reads in flight, where the kernel has one), and checks and decodes each into its slot;
+//! it holds those slots' write locks meanwhile (gets of the same chunks wait, as for one read)
+//! and never waits for a slot: where none is free it reads what it has. A compressed chunk's
+//! stored bytes go to a buffer of the thread's own, [`MANY_PIECE`] of them at most.
+//!
 //! **Memory bound.** `slots * slot_bytes`, fixed when the cache is made, and one slot's size
-//! a reading thread for a zstd chunk's stored bytes: nothing grows.
+//! a reading thread for a zstd chunk's stored bytes ([`MANY_PIECE`] of them for a thread that
+//! reads many at once): nothing grows.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -199,35 +207,51 @@ impl ChunkCache {
                 std::thread::yield_now();
                 continue;
             };
-            if w.key != EMPTY {
-                m.0.remove(&w.key);
-            }
-            m.0.insert(k, s as u32);
-            w.key = k;
+            self.assign(&mut m, s, &mut w, k);
             drop(m);
-            self.referenced[s].store(true, Ordering::Relaxed);
             match self.fill(src, e, head, chunk, &mut w) {
-                Ok((stored, decoded)) => {
-                    self.reads.fetch_add(1, Ordering::Relaxed);
-                    c.chunk_requests += 1;
-                    c.chunk_misses += 1;
-                    c.bytes_read += stored;
-                    c.bytes_decompressed += decoded;
+                Ok(read) => {
+                    self.count(read, c);
                     let slot = RwLockWriteGuard::downgrade(w);
                     return Ok(ChunkGuard { slot });
                 }
-                Err(what) => {
-                    let what = format!("chunk {chunk}: {what}");
-                    w.key = EMPTY;
-                    lock(&self.bad).insert(k, what.clone());
-                    let mut m = lock(&self.map);
-                    if m.0.get(&k) == Some(&(s as u32)) {
-                        m.0.remove(&k);
-                    }
-                    return Err(PageError { block, what });
-                }
+                Err(what) => return Err(self.fail(block, chunk, s, &mut w, what)),
             }
         }
+    }
+
+    /// Gives slot `s` (write-locked as `w`, found by [`Self::victim`] under the map's lock
+    /// `m`) to chunk `k`.
+    fn assign(&self, m: &mut (HashMap<u64, u32>, usize), s: usize, w: &mut Slot, k: u64) {
+        if w.key != EMPTY {
+            m.0.remove(&w.key);
+        }
+        m.0.insert(k, s as u32);
+        w.key = k;
+        self.referenced[s].store(true, Ordering::Relaxed);
+    }
+
+    /// Counts a chunk read (its stored bytes, and the bytes decompressed) in `c`.
+    fn count(&self, (stored, decoded): (u64, u64), c: &mut PageCounters) {
+        self.reads.fetch_add(1, Ordering::Relaxed);
+        c.chunk_requests += 1;
+        c.chunk_misses += 1;
+        c.bytes_read += stored;
+        c.bytes_decompressed += decoded;
+    }
+
+    /// Chunk `chunk` of block `block`, being read into slot `s` (`w`), failed with `what`: it
+    /// stays failed (every later get gives the same error) and the slot is emptied.
+    fn fail(&self, block: u32, chunk: u32, s: usize, w: &mut Slot, what: String) -> PageError {
+        let what = format!("chunk {chunk}: {what}");
+        let k = key(block, chunk);
+        w.key = EMPTY;
+        lock(&self.bad).insert(k, what.clone());
+        let mut m = lock(&self.map);
+        if m.0.get(&k) == Some(&(s as u32)) {
+            m.0.remove(&k);
+        }
+        PageError { block, what }
     }
 
     /// A slot nobody reads, write-locked, by CLOCK: a referenced slot loses its bit and is
@@ -252,6 +276,36 @@ impl ChunkCache {
         None
     }
 
+    /// Where chunk `chunk` of block `block` (entry `e`, decoded head `head`) is stored and what
+    /// it decodes to, from the head's chunk table.
+    pub fn plan(
+        &self,
+        block: u32,
+        e: &BlockEntry,
+        head: &[u8],
+        chunk: u32,
+    ) -> Result<ChunkRead, String> {
+        let table = self.reader.chunk_table(e, head)?;
+        let ce = table
+            .get(chunk as usize)
+            .ok_or_else(|| format!("no such chunk (the block has {})", table.len()))?;
+        let groups = (e.raw_len - e.head_raw_len) as usize / std::mem::size_of::<TriGroup>();
+        let first = chunk as usize * self.reader.chunk_groups() as usize;
+        let raw_len = (groups - first).min(self.reader.chunk_groups() as usize)
+            * std::mem::size_of::<TriGroup>();
+        let len = ce.stored_len as usize;
+        Ok(ChunkRead {
+            block,
+            chunk,
+            at: e.offset + e.head_stored_len + ce.offset as u64,
+            len,
+            raw_len,
+            checksum: ce.checksum,
+            codec: e.codec,
+            raw: e.codec == CODEC_RAW || (e.codec == CODEC_ZSTD && len == raw_len),
+        })
+    }
+
     /// Reads chunk `chunk` of the block `e` into `w`, checked and decoded; the stored bytes
     /// read, and the bytes decompressed (0 for a raw chunk).
     fn fill<S: BlockSource + ?Sized>(
@@ -262,49 +316,71 @@ impl ChunkCache {
         chunk: u32,
         w: &mut Slot,
     ) -> Result<(u64, u64), String> {
-        let table = self.reader.chunk_table(e, head)?;
-        let ce = table
-            .get(chunk as usize)
-            .ok_or_else(|| format!("no such chunk (the block has {})", table.len()))?;
-        let groups = (e.raw_len - e.head_raw_len) as usize / std::mem::size_of::<TriGroup>();
-        let first = chunk as usize * self.reader.chunk_groups() as usize;
-        let raw_len = (groups - first).min(self.reader.chunk_groups() as usize)
-            * std::mem::size_of::<TriGroup>();
-        let at = e.offset + e.head_stored_len + ce.offset as u64;
-        let len = ce.stored_len as usize;
+        let r = self.plan(0, e, head, chunk)?;
+        self.room(w)?;
+        if !self.read_direct {
+            let stored = mapped(src, r.at, r.len)?;
+            if r.raw {
+                w.buf[..r.len].copy_from_slice(stored);
+                return self.settle(&r, w, None, 0);
+            }
+            return self.settle(&r, w, Some(stored), 0);
+        }
+        if r.raw {
+            let skip = read_aligned(src, r.at, r.len, &mut w.buf)?;
+            return self.settle(&r, w, None, skip);
+        }
+        STORED.with_borrow_mut(|stored_buf| {
+            let slot_bytes = Self::slot_bytes_for(self.chunk_bytes);
+            if stored_buf.len() < slot_bytes {
+                *stored_buf = PageBuf::new(slot_bytes)
+                    .ok_or_else(|| format!("cannot allocate {slot_bytes} bytes to read it"))?;
+            }
+            let skip = read_aligned(src, r.at, r.len, stored_buf)?;
+            self.settle(&r, w, Some(&stored_buf[skip..skip + r.len]), 0)
+        })
+    }
+
+    /// Gives `w` its buffer (a slot's size) if it has none yet.
+    fn room(&self, w: &mut Slot) -> Result<(), String> {
         let slot_bytes = Self::slot_bytes_for(self.chunk_bytes);
         if w.buf.len() < slot_bytes {
             w.buf = PageBuf::default();
             w.buf = PageBuf::new(slot_bytes)
                 .ok_or_else(|| format!("cannot allocate {slot_bytes} bytes to read it"))?;
         }
-        let raw_chunk = e.codec == CODEC_RAW || (e.codec == CODEC_ZSTD && len == raw_len);
-        if raw_chunk {
-            let bytes = if self.read_direct {
-                let skip = read_aligned(src, at, len, &mut w.buf)?;
-                // A raw chunk of a compressed block may start anywhere: moved to the buffer's
-                // start, where the groups are aligned.
-                if !skip.is_multiple_of(std::mem::align_of::<TriGroup>()) {
-                    w.buf.copy_within(skip..skip + len, 0);
-                    0
-                } else {
-                    skip
-                }
+        Ok(())
+    }
+
+    /// Checks and decodes the chunk `r` just read: a raw chunk's stored bytes are in `w`'s
+    /// buffer from `skip`, a compressed chunk's are `stored`. The stored bytes read, and the
+    /// bytes decompressed (0 for a raw chunk).
+    fn settle(
+        &self,
+        r: &ChunkRead,
+        w: &mut Slot,
+        stored: Option<&[u8]>,
+        skip: usize,
+    ) -> Result<(u64, u64), String> {
+        let Some(stored) = stored else {
+            // A raw chunk of a compressed block may start anywhere: moved to the buffer's
+            // start, where the groups are aligned.
+            let start = if skip.is_multiple_of(std::mem::align_of::<TriGroup>()) {
+                skip
             } else {
-                let stored = mapped(src, at, len)?;
-                w.buf[..len].copy_from_slice(stored);
+                w.buf.copy_within(skip..skip + r.len, 0);
                 0
             };
-            check(ce.checksum, &w.buf[bytes..bytes + len])?;
-            w.start = bytes;
-            w.len = len;
-            return Ok((len as u64, 0));
-        }
-        let decode = |stored: &[u8], out: &mut [u8]| {
-            check(ce.checksum, stored)?;
-            if e.codec == CODEC_LEAN {
-                return crate::physical::lean::decode_chunk(stored, out);
-            }
+            check(r.checksum, &w.buf[start..start + r.len])?;
+            w.start = start;
+            w.len = r.len;
+            return Ok((r.len as u64, 0));
+        };
+        check(r.checksum, stored)?;
+        let out = &mut w.buf[..r.raw_len];
+        if r.codec == CODEC_LEAN {
+            crate::physical::lean::decode_chunk(stored, out)?;
+        } else {
             ZSTD.with_borrow_mut(|d| {
                 let d = match d {
                     Some(d) => d,
@@ -314,24 +390,142 @@ impl ChunkCache {
                     ),
                 };
                 crate::physical::decode_frame(stored, out, d, "its groups take")
-            })
-        };
-        if self.read_direct {
-            STORED.with_borrow_mut(|stored_buf| {
-                if stored_buf.len() < slot_bytes {
-                    *stored_buf = PageBuf::new(slot_bytes)
-                        .ok_or_else(|| format!("cannot allocate {slot_bytes} bytes to read it"))?;
-                }
-                let skip = read_aligned(src, at, len, stored_buf)?;
-                decode(&stored_buf[skip..skip + len], &mut w.buf[..raw_len])
             })?;
-        } else {
-            decode(mapped(src, at, len)?, &mut w.buf[..raw_len])?;
         }
         w.start = 0;
-        w.len = raw_len;
-        Ok((len as u64, if raw_chunk { 0 } else { raw_len as u64 }))
+        w.len = r.raw_len;
+        Ok((r.len as u64, r.raw_len as u64))
     }
+
+    /// Reads the chunks `reads` that are not resident, as many at once as slots are free (at
+    /// most `depth` in flight: [`BlockSource::read_many`], from this thread), each checked and
+    /// decoded into its slot; the others are left (read when next asked for). Counted in `c`
+    /// as [`Self::get`] counts its misses. The first chunk that fails is the error (every
+    /// failed chunk stays failed, as in [`Self::get`]).
+    pub fn read_many<S: BlockSource + ?Sized>(
+        &self,
+        src: &S,
+        reads: &[ChunkRead],
+        depth: usize,
+        c: &mut PageCounters,
+    ) -> Result<(), PageError> {
+        // In pieces: a compressed chunk is read into a buffer of the thread's own, beside the
+        // cache, so at most a piece's worth of them.
+        let mut failed = Ok(());
+        for piece in reads.chunks(MANY_PIECE) {
+            let r = self.read_piece(src, piece, depth, c);
+            if failed.is_ok() {
+                failed = r;
+            }
+        }
+        failed
+    }
+
+    /// [`Self::read_many`] of at most [`MANY_PIECE`] chunks.
+    fn read_piece<S: BlockSource + ?Sized>(
+        &self,
+        src: &S,
+        reads: &[ChunkRead],
+        depth: usize,
+        c: &mut PageCounters,
+    ) -> Result<(), PageError> {
+        let mut taken = Vec::with_capacity(reads.len());
+        for r in reads {
+            let k = key(r.block, r.chunk);
+            let mut m = lock(&self.map);
+            if m.0.contains_key(&k) || lock(&self.bad).contains_key(&k) {
+                continue;
+            }
+            let Some((s, mut w)) = self.victim(&mut m) else {
+                break;
+            };
+            self.assign(&mut m, s, &mut w, k);
+            drop(m);
+            taken.push((r, s, w));
+        }
+        let mut failed = None;
+        MANY.with_borrow_mut(|stored| {
+            let slot_bytes = Self::slot_bytes_for(self.chunk_bytes);
+            let align = src.read_align().max(1) as u64;
+            let mut ios = Vec::with_capacity(taken.len());
+            let mut skips = Vec::with_capacity(taken.len());
+            let mut refused = vec![None; taken.len()];
+            if stored.len() < taken.len() {
+                stored.resize_with(taken.len(), PageBuf::default);
+            }
+            for (i, ((r, _, w), st)) in taken.iter_mut().zip(stored.iter_mut()).enumerate() {
+                let from = r.at / align * align;
+                let skip = (r.at - from) as usize;
+                let whole = (skip + r.len).next_multiple_of(align as usize);
+                skips.push(skip);
+                // (The slot's buffer, where a raw chunk is read and a compressed one decoded.)
+                let room = self.room(w);
+                let buf = match room {
+                    Err(what) => Err(what),
+                    Ok(()) if r.raw => Ok(&mut w.buf[..]),
+                    Ok(()) => {
+                        if st.len() < slot_bytes {
+                            *st = PageBuf::new(slot_bytes).unwrap_or_default();
+                        }
+                        Ok(&mut st[..])
+                    }
+                };
+                match buf.and_then(|b| {
+                    let have = b.len();
+                    b.get_mut(..whole)
+                        .ok_or_else(|| format!("{whole} bytes to read do not fit a slot of {have}"))
+                }) {
+                    Ok(b) => ios.push((from, b)),
+                    Err(what) => refused[i] = Some(what),
+                }
+            }
+            let mut done = src.read_many(&mut ios, depth).into_iter();
+            drop(ios);
+            for (i, (r, s, w)) in taken.iter_mut().enumerate() {
+                let settled = match refused[i].take() {
+                    Some(what) => Err(what),
+                    None => match done.next() {
+                        Some(Ok(())) if r.raw => self.settle(r, w, None, skips[i]),
+                        Some(Ok(())) => {
+                            let st = &stored[i][skips[i]..skips[i] + r.len];
+                            self.settle(r, w, Some(st), 0)
+                        }
+                        Some(Err(err)) => Err(format!("cannot read it: {err}")),
+                        None => Err("not read".to_string()),
+                    },
+                };
+                match settled {
+                    Ok(read) => self.count(read, c),
+                    Err(what) => {
+                        let e = self.fail(r.block, r.chunk, *s, w, what);
+                        failed.get_or_insert(e);
+                    }
+                }
+            }
+        });
+        drop(taken);
+        failed.map_or(Ok(()), Err)
+    }
+}
+
+/// Chunks read at once by [`ChunkCache::read_many`]: its buffers for compressed chunks take
+/// this many slots' room beside the cache, per thread that reads.
+const MANY_PIECE: usize = 128;
+
+/// Where a chunk is stored and what it decodes to ([`ChunkCache::plan`]).
+#[derive(Clone, Copy, Debug)]
+pub struct ChunkRead {
+    block: u32,
+    chunk: u32,
+    /// Its stored bytes' offset in the file, and length.
+    at: u64,
+    len: usize,
+    /// Its decoded length.
+    raw_len: usize,
+    checksum: u64,
+    codec: u32,
+    /// Stored as it decodes (a raw block's, or a zstd block's chunk that did not compress).
+    raw: bool,
 }
 
 thread_local! {
@@ -341,6 +535,8 @@ thread_local! {
     /// Each thread's buffer for a compressed chunk's stored bytes, read directly (a slot's
     /// size: a chunk's stored bytes are never more than its decoded ones).
     static STORED: std::cell::RefCell<PageBuf> = std::cell::RefCell::new(PageBuf::default());
+    /// Each thread's buffers for the compressed chunks of a [`ChunkCache::read_many`].
+    static MANY: std::cell::RefCell<Vec<PageBuf>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Reads the stored bytes `at .. at + len` into `buf` with one read rounded out to the source's

@@ -150,6 +150,16 @@ pub trait BlockSource: Sync {
         buf[n..].fill(0);
         Ok(())
     }
+    /// Each `(off, buf)` of `reads` as [`Self::read_at`] reads it; a mapped file reads them
+    /// all at once, at most `depth` in flight, where it can read them directly
+    /// ([`MappedFile::read_many`]). Each read's result, in order.
+    fn read_many(&self, reads: &mut [(u64, &mut [u8])], depth: usize) -> Vec<std::io::Result<()>> {
+        let _ = depth;
+        reads
+            .iter_mut()
+            .map(|(off, buf)| self.read_at(*off, buf))
+            .collect()
+    }
     /// `Err` if the bytes changed since the source was opened (a mapped file truncated or
     /// written in place by another program): what was read from them cannot be trusted.
     fn check_unchanged(&self) -> Result<(), Changed> {
@@ -186,6 +196,9 @@ impl BlockSource for MappedFile {
     }
     fn read_at(&self, off: u64, buf: &mut [u8]) -> std::io::Result<()> {
         MappedFile::read_at(self, off, buf)
+    }
+    fn read_many(&self, reads: &mut [(u64, &mut [u8])], depth: usize) -> Vec<std::io::Result<()>> {
+        MappedFile::read_many(self, reads, depth)
     }
     fn check_unchanged(&self) -> Result<(), Changed> {
         MappedFile::check_unchanged(self)
@@ -514,15 +527,15 @@ impl Pager {
         }
     }
 
-    /// The maps of blocks admitted so far, if no block is ever evicted (every block raw, and
-    /// the budget holding them all): then a walk may read an admitted block's bytes straight
-    /// from the file, without asking the pager.
     /// Makes the pager one of blocks' heads (see [`Pager::heads`]'s field): each get is given
     /// the heads' directory, and a block's map is made from its head.
     pub fn set_heads(&mut self, heads: bool) {
         self.heads = heads;
     }
 
+    /// The maps of blocks admitted so far, if no block is ever evicted (every block raw, and
+    /// the budget holding them all): then a walk may read an admitted block's bytes straight
+    /// from the file, without asking the pager.
     pub fn resident_forever(&self) -> Option<&[OnceLock<Box<ReadyMap>>]> {
         self.keeps_everything.then_some(&self.ready[..])
     }

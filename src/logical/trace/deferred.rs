@@ -20,8 +20,8 @@ use super::{Counters, HitInfo, TraceError, Tree, baseline};
 use crate::geom::Ray;
 use crate::geom::triangle::RayShear;
 use crate::geom::wide_box::grown_exit;
-use crate::logical::pager::PageCounters;
 use crate::logical::pager::chunks::ChunkGuard;
+use crate::logical::pager::{PageCounters, PageError};
 use crate::os::{Avx2, Simd8, WithAvx2};
 
 /// A triangle group a ray's walk reached but did not test, its chunk not being resident: its
@@ -67,6 +67,35 @@ impl<'a> Tree<'a> {
         let per = ctx.cache.chunk_groups();
         let chunk = ctx.cache.get(ctx.src, b, entry, &head, group / per, c)?;
         Ok((chunk, (group % per) as usize))
+    }
+
+    /// Reads the chunks `keys` (each `block << 32 | chunk`) that are not resident, together:
+    /// each block's head fetched (and let go) for where its chunks are, then all of them read
+    /// from this thread, at most `depth` in flight ([`ChunkCache::read_many`]: where the cache
+    /// has room, the others left for their rays to read).
+    pub(in crate::logical) fn read_chunks(
+        &self,
+        keys: &[u64],
+        depth: usize,
+        c: &mut PageCounters,
+    ) -> Result<(), TraceError> {
+        let out = |block| bad("a chunk read in a tree without chunks", Some(block));
+        let mut plans = Vec::with_capacity(keys.len());
+        for &k in keys {
+            let (block, chunk) = ((k >> 32) as u32, k as u32);
+            let ctx = self.chunks.ok_or_else(|| out(block))?;
+            let entry = ctx
+                .directory
+                .get(block as usize)
+                .ok_or_else(|| out(block))?;
+            let (_, head, _) = self.fetch(block, c)?;
+            let plan = ctx.cache.plan(block, entry, &head, chunk);
+            plans.push(plan.map_err(|what| PageError { block, what })?);
+        }
+        if let Some(ctx) = self.chunks {
+            ctx.cache.read_many(ctx.src, &plans, depth, c)?;
+        }
+        Ok(())
     }
 
     /// [`Self::answer_each`] by the wide walk, leaving the groups whose chunks are not resident
