@@ -758,7 +758,8 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
         occluded: &mut [u8],
     ) -> Result<Option<([Counters; 2], f64)>, Error> {
         let tree = self.tree();
-        if !tree.walks_top_down() || self.streamed(Order::Stream) != Order::Stream {
+        // (Under a budget that holds the file, a stream is the direct walk: `Self::streamed`.)
+        if !tree.walks_top_down() || self.fits_in_budget() {
             return Ok(None);
         }
         if occluded.len() != rays.len() {

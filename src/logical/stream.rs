@@ -13,6 +13,13 @@
 //! walk's, bit for bit (and a closest hit is the smallest `(t, primitive id)` over the
 //! triangles tested in any order).
 //!
+//! **Wide first.** A walk is started as the wide walk (format 6's, [`Tree::wide_if_resident`]),
+//! which answers the ray if every block it needs is resident and otherwise stops before reading
+//! any; only then is the ray walked top-down from its start and parked. Under a budget that
+//! holds most of the file, most rays are answered so, at the direct walk's cost (the answers
+//! are the same: both walks give the direct walk's). A walk resumed in a served block, or a
+//! shadow walk begun there, goes top-down at once (a thread holds one block at a time).
+//!
 //! **Scheduling.** All the rays are started first (as many as the parked walks' memory holds;
 //! more as walks end), in Morton order of their entry point and direction
 //! ([`super::RayKeys`]), each walking the top tree to its first block. Blocks with parked walks
