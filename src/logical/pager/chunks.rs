@@ -40,7 +40,9 @@
 //!
 //! **Memory bound.** `slots * slot_bytes`, fixed when the cache is made, and one slot's size
 //! a reading thread for a zstd chunk's stored bytes ([`MANY_PIECE`] of them for a thread that
-//! reads many at once): nothing grows.
+//! reads many at once, and its io_uring's buffers, one a read in flight, `crate::os`): nothing
+//! grows. (At 128 reads in flight of 5 KiB chunks, about 1.5 MB a thread that has read so, a
+//! few threads of a pool: outside the budget, under 3 % of the 1.2 GB one measured.)
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
