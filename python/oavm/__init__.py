@@ -427,7 +427,7 @@ def pack(
     complete). Returns the pack report as a dict (triangles, nodes, leaves, volumes, bytes,
     seconds per phase).
 
-    ``mesh``: a path (PLY, OBJ, or a BART AFF scene), or a ``(vertices, faces)`` pair of arrays
+    ``mesh``: a path (PLY, OBJ, STL, OFF, or a BART AFF scene), or a ``(vertices, faces)`` pair of arrays
     (``(V, 3)`` floats and ``(F, 3)`` integer indices: what trimesh's ``mesh.vertices,
     mesh.faces`` and Open3D's ``np.asarray(m.vertices), np.asarray(m.triangles)`` give);
     primitive ids are the face indices. ``leaf_size``: subdivide leaves holding more triangles

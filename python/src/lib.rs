@@ -495,7 +495,7 @@ fn run_pack(
         .map_err(|e| OavmError::new_err(format!("cannot write the report: {e}")))
 }
 
-/// Packs a mesh file (PLY, OBJ, AFF); the report as JSON.
+/// Packs a mesh file (PLY, OBJ, STL, OFF, AFF); the report as JSON.
 #[pyfunction]
 #[pyo3(signature = (mesh, out, leaf="cluster", leaf_size=None, max_depth=None, compress=None,
                     mem_budget=None, block_size=None, progress=true, threads=None, ropes=false,

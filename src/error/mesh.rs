@@ -120,6 +120,16 @@ pub enum MeshError {
     #[error("{0}")]
     Arrays(String),
 
+    /// A statement of a text format other than PLY, OBJ and AFF (ASCII STL, OFF) that does
+    /// not follow its grammar.
+    #[error("{file}: {at}: bad {format}: {detail}")]
+    Format {
+        file: String,
+        at: Place,
+        format: &'static str,
+        detail: String,
+    },
+
     /// The file is well formed but yields no triangle.
     #[error(
         "{file}: the mesh has no triangles (every face has fewer than three vertices, or there are no faces)"

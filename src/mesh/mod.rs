@@ -1,5 +1,5 @@
-//! Mesh input: PLY (ascii, binary little- and big-endian), OBJ (through `tobj`) and BART AFF
-//! scenes (posed at one time of their animation, see [`aff`]).
+//! Mesh input: PLY (ascii, binary little- and big-endian), OBJ (through `tobj`), STL (binary
+//! and ASCII), OFF and BART AFF scenes (posed at one time of their animation, see [`aff`]).
 //!
 //! Everything read here is untrusted: any bytes give a [`Mesh`] or a [`MeshError`] naming the
 //! file and the place, never a panic, and no count read from a file makes us allocate more than
@@ -13,8 +13,10 @@
 
 pub mod aff;
 mod obj;
+mod off;
 mod ply;
 mod read;
+mod stl;
 pub mod stream;
 
 use std::path::Path;
@@ -22,7 +24,9 @@ use std::path::Path;
 pub use crate::error::{MeshError, Place};
 pub use aff::{AffCounts, AffScene, AffView, load_aff, parse_aff, parse_aff_with};
 pub use obj::parse_obj;
+pub use off::parse_off;
 pub use ply::parse_ply;
+pub use stl::parse_stl;
 
 /// A triangle mesh as read from a file. `triangles[i]` has primitive id `i`.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -77,7 +81,10 @@ impl Default for LoadLimits {
 
 /// Reads the mesh in `path`. The format is PLY if the file starts with the PLY magic line,
 /// else a BART AFF scene if the extension is `.aff` (posed at its default time, see
-/// [`load_aff`]), else OBJ if the extension is `.obj` or the first statements are OBJ statements.
+/// [`load_aff`]), else STL if the extension is `.stl` or the file is a binary STL by its length,
+/// else OFF if the extension is `.off` or it starts with an OFF header, else ASCII STL if it
+/// starts with `solid`, else OBJ if the extension is `.obj` or the first statements are OBJ
+/// statements.
 /// The file may hold up to [`LoadLimits::DEFAULT_MAX_FILE_BYTES`] (see [`load_with`]).
 pub fn load(path: &Path) -> Result<Mesh, MeshError> {
     load_at(path, None)
@@ -122,13 +129,24 @@ pub fn load_with(path: &Path, time: Option<f64>, limits: &LoadLimits) -> Result<
     if ply::has_magic(&bytes) {
         return parse_ply(&bytes, &name);
     }
+    if extension.as_deref() == Some("stl") || stl::is_binary(&bytes) {
+        return parse_stl(&bytes, &name);
+    }
+    if extension.as_deref() == Some("off") || off::looks_like_off(&bytes) {
+        return parse_off(&bytes, &name);
+    }
+    if stl::looks_like_ascii(&bytes) {
+        return parse_stl(&bytes, &name);
+    }
     if extension.as_deref() == Some("obj") || obj::looks_like_obj(&bytes) {
         return parse_obj(&bytes, &name);
     }
     let detail = if extension.as_deref() == Some("ply") {
         "the file is named .ply but does not start with the PLY magic line `ply`".to_owned()
     } else {
-        "it starts with neither the PLY magic line `ply` nor OBJ statements".to_owned()
+        "it starts with neither the PLY magic line `ply`, nor `OFF`, nor `solid` (ASCII STL), \
+         nor OBJ statements, and is not a binary STL file (84 + 50 bytes a facet)"
+            .to_owned()
     };
     Err(MeshError::UnknownFormat { file: name, detail })
 }

@@ -257,6 +257,76 @@ fn bunny_ply_and_obj_give_the_same_mesh() {
     );
 }
 
+/// The bunny written here as binary STL, ASCII STL and OFF (by writers of this test, from the
+/// PLY's arrays) reads back as the PLY's triangles, primitive id for primitive id, through
+/// [`load`] (by extension and by content) — corners bit for bit (binary STL, OFF printed with
+/// `{:?}`, which round-trips f32) and ASCII STL printed the same way.
+#[test]
+fn bunny_stl_and_off_give_the_ply_triangles() {
+    let ply = load(&scenes().join("bunny/bun_zipper.ply")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut bin = vec![0u8; 80];
+    bin.extend((ply.triangles.len() as u32).to_le_bytes());
+    let mut ascii = String::from("solid bunny\n");
+    for i in 0..ply.triangles.len() {
+        bin.extend([0u8; 12]);
+        ascii.push_str(" facet normal 0 0 0\n  outer loop\n");
+        for c in ply.triangle(i) {
+            c.iter().for_each(|v| bin.extend(v.to_le_bytes()));
+            ascii.push_str(&format!("   vertex {:?} {:?} {:?}\n", c[0], c[1], c[2]));
+        }
+        bin.extend([0u8; 2]);
+        ascii.push_str("  endloop\n endfacet\n");
+    }
+    ascii.push_str("endsolid bunny\n");
+    let mut off = format!("OFF\n{} {} 0\n", ply.positions.len(), ply.triangles.len());
+    for p in &ply.positions {
+        off.push_str(&format!("{:?} {:?} {:?}\n", p[0], p[1], p[2]));
+    }
+    for t in &ply.triangles {
+        off.push_str(&format!("3 {} {} {}\n", t[0], t[1], t[2]));
+    }
+    let write = |name: &str, bytes: &[u8]| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    };
+    let files = [
+        write("bunny.stl", &bin),
+        write("bunny-ascii.stl", ascii.as_bytes()),
+        write("bunny.off", off.as_bytes()),
+        // No extension: told apart by their bytes.
+        write("bunny-stl", &bin),
+        write("bunny-ascii-stl", ascii.as_bytes()),
+        write("bunny-off", off.as_bytes()),
+    ];
+    for path in files {
+        let mesh = load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert_eq!(mesh.triangles.len(), 69_451, "{}", path.display());
+        for i in 0..mesh.triangles.len() {
+            assert_eq!(
+                mesh.triangle(i),
+                ply.triangle(i),
+                "{} triangle {i}",
+                path.display()
+            );
+        }
+    }
+    // A malformed one through `load`: a clean error naming the file and the place.
+    let cut = write("cut.stl", &bin[..bin.len() - 7]);
+    let e = load(&cut).unwrap_err().to_string();
+    assert!(
+        e.contains("cut.stl: byte") && e.contains("truncated"),
+        "{e}"
+    );
+    let bad = write("bad.off", off.replacen("3 0 ", "3 99999999 ", 1).as_bytes());
+    let e = load(&bad).unwrap_err().to_string();
+    assert!(
+        e.contains("bad.off: line") && e.contains("refers to vertex 99999999"),
+        "{e}"
+    );
+}
+
 #[test]
 fn dragon_res4_loads() {
     let mesh = load(&scenes().join("dragon/dragon_vrip_res4.ply")).unwrap();
