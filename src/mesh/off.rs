@@ -39,6 +39,82 @@ fn lines(bytes: &[u8]) -> impl Iterator<Item = (u64, &[u8])> {
         .filter(|(_, l)| !l.is_empty())
 }
 
+/// Reads `nf` face lines of a file of `nv` vertices into `mesh`, fan-triangulated; `last` is
+/// the line last read (for an error at the file's end).
+fn read_faces<'b>(
+    it: &mut impl Iterator<Item = (u64, &'b [u8])>,
+    (nf, nv): (u64, u64),
+    last: &mut u64,
+    mesh: &mut Mesh,
+    file: &str,
+) -> Result<(), MeshError> {
+    let show = |t: &[u8]| String::from_utf8_lossy(&t[..t.len().min(40)]).into_owned();
+    let end = |line: u64, detail: String| MeshError::Truncated {
+        file: file.to_owned(),
+        at: Place::Line(line),
+        detail,
+    };
+    let count = |t: &[u8], line: u64, what: &str| -> Result<u64, MeshError> {
+        std::str::from_utf8(t)
+            .ok()
+            .and_then(|s| s.parse::<u64>().ok())
+            .ok_or_else(|| MeshError::BadValue {
+                file: file.to_owned(),
+                at: Place::Line(line),
+                detail: format!("{what}: `{}` is not a count", show(t)),
+            })
+    };
+    for f in 0..nf {
+        let Some((l, text)) = it.next() else {
+            return Err(end(*last, format!("face {f} of {nf} is missing")));
+        };
+        *last = l;
+        let w = words(text);
+        let n = count(
+            w.first().copied().unwrap_or(b""),
+            l,
+            "a face's vertex count",
+        )?;
+        if (w.len() as u64) < n + 1 {
+            return Err(MeshError::CountMismatch {
+                file: file.to_owned(),
+                at: Place::Line(l),
+                detail: format!("face {f} declares {n} vertices but holds {}", w.len() - 1),
+            });
+        }
+        let mut fan = Fan::default();
+        for t in &w[1..=n as usize] {
+            let index = std::str::from_utf8(t)
+                .ok()
+                .and_then(|s| s.parse::<i64>().ok())
+                .ok_or_else(|| MeshError::BadValue {
+                    file: file.to_owned(),
+                    at: Place::Line(l),
+                    detail: format!("face {f}: `{}` is not a vertex index", show(t)),
+                })?;
+            if index < 0 {
+                return Err(MeshError::NegativeIndex {
+                    file: file.to_owned(),
+                    at: Place::Line(l),
+                    face: f,
+                    index,
+                });
+            }
+            if index as u64 >= nv {
+                return Err(MeshError::IndexOutOfRange {
+                    file: file.to_owned(),
+                    at: Place::Line(l),
+                    face: f,
+                    index,
+                    vertices: nv,
+                });
+            }
+            fan.push(index as u32, &mut mesh.triangles);
+        }
+    }
+    Ok(())
+}
+
 /// A line's values.
 fn words(l: &[u8]) -> Vec<&[u8]> {
     l.split(|b| b.is_ascii_whitespace())
@@ -153,54 +229,7 @@ pub fn parse_off(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
         }
         mesh.positions.push(xyz);
     }
-    for f in 0..nf {
-        let Some((l, text)) = it.next() else {
-            return Err(end(last, format!("face {f} of {nf} is missing")));
-        };
-        last = l;
-        let w = words(text);
-        let n = count(
-            w.first().copied().unwrap_or(b""),
-            l,
-            "a face's vertex count",
-        )?;
-        if (w.len() as u64) < n + 1 {
-            return Err(MeshError::CountMismatch {
-                file: file.to_owned(),
-                at: Place::Line(l),
-                detail: format!("face {f} declares {n} vertices but holds {}", w.len() - 1),
-            });
-        }
-        let mut fan = Fan::default();
-        for t in &w[1..=n as usize] {
-            let index = std::str::from_utf8(t)
-                .ok()
-                .and_then(|s| s.parse::<i64>().ok())
-                .ok_or_else(|| MeshError::BadValue {
-                    file: file.to_owned(),
-                    at: Place::Line(l),
-                    detail: format!("face {f}: `{}` is not a vertex index", show(t)),
-                })?;
-            if index < 0 {
-                return Err(MeshError::NegativeIndex {
-                    file: file.to_owned(),
-                    at: Place::Line(l),
-                    face: f,
-                    index,
-                });
-            }
-            if index as u64 >= nv {
-                return Err(MeshError::IndexOutOfRange {
-                    file: file.to_owned(),
-                    at: Place::Line(l),
-                    face: f,
-                    index,
-                    vertices: nv,
-                });
-            }
-            fan.push(index as u32, &mut mesh.triangles);
-        }
-    }
+    read_faces(&mut it, (nf, nv), &mut last, &mut mesh, file)?;
     if let Some((l, text)) = it.next() {
         return Err(MeshError::TrailingData {
             file: file.to_owned(),
