@@ -181,6 +181,44 @@ impl Fan {
     }
 }
 
+/// A token as an error message shows it: its first 40 bytes, lossy UTF-8.
+pub(crate) fn shown(t: &[u8]) -> String {
+    String::from_utf8_lossy(&t[..t.len().min(40)]).into_owned()
+}
+
+/// Token `t` (on line `line` of `file`) read as a `T`, or a [`MeshError::BadValue`] saying
+/// `what: `t` is not a(n) noun`.
+pub(crate) fn token<T: std::str::FromStr>(
+    t: &[u8],
+    line: u64,
+    file: &str,
+    what: &str,
+    noun: &str,
+) -> Result<T, MeshError> {
+    std::str::from_utf8(t)
+        .ok()
+        .and_then(|s| s.parse::<T>().ok())
+        .ok_or_else(|| MeshError::BadValue {
+            file: file.to_owned(),
+            at: Place::Line(line),
+            detail: format!("{what}: `{}` is not {noun}", shown(t)),
+        })
+}
+
+/// For the readers' tests: `parse` gives a mesh or an error (never panics) on every prefix of
+/// `file` and on `file` with each of its bytes changed in turn.
+#[cfg(test)]
+pub(crate) fn survives_damage<T>(file: &[u8], parse: impl Fn(&[u8]) -> T) {
+    for n in 0..=file.len() {
+        parse(&file[..n]);
+        let mut changed = file.to_vec();
+        if let Some(b) = changed.get_mut(n) {
+            *b = b.wrapping_mul(31).wrapping_add(7);
+        }
+        parse(&changed);
+    }
+}
+
 /// Checks what both formats promise on success: some triangles, and few enough of them, and of
 /// vertices, for `u32` ids (`0xFFFFFFFF` stays free: RAYS.md uses it for a miss).
 fn check_sizes(mesh: &Mesh, file: &str) -> Result<(), MeshError> {
