@@ -297,6 +297,54 @@ impl RayShear {
     }
 }
 
+impl RayShear {
+    /// Whether a hit of this ray on triangle `v` (one [`RayShear::intersect`] found) is the
+    /// triangle's to report when hits are counted or listed: false only for a ray through an
+    /// edge or a corner that a neighbour owns, so that a ray through an edge shared by two
+    /// triangles, or through a corner shared by a fan, meets the surface once, not twice.
+    ///
+    /// The rule is the rasterizer's fill rule on the sheared plane the test works in. An edge
+    /// function exactly 0 (after the f64 recompute, where it is exact) puts the ray on that
+    /// edge; the edge goes to the triangle for which it runs, in the orientation that makes
+    /// the triangle's edge functions positive inside, with `dy > 0`, or `dy == 0` and
+    /// `dx > 0`. Two triangles on either side of an edge see it run in opposite directions
+    /// (their corners are the same f32 values, sheared alike, so the direction's signs are
+    /// exact), so exactly one of them owns it; the rule is the point moved by an
+    /// infinitesimal `(-e, e^2)` or `(e, -e^2)` (simulation of simplicity), so a corner too
+    /// goes to exactly one triangle of a fan around it. A ray along a fold (both triangles on
+    /// one side of the edge as the ray sees them) meets both or neither: it touches the
+    /// surface without crossing it.
+    pub fn owns(&self, v: &[[f32; 3]; 3]) -> bool {
+        let o = self.origin;
+        let (kx, ky, kz) = (self.kx, self.ky, self.kz);
+        // Sheared as `intersect` shears them, operation for operation.
+        let p = v.map(|p| {
+            let (x, y, z) = (p[kx] - o[kx], p[ky] - o[ky], p[kz] - o[kz]);
+            [x - self.sx * z, y - self.sy * z]
+        });
+        let edge = |i: usize, j: usize| p[j][0] * p[i][1] - p[j][1] * p[i][0];
+        // `u` is the edge b -> c, `v` c -> a, `w` a -> b, as in `intersect`.
+        let mut f = [edge(1, 2), edge(2, 0), edge(0, 1)];
+        if f.contains(&0.0) {
+            let wide = p.map(|q| q.map(f64::from));
+            let exact = |i: usize, j: usize| {
+                narrow(wide[j][0] * wide[i][1] - wide[j][1] * wide[i][0])
+            };
+            f = [exact(1, 2), exact(2, 0), exact(0, 1)];
+        }
+        let det = f[0] + f[1] + f[2];
+        if !f.contains(&0.0) || det == 0.0 || det.is_nan() {
+            return true;
+        }
+        let flip = if det < 0.0 { -1.0 } else { 1.0 };
+        (0..3).all(|e| {
+            let (i, j) = ((e + 1) % 3, (e + 2) % 3);
+            let (dx, dy) = (flip * (p[j][0] - p[i][0]), flip * (p[j][1] - p[i][1]));
+            f[e] != 0.0 || dy > 0.0 || (dy == 0.0 && dx > 0.0)
+        })
+    }
+}
+
 /// Intersects `ray` with one triangle (convenience for brute-force references and tests).
 pub fn intersect_triangle(ray: &Ray, v: &[[f32; 3]; 3]) -> Option<f32> {
     if !ray.is_valid() {
@@ -457,5 +505,91 @@ mod tests {
         assert_eq!(intersect_triangle(&r, &TRI), None);
         let r = Ray::new([0.2, 0.2, 2.0], [0.0, 0.0, -1.0], 3.0, 1.0);
         assert_eq!(intersect_triangle(&r, &TRI), None);
+    }
+
+    /// A 6 x 6 grid of unit squares in a tilted plane, each cut along a diagonal chosen at
+    /// random, each triangle's corners in a random order (windings mixed); `(x, y)` corners
+    /// are whole numbers, so vertices and edge midpoints are exact.
+    fn grid(seed: u64) -> Vec<[[f32; 3]; 3]> {
+        let mut s = seed;
+        let mut next = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 33) as u32
+        };
+        let z = |x: f32, y: f32| 0.25 * x - 0.125 * y;
+        let p = |x: i32, y: i32| [x as f32, y as f32, z(x as f32, y as f32)];
+        let mut tris = Vec::new();
+        for x in 0..6 {
+            for y in 0..6 {
+                let (a, b, c, d) = (p(x, y), p(x + 1, y), p(x + 1, y + 1), p(x, y + 1));
+                let halves = if next() % 2 == 0 {
+                    [[a, b, c], [a, c, d]]
+                } else {
+                    [[a, b, d], [b, c, d]]
+                };
+                for mut t in halves {
+                    t.rotate_left(next() as usize % 3);
+                    if next() % 2 == 0 {
+                        t.swap(0, 1);
+                    }
+                    tris.push(t);
+                }
+            }
+        }
+        tris
+    }
+
+    #[test]
+    fn a_ray_through_an_edge_or_a_corner_is_owned_once() {
+        let dirs = [
+            [0.0, 0.0, -1.0],
+            [0.0, 0.0, 1.0],
+            [0.3, 0.1, -1.0],
+            [-0.2, 0.7, -0.5],
+            [1.0, 0.0, -0.25],
+            [0.0, -1.0, 0.2],
+            [0.577, -0.577, 0.577],
+            [1.0, 1.0, 0.0],
+        ];
+        // Through corners, edge midpoints (of the axis edges and of both diagonals), and
+        // points inside the interior squares.
+        let mut targets = Vec::new();
+        for i in 2..=10 {
+            for j in 2..=10 {
+                targets.push((i as f32 / 2.0, j as f32 / 2.0));
+                targets.push((i as f32 / 2.0 + 0.1, j as f32 / 2.0 + 0.3));
+            }
+        }
+        let (mut edges, mut owned_edges) = (0, 0);
+        for seed in 0..8 {
+            let tris = grid(seed);
+            for &(x, y) in &targets {
+                let at = [x, y, 0.25 * x - 0.125 * y];
+                for d in dirs {
+                    // From 3 units back along the direction, toward the point.
+                    let o = std::array::from_fn(|k| at[k] - 3.0 * d[k]);
+                    let r = Ray::new(o, d, 0.0, f32::INFINITY);
+                    let shear = RayShear::new(&r);
+                    let hit: Vec<_> =
+                        tris.iter().filter(|t| shear.intersect(t, 0.0, f32::INFINITY).is_some()).collect();
+                    let owners = hit.iter().filter(|t| shear.owns(t)).count();
+                    assert_eq!(owners, 1, "seed {seed}, ray {r:?}: {} hit, {owners} own it", hit.len());
+                    edges += (hit.len() > 1) as usize;
+                    owned_edges += (hit.len() > 1 && owners == 1) as usize;
+                }
+            }
+        }
+        // The rays must have met edges and corners (several triangles hit) for this to test
+        // the rule at all.
+        assert!(edges > 500, "only {edges} rays met an edge or a corner");
+        assert_eq!(edges, owned_edges);
+    }
+
+    #[test]
+    fn a_hit_inside_is_always_owned() {
+        let r = Ray::new([0.25, 0.25, 2.0], [0.0, 0.0, -1.0], 0.0, f32::INFINITY);
+        assert!(RayShear::new(&r).owns(&TRI));
+        let flipped = [TRI[0], TRI[2], TRI[1]];
+        assert!(RayShear::new(&r).owns(&flipped));
     }
 }

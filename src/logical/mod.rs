@@ -9,6 +9,7 @@ mod batch;
 mod chunked;
 mod frame;
 mod held;
+mod hits;
 mod order;
 mod pager;
 mod report;
@@ -21,6 +22,7 @@ mod verify;
 
 pub(crate) use batch::in_order;
 pub use frame::{Frame, FrameOptions, RaySet, SetStats};
+pub use hits::{AllHits, ListedHit};
 pub use order::{COARSE_BITS, KEY_BITS, Order, RayKeys};
 pub use pager::{BlockSource, PageCounters};
 pub use report::{Answered, PageReport, SetReport};

@@ -12,6 +12,7 @@ mod common;
 #[allow(dead_code)]
 mod rain_example;
 
+mod all_hits;
 mod animate;
 mod architecture;
 mod building;

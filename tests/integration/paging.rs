@@ -1120,3 +1120,31 @@ fn block_reads_follow_the_option_and_the_file_size() {
         }
     }
 }
+
+/// Every hit along each ray (`Scene::list_intersections`) is the same whether the file is held
+/// whole, paged in 4 KiB blocks under a twentieth of its decoded size, or read chunk by chunk
+/// (raw, zstd and lean groups); blocks are read again under the small budget, and the rays do
+/// meet the bunny several times.
+#[test]
+fn every_hit_is_the_same_paged_and_chunked() {
+    let rays = &ray_set()[..20_000];
+    for coding in [Coding::Raw, Coding::Zstd, Coding::Lean] {
+        let bytes = packed_as(coding);
+        let whole = Scene::from_bytes(bytes.clone(), "bunny.oavm").expect("open");
+        let (want, _) = whole.list_intersections(rays).expect("list");
+        let several = (0..rays.len()).filter(|&i| want.of(i).len() >= 2).count();
+        assert!(several > 2000, "{coding:?}: only {several} rays hit twice or more");
+        let budget = whole.decoded_bytes() / 20;
+        for chunks in [false, true] {
+            let opts = SceneOptions {
+                chunks,
+                ..chunked_options(budget, 2)
+            };
+            let scene = Scene::from_bytes_with(bytes.clone(), "bunny.oavm", &opts).expect("open");
+            assert_eq!(scene.chunked(), chunks);
+            let (got, c) = scene.list_intersections(rays).expect("list");
+            assert!(got == want, "{coding:?}, chunks {chunks}: the hits differ");
+            assert!(c.page.misses > c.page.requested / 100, "{coding:?}: {:?}", c.page);
+        }
+    }
+}

@@ -137,6 +137,33 @@ pub(super) fn test_group<const ANY: bool, S: Simd8>(
     false
 }
 
+/// Tests the lanes of group `g` for the ray sheared as `shear` in `[tmin, tmax]` and adds each
+/// hit the triangle owns ([`RayShear::owns`]) to `out`: the walk for every hit along a ray.
+#[inline(always)]
+pub(super) fn collect_group<S: Simd8>(
+    isa: S,
+    (shear, tmin, tmax): (&RayShear, f32, f32),
+    g: &TriGroup,
+    out: &mut Vec<HitInfo>,
+    k: &mut Counters,
+) {
+    k.groups_tested += 1;
+    k.triangles_tested += g.count.min(8) as u64;
+    let (mut hits, ts) = shear.intersect_group_with(isa, g.view(), tmin, tmax);
+    while hits != 0 {
+        let l = hits.trailing_zeros() as usize;
+        hits &= hits - 1;
+        let v = g.triangle(l);
+        if shear.owns(&v) {
+            out.push(HitInfo {
+                t: ts[l],
+                prim: g.prim[l],
+                v,
+            });
+        }
+    }
+}
+
 /// Pushes the inner children in `mask` (entered at `near`) of a node at `depth` whose inner
 /// children start at node `base`, so that the nearest is popped first.
 #[inline(always)]

@@ -14,7 +14,7 @@
 //! unit has nodes plus the blocks entered have (a tree visits each once), and the stack is
 //! capped by the depth the format allows; past either, the bytes are not a tree.
 
-use super::cluster::test_group;
+use super::cluster::{collect_group, test_group};
 use super::deferred::Deferred;
 use super::{Counters, Direct, Fetched, HitInfo, TraceError, Tree, baseline};
 use crate::geom::Ray;
@@ -51,6 +51,9 @@ pub(in crate::logical) struct WideWalk<'s> {
     /// Where a walk that defers (spec §8.3: a block's head held, its chunks read later) leaves
     /// the groups whose chunks are not resident; `None`: such chunks are read as reached.
     defer: Option<&'s mut Vec<Deferred>>,
+    /// Where a walk for every hit ([`Tree::all_hits`]) puts each hit it finds (its closest
+    /// hit then stays `None`, and `t_best` the ray's `tmax`).
+    all: Option<&'s mut Vec<HitInfo>>,
 }
 
 /// How a walk that may stop short of blocks that are not resident ended
@@ -127,6 +130,69 @@ impl<'a> Tree<'a> {
         }
     }
 
+    /// Every hit of `ray` with `tmin <= t <= tmax`, each triangle once, into `out` (cleared
+    /// first), ordered by `t` then primitive id; a ray through an edge or a corner shared by
+    /// several triangles meets one of them ([`RayShear::owns`]). The wide walk with the
+    /// closest hit never closing in, so it enters every node the ray's segment meets; a
+    /// triangle referenced by several leaves is found in each and kept once. `Ok(false)`, `out`
+    /// empty, for a file of leaf lists (whatever walk its closest hits take, a file of clusters
+    /// is walked wide for every hit) and for a ray the wide
+    /// walk does not take (`tmin < 0`, a direction too small or too large for f32, spec §8.7).
+    pub fn all_hits(
+        &self,
+        ray: &Ray,
+        c: &mut Counters,
+        out: &mut Vec<HitInfo>,
+    ) -> Result<bool, TraceError> {
+        struct Job<'t, 'a, 'r> {
+            tree: &'t Tree<'a>,
+            ray: &'r Ray,
+            c: &'r mut Counters,
+            out: &'r mut Vec<HitInfo>,
+        }
+        impl WithAvx2 for Job<'_, '_, '_> {
+            type Output = Result<WideEnd, TraceError>;
+            #[inline(always)]
+            fn run(self, isa: Avx2) -> Self::Output {
+                self.tree.wide_hits(isa, self.ray, self.c, self.out)
+            }
+        }
+        out.clear();
+        if !self.clusters {
+            return Ok(false);
+        }
+        let end = match self.avx2 {
+            Some(isa) => isa.vectorize(Job { tree: self, ray, c, out: &mut *out })?,
+            None => self.wide_hits(baseline(), ray, c, out)?,
+        };
+        if matches!(end, WideEnd::Stopped) {
+            out.clear();
+            return Ok(false);
+        }
+        // Each triangle once (found once per leaf that references it, at the same `t`: the
+        // same test on the same corners), then in order along the ray.
+        out.sort_unstable_by(|a, b| a.prim.cmp(&b.prim).then(a.t.total_cmp(&b.t)));
+        out.dedup_by_key(|h| h.prim);
+        out.sort_unstable_by(|a, b| a.t.total_cmp(&b.t).then(a.prim.cmp(&b.prim)));
+        Ok(true)
+    }
+
+    /// [`Self::all_hits`]'s walk with the instruction set `isa`, on the thread's stack.
+    #[inline(always)]
+    fn wide_hits<S: Simd8>(
+        &self,
+        isa: S,
+        ray: &Ray,
+        c: &mut Counters,
+        out: &mut Vec<HitInfo>,
+    ) -> Result<WideEnd, TraceError> {
+        let mut stack = WIDE_STACK.take();
+        let walked = (&mut stack, None);
+        let end = self.wide_ray_until::<false, false, true, S>(isa, ray, c, walked, &mut None, Some(out));
+        WIDE_STACK.set(stack);
+        end
+    }
+
     /// [`Self::wide_if_resident`] with the instruction set `isa`, on the thread's stack.
     #[inline(always)]
     fn wide_stack<const ANY: bool, S: Simd8>(
@@ -136,9 +202,14 @@ impl<'a> Tree<'a> {
         c: &mut Counters,
     ) -> Result<WideEnd, TraceError> {
         let mut stack = WIDE_STACK.take();
-        let end = self.wide_ray_until::<ANY, true, S>(isa, ray, c, (&mut stack, None), &mut None);
+        let end = self.wide_ray_until::<ANY, true, false, S>(isa, ray, c, (&mut stack, None), &mut None, None);
         WIDE_STACK.set(stack);
         end
+    }
+
+    /// Whether the tree's leaves are clusters (and so can be walked for every hit).
+    pub(in crate::logical) fn has_clusters(&self) -> bool {
+        self.clusters
     }
 
     /// Whether block `b` is resident now (a hint: admitted to a pager that never evicts, or
@@ -169,7 +240,7 @@ impl<'a> Tree<'a> {
         walked: (&mut Vec<(u32, f32)>, Option<&mut Vec<Deferred>>),
         kept: &mut Option<WideHeld<'a>>,
     ) -> Result<Option<HitInfo>, TraceError> {
-        match self.wide_ray_until::<ANY, false, S>(isa, ray, c, walked, kept)? {
+        match self.wide_ray_until::<ANY, false, false, S>(isa, ray, c, walked, kept, None)? {
             WideEnd::Answered(h) => Ok(h),
             WideEnd::Stopped => Err(bad("a walk stopped that may not", None)),
         }
@@ -179,13 +250,14 @@ impl<'a> Tree<'a> {
     /// ([`WideEnd::Stopped`], the ray not counted) where it needs a block that is not resident
     /// now, and for a ray the wide walk does not take.
     #[inline(always)]
-    fn wide_ray_until<const ANY: bool, const STOP: bool, S: Simd8>(
+    fn wide_ray_until<const ANY: bool, const STOP: bool, const ALL: bool, S: Simd8>(
         &self,
         isa: S,
         ray: &Ray,
         c: &mut Counters,
         (stack, defer): (&mut Vec<(u32, f32)>, Option<&mut Vec<Deferred>>),
         kept: &mut Option<WideHeld<'a>>,
+        all: Option<&mut Vec<HitInfo>>,
     ) -> Result<WideEnd, TraceError> {
         // Made in place (it is not small), before the checks that may send the ray elsewhere.
         let r = WideRay {
@@ -202,7 +274,7 @@ impl<'a> Tree<'a> {
         // The stack is there (grown just above).
         let st = match stack.first_chunk_mut::<STACK>() {
             Some(st) if r.boxes.eligible() && ray.is_valid() && !research => st,
-            _ if STOP => return Ok(WideEnd::Stopped),
+            _ if STOP || ALL => return Ok(WideEnd::Stopped),
             _ => {
                 return self
                     .descend_all::<ANY, S>(isa, ray, c)
@@ -221,6 +293,7 @@ impl<'a> Tree<'a> {
             best: None,
             t_best: ray.tmax,
             defer,
+            all,
         };
         let mut need: Option<u32> = None;
         loop {
@@ -250,7 +323,7 @@ impl<'a> Tree<'a> {
                     }
                 },
             };
-            match self.run_wide::<ANY, S>(isa, &r, &mut w, c, view)? {
+            match self.run_wide::<ANY, ALL, S>(isa, &r, &mut w, c, view)? {
                 Some(b) => need = Some(b),
                 None => return Ok(WideEnd::Answered(w.best)),
             }
@@ -261,7 +334,7 @@ impl<'a> Tree<'a> {
     /// other than `view` (`Some(block)`, the link left on the stack); a link to `view` runs
     /// that block's walk.
     #[inline(always)]
-    fn run_wide<const ANY: bool, S: Simd8>(
+    fn run_wide<const ANY: bool, const ALL: bool, S: Simd8>(
         &self,
         isa: S,
         r: &WideRay,
@@ -286,7 +359,7 @@ impl<'a> Tree<'a> {
                             let what = "wide link to a root the block does not have";
                             return Err(bad(what, Some(h.id)));
                         }
-                        if self.walk_block::<ANY, S>(isa, r, w, k, h, (link.root, t))? {
+                        if self.walk_block::<ANY, ALL, S>(isa, r, w, k, h, (link.root, t))? {
                             return Ok(None);
                         }
                         continue;
@@ -336,7 +409,7 @@ impl<'a> Tree<'a> {
     /// the stack is back there; true if `ANY` found a hit. Its nodes are visited at most as
     /// many times as it has nodes (a tree visits each once).
     #[inline(always)]
-    fn walk_block<const ANY: bool, S: Simd8>(
+    fn walk_block<const ANY: bool, const ALL: bool, S: Simd8>(
         &self,
         isa: S,
         r: &WideRay,
@@ -370,7 +443,7 @@ impl<'a> Tree<'a> {
             let kids = mask & inner_bits(n);
             let leaves = mask ^ kids;
             if leaves != 0 {
-                if self.test_leaves::<ANY, S>(isa, r, w, k, (n, &near), leaves, h)? {
+                if self.test_leaves::<ANY, ALL, S>(isa, r, w, k, (n, &near), leaves, h)? {
                     w.sp = sp;
                     return Ok(true);
                 }
@@ -389,7 +462,7 @@ impl<'a> Tree<'a> {
     /// Tests the groups of `n`'s leaf slots in `leaves`; true if `ANY` found a hit.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn test_leaves<const ANY: bool, S: Simd8>(
+    fn test_leaves<const ANY: bool, const ALL: bool, S: Simd8>(
         &self,
         isa: S,
         r: &WideRay,
@@ -429,6 +502,10 @@ impl<'a> Tree<'a> {
             #[cfg(feature = "group-trace")]
             super::group_trace::record(h.id, gi as u32);
             let shear = r.shear.get_or_init(|| RayShear::new(r.ray));
+            if ALL && let Some(out) = w.all.as_deref_mut() {
+                collect_group(isa, (shear, r.tmin, w.t_best), g, out, k);
+                continue;
+            }
             if test_group::<ANY, S>(isa, (shear, r.tmin), &mut w.best, &mut w.t_best, g, k) {
                 return Ok(true);
             }

@@ -1,0 +1,186 @@
+//! Every hit along a ray ([`Scene::list_intersections`], [`Scene::count_intersections`]): what
+//! a user counting crossings (inside tests, thickness, visibility through layers) asks for, in
+//! Open3D's shape (a list per ray, the lists end to end with their splits).
+//!
+//! Each ray is walked by the wide walk with its closest hit never closing in
+//! ([`Tree::all_hits`]), so it enters every node its segment meets; a triangle found in several
+//! leaves is kept once, and a ray through an edge or a corner shared by several triangles meets
+//! one of them ([`crate::geom::triangle::RayShear::owns`]): a closed surface is crossed an even
+//! number of times by a ray from outside to outside, whatever edges and corners it passes
+//! through.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::batch::{CHUNK, in_order};
+use super::pager::BlockSource;
+use super::trace::{Counters, HitInfo, TraceError, Tree};
+use super::{Order, Scene};
+use crate::error::Error;
+use crate::geom::{HitAttributes, Ray};
+
+/// One hit of a ray, in a list of every hit ([`AllHits`]); 16 bytes, the record of the
+/// all-hits file (`RAYS.md` style, magic `HITL`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct ListedHit {
+    /// Where along the ray, in units of its direction.
+    pub t: f32,
+    /// The triangle's primitive id.
+    pub prim: u32,
+    /// Barycentric coordinates of the point, `(1 - u - v) v0 + u v1 + v v2`
+    /// ([`HitAttributes`]' convention).
+    pub u: f32,
+    pub v: f32,
+}
+
+/// Every hit of each ray of a batch: ray `i`'s are `hits[splits[i]..splits[i + 1]]`, ordered
+/// by `t`, then primitive id (Open3D's `ray_splits`, with `splits[0] = 0`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AllHits {
+    pub splits: Vec<u64>,
+    pub hits: Vec<ListedHit>,
+}
+
+impl AllHits {
+    /// The hits of ray `i`.
+    pub fn of(&self, i: usize) -> &[ListedHit] {
+        &self.hits[self.splits[i] as usize..self.splits[i + 1] as usize]
+    }
+
+    /// How many rays.
+    pub fn rays(&self) -> usize {
+        self.splits.len().saturating_sub(1)
+    }
+}
+
+/// What one chunk of rays found: each ray's index and number of hits, and the hits end to end.
+#[derive(Default)]
+struct ChunkHits {
+    rays: Vec<(u32, u32)>,
+    hits: Vec<ListedHit>,
+}
+
+impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
+    /// Every hit of each of `rays` with `tmin <= t <= tmax` (see [`AllHits`]), in parallel,
+    /// the rays taken in Morton order when the file is larger than the budget (so that
+    /// neighbouring rays share the blocks read). A file of leaf lists, and a ray with
+    /// `tmin < 0` or a direction with a component too small or too large for the walk's f32
+    /// (spec §8.7: `|1 / d|` above 2^55), are refused with an error naming the ray; a ray that
+    /// hits nothing by `RAYS.md` (a zero or non-finite direction, `tmin > tmax`) has no hit.
+    pub fn list_intersections(&self, rays: &[Ray]) -> Result<(AllHits, Counters), Error> {
+        let (found, c) = self.every_hit(rays, true)?;
+        let mut splits = Vec::with_capacity(rays.len() + 1);
+        splits.push(0u64);
+        let mut count = vec![0u32; rays.len()];
+        for ch in &found {
+            for &(i, n) in &ch.rays {
+                count[i as usize] = n;
+            }
+        }
+        let mut at = 0u64;
+        for n in &count {
+            at += *n as u64;
+            splits.push(at);
+        }
+        let mut hits = vec![ListedHit::zeroed(); at as usize];
+        for ch in &found {
+            let mut from = 0usize;
+            for &(i, n) in &ch.rays {
+                let to = splits[i as usize] as usize;
+                hits[to..to + n as usize].copy_from_slice(&ch.hits[from..from + n as usize]);
+                from += n as usize;
+            }
+        }
+        Ok((AllHits { splits, hits }, c))
+    }
+
+    /// How many hits each of `rays` has ([`Self::list_intersections`]'s lists' lengths), into
+    /// `out` (same length), without keeping the hits.
+    pub fn count_intersections(&self, rays: &[Ray], out: &mut [u32]) -> Result<Counters, Error> {
+        if rays.len() != out.len() {
+            let what = format!("{} rays but room for {} answers", rays.len(), out.len());
+            return Err(Error::Invalid(what));
+        }
+        let (found, c) = self.every_hit(rays, false)?;
+        for ch in &found {
+            for &(i, n) in &ch.rays {
+                out[i as usize] = n;
+            }
+        }
+        Ok(c)
+    }
+
+    /// Each chunk's rays and hits (the hits only with `keep`).
+    fn every_hit(&self, rays: &[Ray], keep: bool) -> Result<(Vec<ChunkHits>, Counters), Error> {
+        let tree = self.tree();
+        if !tree.has_clusters() {
+            let what = "every hit along a ray needs a file of clusters (the default leaf); \
+                        this one holds leaf lists: pack it again without --leaf list";
+            return Err(self.refuse(what));
+        }
+        let order = match self.fits_in_budget() {
+            true => None,
+            false => self.permutation(rays, Order::Morton)?,
+        };
+        let order = order.unwrap_or_else(|| (0..rays.len() as u32).collect());
+        let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
+        let mut found: Vec<ChunkHits> = (0..chunks.len()).map(|_| ChunkHits::default()).collect();
+        let walked = in_order(&chunks, &mut found, 1, self.threads(), |idx, out, c| {
+            walk_chunk(&tree, rays, idx[0], &mut out[0], keep, c)
+        });
+        let c = walked.map_err(|e| match e {
+            Walked::Trace(e) => self.corrupt(e),
+            Walked::Refused(i) => self.refuse(&format!(
+                "ray {i} cannot be walked for every hit: its tmin is below 0 or its direction \
+                 has a component too small or too large for f32 (|1/d| above 2^55): {:?}",
+                rays[i as usize]
+            )),
+        })?;
+        self.check_unchanged()?;
+        Ok((found, c))
+    }
+
+    fn refuse(&self, what: &str) -> Error {
+        Error::Invalid(format!("{}: {what}", self.path().display()))
+    }
+}
+
+enum Walked {
+    Trace(TraceError),
+    Refused(u32),
+}
+
+/// Walks the rays `idx` of `rays` for every hit into `out`.
+fn walk_chunk(
+    tree: &Tree<'_>,
+    rays: &[Ray],
+    idx: &[u32],
+    out: &mut ChunkHits,
+    keep: bool,
+    c: &mut Counters,
+) -> Result<(), Walked> {
+    let mut found: Vec<HitInfo> = Vec::new();
+    for &i in idx {
+        let ray = &rays[i as usize];
+        if !ray.is_valid() {
+            out.rays.push((i, 0));
+            continue;
+        }
+        if !tree.all_hits(ray, c, &mut found).map_err(Walked::Trace)? {
+            return Err(Walked::Refused(i));
+        }
+        out.rays.push((i, found.len() as u32));
+        if keep {
+            out.hits.extend(found.iter().map(|h| {
+                let a = HitAttributes::new(ray, h.t, h.prim, &h.v);
+                ListedHit {
+                    t: h.t,
+                    prim: h.prim,
+                    u: a.u,
+                    v: a.v,
+                }
+            }));
+        }
+    }
+    Ok(())
+}
