@@ -327,9 +327,8 @@ impl RayShear {
         let mut f = [edge(1, 2), edge(2, 0), edge(0, 1)];
         if f.contains(&0.0) {
             let wide = p.map(|q| q.map(f64::from));
-            let exact = |i: usize, j: usize| {
-                narrow(wide[j][0] * wide[i][1] - wide[j][1] * wide[i][0])
-            };
+            let exact =
+                |i: usize, j: usize| narrow(wide[j][0] * wide[i][1] - wide[j][1] * wide[i][0]);
             f = [exact(1, 2), exact(2, 0), exact(0, 1)];
         }
         let det = f[0] + f[1] + f[2];
@@ -513,7 +512,9 @@ mod tests {
     fn grid(seed: u64) -> Vec<[[f32; 3]; 3]> {
         let mut s = seed;
         let mut next = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 33) as u32
         };
         let z = |x: f32, y: f32| 0.25 * x - 0.125 * y;
@@ -570,10 +571,17 @@ mod tests {
                     let o = std::array::from_fn(|k| at[k] - 3.0 * d[k]);
                     let r = Ray::new(o, d, 0.0, f32::INFINITY);
                     let shear = RayShear::new(&r);
-                    let hit: Vec<_> =
-                        tris.iter().filter(|t| shear.intersect(t, 0.0, f32::INFINITY).is_some()).collect();
+                    let hit: Vec<_> = tris
+                        .iter()
+                        .filter(|t| shear.intersect(t, 0.0, f32::INFINITY).is_some())
+                        .collect();
                     let owners = hit.iter().filter(|t| shear.owns(t)).count();
-                    assert_eq!(owners, 1, "seed {seed}, ray {r:?}: {} hit, {owners} own it", hit.len());
+                    assert_eq!(
+                        owners,
+                        1,
+                        "seed {seed}, ray {r:?}: {} hit, {owners} own it",
+                        hit.len()
+                    );
                     edges += (hit.len() > 1) as usize;
                     owned_edges += (hit.len() > 1 && owners == 1) as usize;
                 }

@@ -41,21 +41,37 @@ fn compare(rel: &str, rays: usize) -> usize {
     assert_eq!(all.rays(), rays.len());
     assert_eq!(counters.rays, rays.len() as u64);
     let mut counts = vec![0u32; rays.len()];
-    scene.count_intersections(&rays, &mut counts).expect("count");
+    scene
+        .count_intersections(&rays, &mut counts)
+        .expect("count");
     let mut closest = vec![Hit::MISS; rays.len()];
     scene.intersect_batch(&rays, &mut closest).expect("closest");
     let truth: Vec<_> = rays.par_iter().map(|r| brute_force(&tris, r)).collect();
     let (mut several, mut grazing) = (0, 0);
     for (i, want) in truth.iter().enumerate() {
         let got = all.of(i);
-        assert_eq!(counts[i] as usize, got.len(), "{rel} ray {i}: count and list differ");
+        assert_eq!(
+            counts[i] as usize,
+            got.len(),
+            "{rel} ray {i}: count and list differ"
+        );
         // The first of the list is the closest hit (either id at a tie).
         match got.first() {
-            None => assert!(!closest[i].is_hit(), "{rel} ray {i}: no hit listed, closest {:?}", closest[i]),
-            Some(h) => assert_eq!(h.t, closest[i].t, "{rel} ray {i}: first hit is not the closest"),
+            None => assert!(
+                !closest[i].is_hit(),
+                "{rel} ray {i}: no hit listed, closest {:?}",
+                closest[i]
+            ),
+            Some(h) => assert_eq!(
+                h.t, closest[i].t,
+                "{rel} ray {i}: first hit is not the closest"
+            ),
         }
         for w in got.windows(2) {
-            assert!((w[0].t, w[0].prim) < (w[1].t, w[1].prim), "{rel} ray {i}: not in order of t");
+            assert!(
+                (w[0].t, w[0].prim) < (w[1].t, w[1].prim),
+                "{rel} ray {i}: not in order of t"
+            );
         }
         let same = got.len() == want.len()
             && got.iter().zip(want).all(|(g, w)| {
@@ -74,14 +90,24 @@ fn compare(rel: &str, rays: usize) -> usize {
             let same_set = set(got.iter().map(|h| h.prim).collect())
                 == set(want.iter().map(|w| w.1).collect());
             if !(same_set || reference::grazes(&tris, &rays[i])) {
-                panic!("{rel} ray {i} {:?}: listed {got:?}, brute force {want:?}", rays[i]);
+                panic!(
+                    "{rel} ray {i} {:?}: listed {got:?}, brute force {want:?}",
+                    rays[i]
+                );
             }
             grazing += !same_set as usize;
         }
         several += (want.len() >= 2) as usize;
     }
-    eprintln!("{rel}: {several} of {} rays hit twice or more, {grazing} grazing", rays.len());
-    assert!(grazing * 1000 <= rays.len(), "{rel}: {grazing} grazing rays of {}", rays.len());
+    eprintln!(
+        "{rel}: {several} of {} rays hit twice or more, {grazing} grazing",
+        rays.len()
+    );
+    assert!(
+        grazing * 1000 <= rays.len(),
+        "{rel}: {grazing} grazing rays of {}",
+        rays.len()
+    );
     several
 }
 
@@ -102,7 +128,9 @@ fn every_hit_matches_the_brute_force_on_sibenik_and_the_kitchen() {
 fn grid(n: u32, seed: u64) -> Mesh {
     let mut rng = SplitMix64::new(seed);
     let z = |x: u32, y: u32| 0.25 * x as f32 - 0.125 * y as f32;
-    let positions = (0..=n).flat_map(|y| (0..=n).map(move |x| [x as f32, y as f32, z(x, y)])).collect();
+    let positions = (0..=n)
+        .flat_map(|y| (0..=n).map(move |x| [x as f32, y as f32, z(x, y)]))
+        .collect();
     let at = |x: u32, y: u32| y * (n + 1) + x;
     let mut triangles = Vec::new();
     for y in 0..n {
@@ -114,7 +142,7 @@ fn grid(n: u32, seed: u64) -> Mesh {
             };
             for mut t in halves {
                 t.rotate_left((rng.next_u64() % 3) as usize);
-                if rng.next_u64() % 2 == 0 {
+                if rng.next_u64().is_multiple_of(2) {
                     t.swap(0, 1);
                 }
                 triangles.push(t);
@@ -159,15 +187,33 @@ fn a_ray_through_a_shared_edge_or_corner_meets_the_grid_once() {
         }
     }
     let mut counts = vec![0u32; rays.len()];
-    scene.count_intersections(&rays, &mut counts).expect("count");
+    scene
+        .count_intersections(&rays, &mut counts)
+        .expect("count");
     let wrong: Vec<_> = (0..rays.len()).filter(|&i| counts[i] != 1).collect();
-    assert!(wrong.is_empty(), "{} of {} rays met the grid other than once: {:?}", wrong.len(), rays.len(),
-        wrong.iter().take(5).map(|&i| (rays[i], counts[i])).collect::<Vec<_>>());
+    assert!(
+        wrong.is_empty(),
+        "{} of {} rays met the grid other than once: {:?}",
+        wrong.len(),
+        rays.len(),
+        wrong
+            .iter()
+            .take(5)
+            .map(|&i| (rays[i], counts[i]))
+            .collect::<Vec<_>>()
+    );
     // The rays did pass through edges and corners: the brute force (not watertight) meets
     // several triangles, or none, for many of them.
     let tris = corners(&g);
-    let shared = rays.par_iter().filter(|r| brute_force(&tris, r).len() != 1).count();
-    assert!(shared * 4 > rays.len(), "only {shared} of {} rays met an edge or a corner", rays.len());
+    let shared = rays
+        .par_iter()
+        .filter(|r| brute_force(&tris, r).len() != 1)
+        .count();
+    assert!(
+        shared * 4 > rays.len(),
+        "only {shared} of {} rays met an edge or a corner",
+        rays.len()
+    );
 }
 
 /// The surface of the box `[0, n]^3` as a grid of unit squares on each face, cut along random
@@ -202,7 +248,7 @@ fn closed_box(n: u32, seed: u64) -> Mesh {
                     };
                     for mut t in halves {
                         t.rotate_left((rng.next_u64() % 3) as usize);
-                        if rng.next_u64() % 2 == 0 {
+                        if rng.next_u64().is_multiple_of(2) {
                             t.swap(0, 1);
                         }
                         triangles.push(t);
@@ -225,7 +271,13 @@ fn a_ray_across_a_closed_box_through_its_edges_and_corners_crosses_it_twice() {
     // From every corner and edge midpoint of the surface's grid, inward (toward a point near
     // the centre), starting outside.
     for p in &b.positions {
-        for half in [[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.5, 0.0], [0.0, 0.0, 0.5], [0.5, 0.5, 0.0]] {
+        for half in [
+            [0.0, 0.0, 0.0],
+            [0.5, 0.0, 0.0],
+            [0.0, 0.5, 0.0],
+            [0.0, 0.0, 0.5],
+            [0.5, 0.5, 0.0],
+        ] {
             let at: [f32; 3] = std::array::from_fn(|k| p[k] + half[k]);
             if at.iter().any(|&c| c > n as f32) {
                 continue;
@@ -238,8 +290,17 @@ fn a_ray_across_a_closed_box_through_its_edges_and_corners_crosses_it_twice() {
     }
     let (all, _) = scene.list_intersections(&rays).expect("list");
     let wrong: Vec<_> = (0..rays.len()).filter(|&i| all.of(i).len() != 2).collect();
-    assert!(wrong.is_empty(), "{} of {} rays crossed the box other than twice: {:?}", wrong.len(), rays.len(),
-        wrong.iter().take(5).map(|&i| (rays[i], all.of(i).to_vec())).collect::<Vec<_>>());
+    assert!(
+        wrong.is_empty(),
+        "{} of {} rays crossed the box other than twice: {:?}",
+        wrong.len(),
+        rays.len(),
+        wrong
+            .iter()
+            .take(5)
+            .map(|&i| (rays[i], all.of(i).to_vec()))
+            .collect::<Vec<_>>()
+    );
     assert!(rays.len() > 500);
 }
 
@@ -251,7 +312,10 @@ fn rays_the_walk_cannot_take_are_refused_and_rays_that_miss_by_rule_have_no_hit(
     let (all, _) = scene.list_intersections(&[nan, zero]).expect("list");
     assert_eq!(all.splits, [0, 0, 0]);
     let behind = Ray::new([1.5, 1.5, 5.0], [0.0, 0.0, -1.0], -1.0, f32::INFINITY);
-    let e = scene.list_intersections(&[Ray::new([1.5, 1.5, 5.0], [0.0, 0.0, -1.0], 0.0, 9.0), behind]);
+    let e = scene.list_intersections(&[
+        Ray::new([1.5, 1.5, 5.0], [0.0, 0.0, -1.0], 0.0, 9.0),
+        behind,
+    ]);
     let msg = e.expect_err("tmin < 0 is refused").to_string();
     assert!(msg.contains("ray 1") && msg.contains("tmin"), "{msg}");
     let lists = BuildOptions {
@@ -259,6 +323,9 @@ fn rays_the_walk_cannot_take_are_refused_and_rays_that_miss_by_rule_have_no_hit(
         ..BuildOptions::default()
     };
     let scene = build_scene(&grid(4, 1), &lists);
-    let msg = scene.list_intersections(&[zero]).expect_err("leaf lists").to_string();
+    let msg = scene
+        .list_intersections(&[zero])
+        .expect_err("leaf lists")
+        .to_string();
     assert!(msg.contains("leaf lists"), "{msg}");
 }

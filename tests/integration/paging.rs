@@ -1133,7 +1133,10 @@ fn every_hit_is_the_same_paged_and_chunked() {
         let whole = Scene::from_bytes(bytes.clone(), "bunny.oavm").expect("open");
         let (want, _) = whole.list_intersections(rays).expect("list");
         let several = (0..rays.len()).filter(|&i| want.of(i).len() >= 2).count();
-        assert!(several > 2000, "{coding:?}: only {several} rays hit twice or more");
+        assert!(
+            several > 2000,
+            "{coding:?}: only {several} rays hit twice or more"
+        );
         let budget = whole.decoded_bytes() / 20;
         for chunks in [false, true] {
             let opts = SceneOptions {
@@ -1144,7 +1147,11 @@ fn every_hit_is_the_same_paged_and_chunked() {
             assert_eq!(scene.chunked(), chunks);
             let (got, c) = scene.list_intersections(rays).expect("list");
             assert!(got == want, "{coding:?}, chunks {chunks}: the hits differ");
-            assert!(c.page.misses > c.page.requested / 100, "{coding:?}: {:?}", c.page);
+            assert!(
+                c.page.misses > c.page.requested / 100,
+                "{coding:?}: {:?}",
+                c.page
+            );
         }
     }
 }

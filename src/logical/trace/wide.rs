@@ -162,7 +162,12 @@ impl<'a> Tree<'a> {
             return Ok(false);
         }
         let end = match self.avx2 {
-            Some(isa) => isa.vectorize(Job { tree: self, ray, c, out: &mut *out })?,
+            Some(isa) => isa.vectorize(Job {
+                tree: self,
+                ray,
+                c,
+                out: &mut *out,
+            })?,
             None => self.wide_hits(baseline(), ray, c, out)?,
         };
         if matches!(end, WideEnd::Stopped) {
@@ -188,7 +193,8 @@ impl<'a> Tree<'a> {
     ) -> Result<WideEnd, TraceError> {
         let mut stack = WIDE_STACK.take();
         let walked = (&mut stack, None);
-        let end = self.wide_ray_until::<false, false, true, S>(isa, ray, c, walked, &mut None, Some(out));
+        let end =
+            self.wide_ray_until::<false, false, true, S>(isa, ray, c, walked, &mut None, Some(out));
         WIDE_STACK.set(stack);
         end
     }
@@ -202,7 +208,14 @@ impl<'a> Tree<'a> {
         c: &mut Counters,
     ) -> Result<WideEnd, TraceError> {
         let mut stack = WIDE_STACK.take();
-        let end = self.wide_ray_until::<ANY, true, false, S>(isa, ray, c, (&mut stack, None), &mut None, None);
+        let end = self.wide_ray_until::<ANY, true, false, S>(
+            isa,
+            ray,
+            c,
+            (&mut stack, None),
+            &mut None,
+            None,
+        );
         WIDE_STACK.set(stack);
         end
     }
