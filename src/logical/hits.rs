@@ -51,6 +51,14 @@ impl AllHits {
     pub fn rays(&self) -> usize {
         self.splits.len().saturating_sub(1)
     }
+
+    /// How many hits each ray has.
+    pub fn counts(&self) -> Vec<u32> {
+        self.splits
+            .windows(2)
+            .map(|w| (w[1] - w[0]) as u32)
+            .collect()
+    }
 }
 
 /// What one chunk of rays found: each ray's index and number of hits, and the hits end to end.

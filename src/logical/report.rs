@@ -56,6 +56,9 @@ pub struct SetReport {
     /// Rays occluded (any-hit sets).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub occluded: Option<u64>,
+    /// Hits in all (every-hit sets: `--all-hits`, `--count-hits`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub all_hits: Option<u64>,
     pub seconds: f64,
     pub mrays_per_s: f64,
     pub nodes_visited: u64,
@@ -103,6 +106,8 @@ pub struct StreamReport {
 pub enum Answered {
     Hits(u64),
     Occluded(u64),
+    /// Every hit along each ray: how many rays hit something, and the hits in all.
+    Listed(u64, u64),
     /// A total over sets of both kinds.
     Mixed,
 }
@@ -110,15 +115,17 @@ pub enum Answered {
 impl SetReport {
     pub fn new(c: &Counters, seconds: f64, answered: Answered) -> SetReport {
         let per_ray = |x: u64| x as f64 / c.rays.max(1) as f64;
-        let (hits, occluded) = match answered {
-            Answered::Hits(n) => (Some(n), None),
-            Answered::Occluded(n) => (None, Some(n)),
-            Answered::Mixed => (None, None),
+        let (hits, occluded, all_hits) = match answered {
+            Answered::Hits(n) => (Some(n), None, None),
+            Answered::Occluded(n) => (None, Some(n), None),
+            Answered::Listed(n, all) => (Some(n), None, Some(all)),
+            Answered::Mixed => (None, None, None),
         };
         SetReport {
             rays: c.rays,
             hits,
             occluded,
+            all_hits,
             seconds,
             mrays_per_s: c.rays as f64 / seconds.max(1e-12) / 1e6,
             nodes_visited: c.nodes_visited,
@@ -156,6 +163,7 @@ impl SetReport {
     /// What the set's rays answered (as given to [`SetReport::new`]).
     pub fn answered(&self) -> Answered {
         match (self.hits, self.occluded) {
+            (Some(n), _) if let Some(all) = self.all_hits => Answered::Listed(n, all),
             (Some(n), _) => Answered::Hits(n),
             (_, Some(n)) => Answered::Occluded(n),
             _ => Answered::Mixed,
@@ -169,6 +177,7 @@ impl fmt::Display for Answered {
         match self {
             Answered::Hits(n) => write!(f, "{n} hits"),
             Answered::Occluded(n) => write!(f, "{n} occluded"),
+            Answered::Listed(n, all) => write!(f, "{n} hit, {all} hits in all"),
             Answered::Mixed => f.write_str("hits and occluded"),
         }
     }

@@ -11,6 +11,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::frame::Frame;
+use super::hits::AllHits;
 use super::order::Order;
 use super::pager::BlockSource;
 use super::report::{Answered, SetReport};
@@ -19,7 +20,7 @@ use super::verify::VerifyReport;
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
 use crate::output::Output;
-use crate::rays::write_into;
+use crate::rays::{write_hit_lists, write_into};
 
 /// What a batch asks of each ray.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -28,6 +29,10 @@ pub enum Query {
     Closest,
     /// Whether anything occludes it ([`Scene::occluded_batch_ordered`]).
     Any,
+    /// Every hit along it ([`Scene::list_intersections`]).
+    All,
+    /// How many hits it has ([`Scene::count_intersections`]).
+    Count,
 }
 
 /// A batch's answers, in the order of its rays.
@@ -35,6 +40,10 @@ pub enum Query {
 pub enum Answers {
     /// Closest hits ([`Query::Closest`]).
     Hits(Vec<Hit>),
+    /// Every hit of each ray ([`Query::All`]).
+    Lists(AllHits),
+    /// Hits per ray ([`Query::Count`]).
+    Counts(Vec<u32>),
     /// 1: occluded, 0: not ([`Query::Any`]).
     Occluded(Vec<u8>),
 }
@@ -45,6 +54,8 @@ impl Answers {
         match self {
             Answers::Hits(hits) => write_into(out, hits),
             Answers::Occluded(occ) => write_into(out, occ),
+            Answers::Lists(all) => write_hit_lists(out, all),
+            Answers::Counts(counts) => write_into(out, counts),
         }
     }
 }
@@ -75,6 +86,22 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
                 let n = occ.iter().filter(|&&o| o == 1).count() as u64;
                 let set = SetReport::new(&c, seconds, Answered::Occluded(n));
                 Ok((Answers::Occluded(occ), set))
+            }
+            Query::All => {
+                let (all, c) = self.list_intersections(rays)?;
+                let seconds = t.elapsed().as_secs_f64();
+                let n = (0..all.rays()).filter(|&i| !all.of(i).is_empty()).count() as u64;
+                let set = SetReport::new(&c, seconds, Answered::Listed(n, all.hits.len() as u64));
+                Ok((Answers::Lists(all), set))
+            }
+            Query::Count => {
+                let mut counts = vec![0u32; rays.len()];
+                let c = self.count_intersections(rays, &mut counts)?;
+                let seconds = t.elapsed().as_secs_f64();
+                let n = counts.iter().filter(|&&k| k > 0).count() as u64;
+                let all = counts.iter().map(|&k| k as u64).sum();
+                let set = SetReport::new(&c, seconds, Answered::Listed(n, all));
+                Ok((Answers::Counts(counts), set))
             }
         }
     }

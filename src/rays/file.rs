@@ -12,6 +12,7 @@ use bytemuck::Pod;
 
 use crate::error::Error;
 use crate::geom::{Hit, Ray};
+use crate::logical::{AllHits, ListedHit};
 use crate::output::Output;
 
 const VERSION: u32 = 1;
@@ -116,6 +117,93 @@ impl Record for Hit {
 
 impl Record for u8 {
     const MAGIC: &'static [u8; 4] = b"OCCL";
+}
+
+/// Hit counts (`--count-hits`): one `u32` per ray, how many triangles it hits
+/// ([`crate::Scene::count_intersections`]).
+impl Record for u32 {
+    const MAGIC: &'static [u8; 4] = b"HITC";
+}
+
+/// The magic of a hit-list file (`docs/cli.md`, "Every hit"): the header's count is the
+/// number of rays; then one `u32` per ray (its number of hits), then every ray's hits end to
+/// end as 16-byte [`ListedHit`] records, ray by ray, each ray's in order of `t`.
+pub const HIT_LISTS_MAGIC: &[u8; 4] = b"HITL";
+
+/// The bytes of a hit-list file holding `all`.
+pub fn encode_hit_lists(all: &AllHits) -> Vec<u8> {
+    let mut out = encode_records(&all.counts(), HIT_LISTS_MAGIC);
+    out.extend_from_slice(bytemuck::cast_slice(&all.hits));
+    out
+}
+
+/// Parses a hit-list file held in memory: its size must be exactly the header, the counts and
+/// as many records as they add up to.
+pub fn parse_hit_lists(bytes: &[u8]) -> Result<AllHits, String> {
+    let name = "HITL";
+    let head = bytes
+        .get(..HEADER)
+        .ok_or_else(|| format!("{} bytes: too short for a {name} file header", bytes.len()))?;
+    let rays = u64::from_le_bytes(head[8..16].try_into().unwrap_or_default());
+    let counts_end = rays
+        .checked_mul(4)
+        .and_then(|n| n.checked_add(HEADER as u64));
+    let counts_end = counts_end
+        .filter(|&e| e <= bytes.len() as u64)
+        .ok_or_else(|| {
+            format!(
+                "header says {rays} rays, more counts than the file's {} bytes hold",
+                bytes.len()
+            )
+        })?;
+    let counts: Vec<u32> = parse_records(&bytes[..counts_end as usize], HIT_LISTS_MAGIC)?;
+    let total: u64 = counts.iter().map(|&c| c as u64).sum();
+    let size = std::mem::size_of::<ListedHit>() as u64;
+    let expected = total
+        .checked_mul(size)
+        .and_then(|n| n.checked_add(counts_end));
+    if expected != Some(bytes.len() as u64) {
+        return Err(format!(
+            "its counts add up to {total} hits of {size} bytes after {counts_end} bytes, \
+             but the file has {} bytes",
+            bytes.len()
+        ));
+    }
+    let hits = bytes[counts_end as usize..]
+        .chunks_exact(size as usize)
+        .map(bytemuck::pod_read_unaligned)
+        .collect();
+    let mut splits = Vec::with_capacity(counts.len() + 1);
+    splits.push(0);
+    for c in counts {
+        splits.push(splits[splits.len() - 1] + c as u64);
+    }
+    Ok(AllHits { splits, hits })
+}
+
+/// Writes `all` as a hit-list file into `out` and commits it.
+pub fn write_hit_lists(mut out: Output, all: &AllHits) -> Result<(), Error> {
+    use std::io::Write;
+    let path = out.path().to_owned();
+    out.file()
+        .write_all(&encode_hit_lists(all))
+        .map_err(|e| Error::io(path, e))?;
+    out.commit()
+}
+
+/// Reads a hit-list file of at most `max_bytes` bytes.
+pub fn read_hit_lists(path: &Path, max_bytes: u64) -> Result<AllHits, Error> {
+    let invalid = |what: String| Error::Invalid(format!("{}: {what}", path.display()));
+    let len = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
+    if len > max_bytes {
+        return Err(invalid(format!(
+            "{len} bytes, more than the {max_bytes} this run can hold in memory"
+        )));
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_hit_lists(&bytes).map_err(invalid)
 }
 
 /// Writes `records` as a batch file into `out` (created, and so checked, before the work: see

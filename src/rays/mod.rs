@@ -11,8 +11,9 @@ mod sets;
 pub(crate) use camera::unit;
 pub use camera::{Bounds, Camera, PixelRays};
 pub use file::{
-    Record, encode_records, parse_records, read, read_hits, read_occlusion, read_rays, write,
-    write_hits, write_into, write_occlusion, write_rays,
+    HIT_LISTS_MAGIC, Record, encode_hit_lists, encode_records, parse_hit_lists, parse_records,
+    read, read_hit_lists, read_hits, read_occlusion, read_rays, write, write_hit_lists, write_hits,
+    write_into, write_occlusion, write_rays,
 };
 pub use lights::{Light, ShadowFrame, orbit};
 pub use rng::SplitMix64;

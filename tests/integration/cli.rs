@@ -1514,3 +1514,79 @@ fn inspect_shows_the_structure() {
     let err = assert_failure(&o);
     assert!(err.contains("block 1"), "{err}");
 }
+
+/// `--all-hits` writes a HITL file whose lists are the library's, byte for byte (the invalid
+/// rays with none); `--count-hits` a HITC file of their lengths; the JSON counts both.
+#[test]
+fn trace_every_hit_matches_the_library() {
+    let dir = TempDir::new().unwrap();
+    let (file, _) = pack_bunny(dir.path(), "bunny.oavm", &[]);
+    let scene = Scene::open(&file).unwrap();
+    let (rays, invalid) = ray_set(&bounds_of(&scene));
+    let rays_path = dir.path().join("set.rays");
+    rays::write_rays(&rays_path, &rays).unwrap();
+    let (want, _) = scene.list_intersections(&rays).unwrap();
+
+    let lists = dir.path().join("set.hitl");
+    let o = run(oavm_trace()
+        .arg(&file)
+        .arg("--rays")
+        .arg(&rays_path)
+        .arg("--all-hits")
+        .arg(&lists)
+        .args(["--json", "--threads", "2"]));
+    let v = json_of(&o);
+    let bytes = fs::read(&lists).unwrap();
+    assert_eq!(bytes, rays::encode_hit_lists(&want));
+    let got = rays::read_hit_lists(&lists, u64::MAX).unwrap();
+    assert!(got == want);
+    for &i in &invalid {
+        assert!(got.of(i).is_empty(), "invalid ray {i} has hits");
+    }
+    let several = (0..rays.len()).filter(|&i| got.of(i).len() >= 2).count();
+    assert!(several > 300, "only {several} rays hit twice or more");
+    assert_eq!(uint(&v, "all_hits"), want.hits.len() as u64);
+    let hit = (0..rays.len()).filter(|&i| !got.of(i).is_empty()).count() as u64;
+    assert_eq!(uint(&v, "hits"), hit);
+
+    let counts = dir.path().join("set.hitc");
+    let o = run(oavm_trace()
+        .arg(&file)
+        .arg("--rays")
+        .arg(&rays_path)
+        .arg("--count-hits")
+        .arg(&counts));
+    let out = text(&o.stdout);
+    assert!(
+        out.contains(&format!("{} hits in all", want.hits.len())),
+        "{out}"
+    );
+    let body = batch_records(&counts, b"HITC", 4);
+    let n: Vec<u32> = body
+        .chunks_exact(4)
+        .map(bytemuck::pod_read_unaligned)
+        .collect();
+    assert_eq!(n, want.counts());
+
+    // One answer file only; a HITL file cut short or grown is refused.
+    let o = run(oavm_trace()
+        .arg(&file)
+        .arg("--rays")
+        .arg(&rays_path)
+        .arg("--all-hits")
+        .arg(&lists)
+        .arg("--count-hits")
+        .arg(&counts));
+    assert_usage_error(&o);
+    for len in [bytes.len() - 1, 20, 10] {
+        fs::write(&lists, &bytes[..len]).unwrap();
+        let e = rays::read_hit_lists(&lists, u64::MAX)
+            .expect_err("cut short")
+            .to_string();
+        assert!(e.contains("set.hitl"), "{e}");
+    }
+    let mut grown = bytes.clone();
+    grown.push(0);
+    fs::write(&lists, &grown).unwrap();
+    assert!(rays::read_hit_lists(&lists, u64::MAX).is_err());
+}

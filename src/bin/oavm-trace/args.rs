@@ -38,8 +38,15 @@ pub(crate) struct Args {
     )]
     pub(crate) hits: Option<PathBuf>,
     /// Batch mode: write any-hit answers to this OCCL file.
-    #[arg(long, value_name = "OCCL", requires = "rays")]
+    #[arg(long, value_name = "OCCL", requires = "rays", conflicts_with_all = ["all_hits", "count_hits"])]
     pub(crate) occluded: Option<PathBuf>,
+    /// Batch mode: write every hit along each ray (t, primitive, u, v, in order of t) to this
+    /// HITL file (docs/cli.md, "Every hit").
+    #[arg(long, value_name = "HITL", requires = "rays", conflicts_with_all = ["hits", "count_hits"])]
+    pub(crate) all_hits: Option<PathBuf>,
+    /// Batch mode: write how many triangles each ray hits to this HITC file (a u32 per ray).
+    #[arg(long, value_name = "HITC", requires = "rays", conflicts_with = "hits")]
+    pub(crate) count_hits: Option<PathBuf>,
     /// Benchmark mode: trace N random rays (origins around the model, directions uniform; the
     /// ray sets of `cargo run --features tools --example rays`), closest hit; nothing is written. At most what
     /// half of the available memory holds (64 bytes a ray).
@@ -155,7 +162,10 @@ impl Args {
         let frames = self.frames.is_some();
         // Each group of options, given without what it needs (in the order checked)...
         let given = [
-            (self.hits.is_some() || self.occluded.is_some()) && self.rays.is_none(),
+            [&self.hits, &self.occluded, &self.all_hits, &self.count_hits]
+                .iter()
+                .any(|o| o.is_some())
+                && self.rays.is_none(),
             self.seed.is_some() && self.random.is_none(),
             (self.shadow || self.wave.is_some()) && !bench,
             self.depth.is_some() && !self.shade && !frames,
@@ -165,7 +175,10 @@ impl Args {
         ];
         // ...and what it needs.
         const NEEDS: [(&str, &str); 7] = [
-            ("--hits/--occluded", "--rays (batch mode)"),
+            (
+                "--hits/--occluded/--all-hits/--count-hits",
+                "--rays (batch mode)",
+            ),
             ("--seed", "--random N"),
             ("--shadow/--wave", "--random N or --primary WxH"),
             ("--depth", "--shade or --frames"),
@@ -196,12 +209,20 @@ impl Args {
             return Ok(Mode::Frames { out_dir, range });
         }
         if let Some(rays) = self.rays.clone() {
-            let (query, out) = match (&self.hits, &self.occluded) {
-                (Some(h), None) => (Query::Closest, h.clone()),
-                (None, Some(o)) => (Query::Any, o.clone()),
+            let asked = [
+                (&self.hits, Query::Closest),
+                (&self.occluded, Query::Any),
+                (&self.all_hits, Query::All),
+                (&self.count_hits, Query::Count),
+            ];
+            let mut given = asked.iter().filter_map(|(o, q)| Some(((*o).clone()?, *q)));
+            let (out, query) = match (given.next(), given.next()) {
+                (Some(one), None) => one,
                 _ => {
                     return Err(Error::Invalid(
-                        "--rays needs --hits (closest hit) or --occluded (any hit)".into(),
+                        "--rays needs one of --hits (closest hit), --occluded (any hit), \
+                         --all-hits (every hit) or --count-hits"
+                            .into(),
                     ));
                 }
             };
