@@ -279,6 +279,44 @@ class Scene:
         arr = _ray_array(rays, directions, tmin, tmax)
         return self._scene().occluded(arr, _count("threads", threads, 1, 1024)).view(np.bool_)
 
+    def count_intersections(
+        self,
+        rays: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        *,
+        threads: Optional[int] = None,
+    ) -> np.ndarray:
+        """How many triangles each ray hits with ``tmin <= t <= tmax`` (uint32), for the same
+        arguments as :meth:`intersect`: each triangle once, and a ray through an edge or a
+        corner shared by several triangles meets one of them, so a ray from outside a closed
+        mesh to outside it crosses it an even number of times. Files of clusters; a ray with
+        ``tmin < 0`` is an error."""
+        arr = _ray_array(rays, directions, tmin, tmax)
+        return self._scene().count_intersections(arr, _count("threads", threads, 1, 1024))
+
+    def list_intersections(
+        self,
+        rays: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        *,
+        threads: Optional[int] = None,
+    ) -> dict:
+        """Every hit of each ray (those :meth:`count_intersections` counts), in Open3D's form:
+        a dict of ``ray_splits`` (uint64, ``N + 1``: ray ``i``'s hits are
+        ``ray_splits[i]:ray_splits[i + 1]``), ``ray_ids`` (uint32, the ray of each hit),
+        ``t_hit`` (float32), ``primitive_ids`` (uint32) and ``primitive_uvs`` (float32,
+        ``(H, 2)``, :class:`HitsWithAttributes`' convention); each ray's hits in order of
+        ``t``, then primitive id."""
+        arr = _ray_array(rays, directions, tmin, tmax)
+        splits, t, prim, uv = self._scene().list_intersections(arr, _count("threads", threads, 1, 1024))
+        ray_ids = np.repeat(np.arange(len(arr), dtype=np.uint32), np.diff(splits).astype(np.int64))
+        return {"ray_splits": splits, "ray_ids": ray_ids, "t_hit": t, "primitive_ids": prim,
+                "primitive_uvs": uv}
+
     def camera_rays(
         self,
         width: int,

@@ -333,6 +333,69 @@ impl NativeScene {
         flat(occl)
     }
 
+    /// How many triangles each ray hits, as a uint32 array.
+    #[pyo3(signature = (rays, threads=None))]
+    fn count_intersections<'py>(
+        &self,
+        py: Python<'py>,
+        rays: PyReadonlyArray2<'py, f32>,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let rays = rays_of(&rays)?;
+        let counts = zeros::<u32>(py, [rays.len(), 1]);
+        let mut cw = counts.readwrite();
+        let cs = slice_mut(&mut cw)?;
+        self.traced(
+            py,
+            &rays,
+            threads,
+            0u32,
+            |s, r, o, _| s.count_intersections(r, o).map(drop),
+            |at, n| cs[at..at + n.len()].copy_from_slice(n),
+        )?;
+        drop(cw);
+        flat(counts)
+    }
+
+    /// Every hit of each ray: `(splits, t, prim, uv)`, ray `i`'s hits at
+    /// `splits[i]..splits[i + 1]` (uint64, N + 1), in order of `t`; `uv` is `(H, 2)`.
+    #[pyo3(signature = (rays, threads=None))]
+    fn list_intersections<'py>(
+        &self,
+        py: Python<'py>,
+        rays: PyReadonlyArray2<'py, f32>,
+        threads: Option<usize>,
+    ) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        let rays = rays_of(&rays)?;
+        let pool = pool(self.threads(threads)?)?;
+        let mut splits: Vec<u64> = Vec::with_capacity(rays.len() + 1);
+        splits.push(0);
+        let mut hits = Vec::new();
+        for slice in rays.chunks(SLICE) {
+            let (all, _) = py
+                .detach(|| {
+                    let _turn = self.busy.lock().unwrap_or_else(|e| e.into_inner());
+                    pool.install(|| self.scene.list_intersections(slice))
+                })
+                .map_err(to_py)?;
+            let base = splits[splits.len() - 1];
+            splits.extend(all.splits[1..].iter().map(|s| s + base));
+            hits.extend_from_slice(&all.hits);
+            py.check_signals()?;
+        }
+        let n = hits.len();
+        let (t, prim, uv) = (zeros::<f32>(py, [n, 1]), zeros::<u32>(py, [n, 1]), zeros::<f32>(py, [n, 2]));
+        {
+            let (mut tw, mut pw, mut uw) = (t.readwrite(), prim.readwrite(), uv.readwrite());
+            let (ts, ps, us) = (slice_mut(&mut tw)?, slice_mut(&mut pw)?, slice_mut(&mut uw)?);
+            for (i, h) in hits.iter().enumerate() {
+                (ts[i], ps[i], us[2 * i], us[2 * i + 1]) = (h.t, h.prim, h.u, h.v);
+            }
+        }
+        let splits = PyArray1::from_vec(py, splits).into_any();
+        Ok(vec![splits, flat(t)?, flat(prim)?, uv.into_any()])
+    }
+
     /// Checks every byte, checksum and invariant; the report as JSON (`ok`, `defects`, ...).
     fn verify(&self, py: Python<'_>) -> PyResult<String> {
         let pool = pool(cores())?;
