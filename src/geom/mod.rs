@@ -14,5 +14,5 @@ pub mod tribox;
 pub mod wide_box;
 
 pub use group::TriGroupView;
-pub use ray::{AGREEMENT_TOLERANCE, Hit, HitAttributes, Ray};
+pub use ray::{AGREEMENT_TOLERANCE, AllHits, Hit, HitAttributes, ListedHit, Ray};
 pub use wide_box::{BoxRay, ClusterNodeView, FmaRay};

@@ -9,57 +9,14 @@
 //! number of times by a ray from outside to outside, whatever edges and corners it passes
 //! through.
 
-use bytemuck::{Pod, Zeroable};
+use bytemuck::Zeroable;
 
 use super::batch::{CHUNK, in_order};
 use super::pager::BlockSource;
 use super::trace::{Counters, HitInfo, TraceError, Tree};
 use super::{Order, Scene};
 use crate::error::Error;
-use crate::geom::{HitAttributes, Ray};
-
-/// One hit of a ray, in a list of every hit ([`AllHits`]); 16 bytes, the record of the
-/// all-hits file (`RAYS.md` style, magic `HITL`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
-pub struct ListedHit {
-    /// Where along the ray, in units of its direction.
-    pub t: f32,
-    /// The triangle's primitive id.
-    pub prim: u32,
-    /// Barycentric coordinates of the point, `(1 - u - v) v0 + u v1 + v v2`
-    /// ([`HitAttributes`]' convention).
-    pub u: f32,
-    pub v: f32,
-}
-
-/// Every hit of each ray of a batch: ray `i`'s are `hits[splits[i]..splits[i + 1]]`, ordered
-/// by `t`, then primitive id (Open3D's `ray_splits`, with `splits[0] = 0`).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct AllHits {
-    pub splits: Vec<u64>,
-    pub hits: Vec<ListedHit>,
-}
-
-impl AllHits {
-    /// The hits of ray `i`.
-    pub fn of(&self, i: usize) -> &[ListedHit] {
-        &self.hits[self.splits[i] as usize..self.splits[i + 1] as usize]
-    }
-
-    /// How many rays.
-    pub fn rays(&self) -> usize {
-        self.splits.len().saturating_sub(1)
-    }
-
-    /// How many hits each ray has.
-    pub fn counts(&self) -> Vec<u32> {
-        self.splits
-            .windows(2)
-            .map(|w| (w[1] - w[0]) as u32)
-            .collect()
-    }
-}
+use crate::geom::{AllHits, HitAttributes, ListedHit, Ray};
 
 /// What one chunk of rays found: each ray's index and number of hits, and the hits end to end.
 #[derive(Default)]

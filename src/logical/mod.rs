@@ -10,6 +10,7 @@ mod chunked;
 mod frame;
 mod held;
 mod hits;
+mod nearest;
 mod order;
 mod pager;
 mod report;
@@ -22,7 +23,7 @@ mod verify;
 
 pub(crate) use batch::in_order;
 pub use frame::{Frame, FrameOptions, RaySet, SetStats};
-pub use hits::{AllHits, ListedHit};
+pub use nearest::{ClosestPoint, VOTE_DIRECTIONS};
 pub use order::{COARSE_BITS, KEY_BITS, Order, RayKeys};
 pub use pager::{BlockSource, PageCounters};
 pub use report::{Answered, PageReport, SetReport};
@@ -33,5 +34,5 @@ pub use scene::{
 };
 #[cfg(feature = "group-trace")]
 pub use trace::group_trace;
-pub use trace::{Counters, HitInfo, TraceError, Tree, Walk};
+pub use trace::{Counters, HitInfo, Nearest, TraceError, Tree, Walk, closest_on_triangle};
 pub use verify::VerifyReport;

@@ -11,14 +11,13 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::frame::Frame;
-use super::hits::AllHits;
 use super::order::Order;
 use super::pager::BlockSource;
 use super::report::{Answered, SetReport};
 use super::scene::{Scene, SceneInfo, SceneOptions};
 use super::verify::VerifyReport;
 use crate::error::Error;
-use crate::geom::{Hit, Ray};
+use crate::geom::{AllHits, Hit, Ray};
 use crate::output::Output;
 use crate::rays::{write_hit_lists, write_into};
 

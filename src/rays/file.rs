@@ -11,8 +11,8 @@ use std::path::Path;
 use bytemuck::Pod;
 
 use crate::error::Error;
-use crate::geom::{Hit, Ray};
-use crate::logical::{AllHits, ListedHit};
+use crate::geom::{AllHits, Hit, ListedHit, Ray};
+
 use crate::output::Output;
 
 const VERSION: u32 = 1;

@@ -15,7 +15,7 @@ const STACK: [&str; 12] = [
 
 /// The files of `logical`, bottom first: each may import those before it. The walks (`trace`)
 /// know neither the stream that parks them nor the scene that runs them.
-const LOGICAL: [&str; 13] = [
+const LOGICAL: [&str; 15] = [
     "held",
     "top_bounds",
     "pager",
@@ -27,6 +27,8 @@ const LOGICAL: [&str; 13] = [
     "report",
     "verify",
     "scene",
+    "hits",
+    "nearest",
     "frame",
     "run",
 ];
