@@ -26,6 +26,9 @@ pub type Target = (&'static str, fn(&[u8]));
 pub const TARGETS: &[Target] = &[
     ("ply", ply),
     ("obj", obj),
+    ("stl", stl),
+    ("off", off),
+    ("gltf", gltf),
     ("aff", aff),
     ("rays", rays),
     ("oavm", oavm_file),
@@ -44,6 +47,22 @@ pub fn ply(data: &[u8]) {
 /// OBJ (through `tobj`, with the crate's own checks around it).
 pub fn obj(data: &[u8]) {
     let _ = oavm::mesh::parse_obj(data, "fuzz.obj");
+}
+
+/// STL, binary (by its exact length) and ASCII.
+pub fn stl(data: &[u8]) {
+    let _ = oavm::mesh::parse_stl(data, "fuzz.stl");
+}
+
+/// OFF and its variants (COFF, NOFF, STOFF...).
+pub fn off(data: &[u8]) {
+    let _ = oavm::mesh::parse_off(data, "fuzz.off");
+}
+
+/// glTF 2.0, JSON or GLB: no buffer files are read (no directory given: a deterministic run
+/// that cannot read the machine's files); the mesh capped at 64 MiB, as a small budget would.
+pub fn gltf(data: &[u8]) {
+    let _ = oavm::mesh::parse_gltf(data, "fuzz.glb", None, 64 << 20);
 }
 
 /// BART AFF, the single-file parser: includes are answered "not found" (no disk access, so a

@@ -17,6 +17,8 @@ pub enum Place {
     Line(u64),
     /// A byte offset from the start of the file (binary PLY body).
     Byte(u64),
+    /// An item of a structured file, by kind and index (glTF: `accessor 3`, `node 7`).
+    Item(&'static str, u64),
 }
 
 impl fmt::Display for Place {
@@ -24,6 +26,7 @@ impl fmt::Display for Place {
         match self {
             Place::Line(line) => write!(f, "line {line}"),
             Place::Byte(byte) => write!(f, "byte {byte}"),
+            Place::Item(what, index) => write!(f, "{what} {index}"),
         }
     }
 }

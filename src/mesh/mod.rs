@@ -12,6 +12,7 @@
 //! vertex `i` (PLY vertex record `i`, OBJ `v` line `i + 1`), used or not.
 
 pub mod aff;
+mod gltf;
 mod obj;
 mod off;
 mod ply;
@@ -23,6 +24,7 @@ use std::path::Path;
 
 pub use crate::error::{MeshError, Place};
 pub use aff::{AffCounts, AffScene, AffView, load_aff, parse_aff, parse_aff_with};
+pub use gltf::parse_gltf;
 pub use obj::parse_obj;
 pub use off::parse_off;
 pub use ply::parse_ply;
@@ -129,6 +131,10 @@ pub fn load_with(path: &Path, time: Option<f64>, limits: &LoadLimits) -> Result<
     if ply::has_magic(&bytes) {
         return parse_ply(&bytes, &name);
     }
+    if matches!(extension.as_deref(), Some("gltf" | "glb")) || gltf::is_glb(&bytes) {
+        let dir = path.parent().unwrap_or(Path::new("."));
+        return parse_gltf(&bytes, &name, Some(dir), limits.max_file_bytes);
+    }
     if extension.as_deref() == Some("stl") || stl::is_binary(&bytes) {
         return parse_stl(&bytes, &name);
     }
@@ -145,7 +151,8 @@ pub fn load_with(path: &Path, time: Option<f64>, limits: &LoadLimits) -> Result<
         "the file is named .ply but does not start with the PLY magic line `ply`".to_owned()
     } else {
         "it starts with neither the PLY magic line `ply`, nor `OFF`, nor `solid` (ASCII STL), \
-         nor OBJ statements, and is not a binary STL file (84 + 50 bytes a facet)"
+         nor OBJ statements, is not a binary STL file (84 + 50 bytes a facet) nor a GLB \
+         (magic `glTF`; a glTF JSON file is read by its extension, .gltf)"
             .to_owned()
     };
     Err(MeshError::UnknownFormat { file: name, detail })

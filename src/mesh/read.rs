@@ -62,6 +62,16 @@ pub(crate) enum ReadError {
     Changed,
 }
 
+impl std::fmt::Display for ReadError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ReadError::Io(e) => write!(f, "{e}"),
+            ReadError::TooLarge { bytes } => write!(f, "{bytes} bytes, more than this run reads"),
+            ReadError::Changed => f.write_str("it changed while it was read"),
+        }
+    }
+}
+
 impl From<io::Error> for ReadError {
     fn from(e: io::Error) -> ReadError {
         ReadError::Io(e)

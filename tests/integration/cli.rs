@@ -429,6 +429,50 @@ fn pack_rejects_bad_meshes_and_leaves_nothing() {
     let err = pack_fails(d, "empty.ply", Some(empty_ply.as_bytes()), None);
     assert!(err.contains("no triangles"), "{err}");
 
+    // STL, OFF and glTF: each error names the file, the format and the place.
+    let mut stl = b"binary".to_vec();
+    stl.resize(80, b' ');
+    stl.extend_from_slice(&3u32.to_le_bytes());
+    stl.extend_from_slice(&[0u8; 50]);
+    let err = pack_fails(d, "short.stl", Some(&stl), None);
+    assert!(
+        err.contains("short.stl") && err.contains("3 facets"),
+        "{err}"
+    );
+    let ascii = "solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 x\n";
+    let err = pack_fails(d, "bad.stl", Some(ascii.as_bytes()), None);
+    assert!(err.contains("bad.stl") && err.contains("line 5"), "{err}");
+    let off = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n";
+    let err = pack_fails(d, "index.off", Some(off.as_bytes()), None);
+    assert!(err.contains("index.off") && err.contains("line 6"), "{err}");
+    let gltf = r#"{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],
+        "nodes":[{"mesh":0}],"buffers":[{"byteLength":12,"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAA"}],
+        "bufferViews":[{"buffer":0,"byteLength":12}],
+        "accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3"}]}"#;
+    let err = pack_fails(d, "past.gltf", Some(gltf.as_bytes()), None);
+    assert!(
+        err.contains("past.gltf") && err.contains("accessor 0") && err.contains("past its view"),
+        "{err}"
+    );
+    let err = pack_fails(
+        d,
+        "missing.gltf",
+        Some(
+            gltf.replace(
+                "data:application/octet-stream;base64,AAAAAAAAAAAAAAAA",
+                "nowhere.bin",
+            )
+            .as_bytes(),
+        ),
+        None,
+    );
+    assert!(
+        err.contains("buffer 0") && err.contains("nowhere.bin"),
+        "{err}"
+    );
+    let err = pack_fails(d, "trunc.glb", Some(b"glTF\x02\0\0\0\xff\0\0\0"), None);
+    assert!(err.contains("trunc.glb") && err.contains("glTF"), "{err}");
+
     // A failed pack over an existing output leaves the old file as it was.
     let old = b"the previous output, which must survive".as_slice();
     pack_fails(d, "garbage.ply", Some(&garbage), Some(old));
