@@ -113,13 +113,13 @@ fn compare(rel: &str, rays: usize) -> usize {
 
 #[test]
 fn every_hit_matches_the_brute_force_on_the_bunny_and_the_dragon() {
-    assert!(compare("bunny/bun_zipper.ply", 3000) > 300);
-    assert!(compare("dragon/dragon_vrip_res3.ply", 2000) > 250);
+    assert!(compare("bunny/bun_zipper.ply", 1500) > 150);
+    assert!(compare("dragon/dragon_vrip_res3.ply", 1000) > 120);
 }
 
 #[test]
 fn every_hit_matches_the_brute_force_on_sibenik_and_the_kitchen() {
-    assert!(compare("sibenik/sibenik.obj", 1500) > 300);
+    assert!(compare("sibenik/sibenik.obj", 800) > 150);
     assert!(compare("bart/kitchen/kitchen.aff", 1500) > 120);
 }
 
@@ -218,7 +218,7 @@ fn a_ray_through_a_shared_edge_or_corner_meets_the_grid_once() {
 
 /// The surface of the box `[0, n]^3` as a grid of unit squares on each face, cut along random
 /// diagonals, corners in random order: closed, with exact corners and edge midpoints.
-fn closed_box(n: u32, seed: u64) -> Mesh {
+pub(crate) fn closed_box(n: u32, seed: u64) -> Mesh {
     let mut rng = SplitMix64::new(seed);
     let mut positions: Vec<[f32; 3]> = Vec::new();
     let mut index = std::collections::HashMap::new();

@@ -25,6 +25,7 @@ mod mapping;
 mod mesh_aff;
 mod mesh_input;
 mod mesh_stream;
+mod nearest;
 mod paging;
 mod rain;
 mod render_shaded;

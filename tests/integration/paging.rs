@@ -1155,3 +1155,58 @@ fn every_hit_is_the_same_paged_and_chunked() {
         }
     }
 }
+
+/// Closest points and occupancy are the same whether the file is held whole, paged under a
+/// twentieth of its decoded size, or read chunk by chunk; blocks are read again.
+#[test]
+fn closest_points_are_the_same_paged_and_chunked() {
+    use oavm::logical::ClosestPoint;
+    let b = bounds();
+    let mut rng = oavm::rays::SplitMix64::new(9);
+    let pts: Vec<[f32; 3]> = (0..5000)
+        .map(|_| {
+            std::array::from_fn(|k| {
+                (b.min[k] as f64 + (b.max[k] - b.min[k]) as f64 * (1.4 * rng.next_f64() - 0.2))
+                    as f32
+            })
+        })
+        .collect();
+    for coding in [Coding::Raw, Coding::Zstd, Coding::Lean] {
+        let bytes = packed_as(coding);
+        let whole = Scene::from_bytes(bytes.clone(), "bunny.oavm").expect("open");
+        let mut want = vec![ClosestPoint::NONE; pts.len()];
+        whole
+            .closest_points(&pts, f32::INFINITY, &mut want)
+            .expect("closest");
+        let mut want_occ = vec![0u8; pts.len()];
+        whole.occupancy(&pts, &mut want_occ).expect("occupancy");
+        assert!(want_occ.iter().filter(|&&o| o == 1).count() > 100);
+        let budget = whole.decoded_bytes() / 20;
+        for chunks in [false, true] {
+            let opts = SceneOptions {
+                chunks,
+                ..chunked_options(budget, 2)
+            };
+            let scene = Scene::from_bytes_with(bytes.clone(), "bunny.oavm", &opts).expect("open");
+            let mut got = vec![ClosestPoint::NONE; pts.len()];
+            let c = scene
+                .closest_points(&pts, f32::INFINITY, &mut got)
+                .expect("closest");
+            assert!(
+                got == want,
+                "{coding:?}, chunks {chunks}: the closest points differ"
+            );
+            assert!(
+                c.page.misses > c.page.requested / 100,
+                "{coding:?}: {:?}",
+                c.page
+            );
+            let mut occ = vec![0u8; pts.len()];
+            scene.occupancy(&pts, &mut occ).expect("occupancy");
+            assert!(
+                occ == want_occ,
+                "{coding:?}, chunks {chunks}: occupancy differs"
+            );
+        }
+    }
+}

@@ -20,6 +20,7 @@
 //!
 //! Each walk is compiled for the best instruction set the CPU has ([`Tree::dispatch`]).
 
+mod closest;
 mod cluster;
 mod deferred;
 mod neighbours;
@@ -67,6 +68,7 @@ use crate::os::{Avx2, Simd8, WithAvx2};
 use crate::physical::format::{
     BlockEntry, ClusterNode, FLAG_CLUSTERS, FLAG_OCCLUDERS, Header, RopeRecord, WideLink,
 };
+pub use closest::{Nearest, closest_on_triangle};
 pub(in crate::logical) use deferred::Deferred;
 pub(in crate::logical) use ray::{Best, RayCtx};
 pub(in crate::logical) use topdown::Entry;
