@@ -47,6 +47,7 @@ __all__ = [
     "pack",
     "update",
     "compact",
+    "load_mesh",
     "rays",
 ]
 
@@ -437,6 +438,14 @@ def update(
         v32, f32 = _mesh_arrays(mesh)
         return json.loads(_native.update_arrays(p, v32, f32, **opts))
     raise ValueError(f"mesh: expected a path or a (vertices, faces) pair of arrays, got {type(mesh).__name__}")
+
+
+def load_mesh(path: PathLike, *, time: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
+    """The triangles of a mesh file as :func:`pack` reads it (PLY, OBJ, STL, OFF, or a BART AFF
+    scene posed at ``time``): ``(V, 3)`` float32 vertices and ``(F, 3)`` uint32 faces, face
+    ``i`` being primitive ``i`` (polygons fanned into triangles, every object of a scene in
+    order)."""
+    return _native.load_mesh(os.fspath(path), None if time is None else float(time))
 
 
 def compact(path: PathLike) -> dict:

@@ -384,10 +384,18 @@ impl NativeScene {
             py.check_signals()?;
         }
         let n = hits.len();
-        let (t, prim, uv) = (zeros::<f32>(py, [n, 1]), zeros::<u32>(py, [n, 1]), zeros::<f32>(py, [n, 2]));
+        let (t, prim, uv) = (
+            zeros::<f32>(py, [n, 1]),
+            zeros::<u32>(py, [n, 1]),
+            zeros::<f32>(py, [n, 2]),
+        );
         {
             let (mut tw, mut pw, mut uw) = (t.readwrite(), prim.readwrite(), uv.readwrite());
-            let (ts, ps, us) = (slice_mut(&mut tw)?, slice_mut(&mut pw)?, slice_mut(&mut uw)?);
+            let (ts, ps, us) = (
+                slice_mut(&mut tw)?,
+                slice_mut(&mut pw)?,
+                slice_mut(&mut uw)?,
+            );
             for (i, h) in hits.iter().enumerate() {
                 (ts[i], ps[i], us[2 * i], us[2 * i + 1]) = (h.t, h.prim, h.u, h.v);
             }
@@ -556,6 +564,25 @@ fn run_pack(
         .map_err(to_py)?;
     serde_json::to_string(&report)
         .map_err(|e| OavmError::new_err(format!("cannot write the report: {e}")))
+}
+
+/// The triangles of a mesh file (PLY, OBJ, STL, OFF, AFF posed at `time`) as oavm reads
+/// them: `(V, 3)` float32 vertices and `(F, 3)` uint32 faces, face `i` being primitive `i`.
+#[pyfunction]
+#[pyo3(signature = (mesh, time=None))]
+fn load_mesh<'py>(
+    py: Python<'py>,
+    mesh: PathBuf,
+    time: Option<f64>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let m = py
+        .detach(|| oavm::mesh::load_at(&mesh, time))
+        .map_err(|e| to_py(e.into()))?;
+    let v = PyArray1::from_vec(py, m.positions.as_flattened().to_vec())
+        .reshape([m.positions.len(), 3])?;
+    let f = PyArray1::from_vec(py, m.triangles.as_flattened().to_vec())
+        .reshape([m.triangles.len(), 3])?;
+    Ok((v.into_any(), f.into_any()))
 }
 
 /// Packs a mesh file (PLY, OBJ, STL, OFF, AFF); the report as JSON.
@@ -806,6 +833,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<NativeScene>()?;
     m.add_function(wrap_pyfunction!(open, m)?)?;
     m.add_function(wrap_pyfunction!(pack_file, m)?)?;
+    m.add_function(wrap_pyfunction!(load_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(pack_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(update_file, m)?)?;
     m.add_function(wrap_pyfunction!(update_arrays, m)?)?;

@@ -31,12 +31,12 @@ def bunny(shared):
 
 
 def test_first_and_any_hits_are_trimesh_s(bunny, tmp_path):
-    o, d = _rays(bunny, 3000, 1)
+    o, d = _rays(bunny, 1500, 1)
     ours, ref = RayMeshIntersector(bunny, cache_dir=tmp_path), Reference(bunny)
     first, want = ours.intersects_first(o, d), ref.intersects_first(o, d)
     assert first.dtype == np.int64 and (first >= -1).all()
     hits = (want >= 0).sum()
-    assert hits > 600, f"only {hits} rays hit the bunny"
+    assert hits > 300, f"only {hits} rays hit the bunny"
     differ = np.flatnonzero(first != want)
     # Either triangle of a shared edge, or a ray grazing one: the hit points still agree.
     assert len(differ) <= 3, f"{len(differ)} rays differ: {differ[:10]}"
@@ -49,13 +49,13 @@ def test_first_and_any_hits_are_trimesh_s(bunny, tmp_path):
 
 
 def test_every_hit_is_trimesh_s(bunny, tmp_path):
-    o, d = _rays(bunny, 3000, 2)
+    o, d = _rays(bunny, 1500, 2)
     ours, ref = RayMeshIntersector(bunny, cache_dir=tmp_path), Reference(bunny)
     tri, ray, loc = ours.intersects_id(o, d, multiple_hits=True, return_locations=True)
     ref_tri, ref_ray, ref_loc = ref.intersects_id(o, d, multiple_hits=True, return_locations=True)
     n = len(o)
     counts, ref_counts = np.bincount(ray, minlength=n), np.bincount(ref_ray, minlength=n)
-    assert (counts >= 2).sum() > 300, "too few rays cross the bunny twice for this to test much"
+    assert (counts >= 2).sum() > 150, "too few rays cross the bunny twice for this to test much"
     differ = np.flatnonzero(counts != ref_counts)
     # ray_triangle keeps both triangles of an edge a ray passes within its tolerance (1e-8 in
     # barycentrics) of, where oavm counts the crossing once: only such rays may differ.

@@ -1,0 +1,218 @@
+#!/usr/bin/env python3
+"""oavm's drop-ins (``oavm.trimesh``, ``oavm.open3d``) against what they replace, in one process,
+on the same meshes, rays and points: agreement, and speed as a ratio.
+
+    tools/py_bench.sh --no-run && target/bench-venv/bin/python tools/py_dropin.py [--meshes ...]
+
+(``tools/py_bench.sh`` makes ``target/bench-venv``: a release build of oavm and the pinned peers
+of ``python/requirements-bench.txt``, Open3D, embreex, trimesh; this tool also needs ``rtree``
+for trimesh's numpy intersector, installed there by ``tools/py_bench.sh`` too.)
+
+Per mesh (default: the dragon, the BART kitchen, Sibenik; read by ``oavm.load_mesh``, the same
+triangles for everyone):
+
+* Agreement with Open3D's ``RaycastingScene`` (Embree 4 inside) on ``--rays`` random rays
+  (origins around the mesh's box, uniform directions): first hits (hit or miss, ``t`` within
+  1e-4 of the box's diagonal, the same triangle), hit counts, and every listed hit; and with
+  trimesh's own numpy intersector (``ray_triangle``, float64) on ``--trimesh-rays`` of them
+  (it takes seconds a thousand rays). Every disagreement is listed with its explanation: the
+  ray's smallest barycentric margin (f64) on the triangles involved, 0 for a ray through an
+  edge; a ray whose margin is above 1e-6 is an unexplained disagreement.
+* Speed: each call timed ``--reps`` times (median, min-max) on the same inputs, after one
+  untimed call each (Open3D and embreex build their BVH then; oavm opens its file, packed
+  before), ours against theirs: ``intersects_first``, ``intersects_location`` (multiple hits)
+  and ``contains_points`` against trimesh with embreex; ``cast_rays``, ``test_occlusions``,
+  ``count_intersections`` and ``list_intersections`` against Open3D (``nthreads=0``, all
+  cores). Ratios are their time over ours (above 1: oavm is faster).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable, Dict, List
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / ".." / "shared" / "scenes"
+MESHES = {
+    "dragon": SCENES / "dragon" / "dragon_vrip.ply",
+    "kitchen": SCENES / "bart" / "kitchen" / "kitchen.aff",
+    "sibenik": SCENES / "sibenik" / "sibenik.obj",
+    "bunny": SCENES / "bunny" / "bun_zipper.ply",
+}
+
+
+def timed(f: Callable[[], Any], reps: int) -> Dict[str, Any]:
+    f()  # untimed: builds, page faults
+    ts = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        f()
+        ts.append(time.perf_counter() - t)
+    return {"median_s": statistics.median(ts), "min_s": min(ts), "max_s": max(ts)}
+
+
+def margin(v: np.ndarray, f: np.ndarray, tri: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Smallest barycentric coordinate (f64) of where each ray's line meets its triangle."""
+    a, b, c = (v[f[tri, k]].astype(np.float64) for k in range(3))
+    e1, e2 = b - a, c - a
+    p = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    s = o - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.einsum("ij,ij->i", s, p) / det
+        q = np.cross(s, e1)
+        w = np.einsum("ij,ij->i", d, q) / det
+    return np.minimum(np.minimum(u, w), 1.0 - u - w)
+
+
+def random_rays(v: np.ndarray, n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    lo, hi = v.min(axis=0).astype(np.float64), v.max(axis=0).astype(np.float64)
+    o = lo - 0.1 * (hi - lo) + 1.2 * (hi - lo) * rng.random((n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return o, d
+
+
+def agree_open3d(v, f, o, d, ours, theirs, diag) -> Dict[str, Any]:
+    r = np.concatenate([o, d], axis=1).astype(np.float32)
+    o32, d32 = r[:, :3].astype(np.float64), r[:, 3:].astype(np.float64)
+    a, b = ours.cast_rays(r), theirs.cast_rays(r)
+    ta, tb = a["t_hit"].numpy(), b["t_hit"].numpy()
+    pa, pb = a["primitive_ids"].numpy(), b["primitive_ids"].numpy()
+    ha, hb = np.isfinite(ta), np.isfinite(tb)
+    out: Dict[str, Any] = {"rays": len(r), "hits_oavm": int(ha.sum()), "hits_open3d": int(hb.sum())}
+    miss_differs = np.flatnonzero(ha != hb)
+    both = ha & hb
+    t_differs = np.flatnonzero(both & (np.abs(ta - tb) > 1e-4 * diag))
+    prim_differs = np.flatnonzero(both & (np.abs(ta - tb) <= 1e-4 * diag) & (pa != pb))
+    # Explain: the margin of the triangle(s) the disagreeing rays hit, on each side.
+    def explain(idx, prims):
+        if not len(idx):
+            return []
+        m = margin(v, f, prims[idx], o32[idx], d32[idx])
+        return [float(x) for x in m]
+    hit_side = np.where(ha[miss_differs], pa[miss_differs], pb[miss_differs])
+    hm = margin(v, f, hit_side, o32[miss_differs], d32[miss_differs]) if len(miss_differs) else np.zeros(0)
+    out["first_hit_or_miss_differs"] = {"rays": len(miss_differs), "margins": [float(x) for x in hm[:20]],
+                                        "unexplained": int((np.abs(hm) > 1e-6).sum())}
+    out["first_t_differs"] = {"rays": len(t_differs),
+                              "margins_oavm": explain(t_differs, pa)[:20], "margins_open3d": explain(t_differs, pb)[:20]}
+    out["first_same_t_other_triangle"] = {"rays": len(prim_differs),
+                                          "margins_oavm": explain(prim_differs, pa)[:10]}
+    # Counts, and where they differ, the margins of every hit Open3D lists for the ray.
+    ca, cb = ours.count_intersections(r).numpy(), theirs.count_intersections(r).numpy()
+    cd = np.flatnonzero(ca != cb)
+    lb = theirs.list_intersections(r)
+    splits, prims = lb["ray_splits"].numpy(), lb["primitive_ids"].numpy()
+    worst = []
+    for i in cd:
+        ps = prims[splits[i]:splits[i + 1]]
+        m = margin(v, f, ps, np.repeat(o32[i:i + 1], len(ps), 0), np.repeat(d32[i:i + 1], len(ps), 0))
+        worst.append(float(np.min(np.abs(m))) if len(m) else 0.0)
+    out["counts"] = {"hits_oavm": int(ca.sum()), "hits_open3d": int(cb.sum()),
+                     "rays_crossing_twice_or_more": int((cb >= 2).sum()), "rays_differ": len(cd),
+                     "oavm_minus_open3d": [int(ca[i] - cb[i]) for i in cd[:20]],
+                     "smallest_margin_of_open3d_hits": worst[:20],
+                     "unexplained": int(sum(1 for w in worst if w > 1e-6))}
+    return out
+
+
+def agree_trimesh(mesh_t, o, d, ours) -> Dict[str, Any]:
+    from trimesh.ray.ray_triangle import RayMeshIntersector as Reference
+    ref = Reference(mesh_t)
+    t = time.perf_counter()
+    fa, fb = ours.intersects_first(o, d), ref.intersects_first(o, d)
+    ia, ra = ours.intersects_id(o, d)
+    ib, rb = ref.intersects_id(o, d)
+    ca, cb = np.bincount(ra, minlength=len(o)), np.bincount(rb, minlength=len(o))
+    return {"rays": len(o), "first_differs": int((fa != fb).sum()), "first_hits": int((fb >= 0).sum()),
+            "count_differs": int((ca != cb).sum()), "hits_oavm": int(ca.sum()), "hits_trimesh": int(cb.sum()),
+            "seconds": time.perf_counter() - t}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--meshes", default="dragon,kitchen,sibenik")
+    ap.add_argument("--rays", type=int, default=1_000_000)
+    ap.add_argument("--points", type=int, default=200_000, help="points for contains_points")
+    ap.add_argument("--trimesh-rays", type=int, default=1000)
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--cache-dir", type=Path, default=ROOT / "target" / "py-dropin-cache")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+
+    import open3d as o3d
+    import trimesh
+    from trimesh.ray.ray_pyembree import RayMeshIntersector as EmbreeIntersector
+
+    import oavm
+    import oavm.open3d
+    import oavm.trimesh
+
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip()
+    report: Dict[str, Any] = {"commit": commit, "format_version": oavm.FORMAT_VERSION,
+                              "open3d": o3d.__version__, "trimesh": trimesh.__version__, "meshes": {}}
+    print(f"commit {commit}, format {oavm.FORMAT_VERSION}, open3d {o3d.__version__}, trimesh {trimesh.__version__}")
+    for name in args.meshes.split(","):
+        v, f = oavm.load_mesh(MESHES[name])
+        diag = float(np.linalg.norm(v.max(axis=0).astype(np.float64) - v.min(axis=0)))
+        mesh_t = trimesh.Trimesh(v.astype(np.float64), f.astype(np.int64), process=False)
+        o, d = random_rays(v, args.rays, 1)
+        r6 = np.concatenate([o, d], axis=1).astype(np.float32)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        pts = lo + (hi - lo) * np.random.default_rng(2).random((args.points, 3))
+        t = time.perf_counter()
+        ours_o3d = oavm.open3d.RaycastingScene(cache_dir=args.cache_dir)
+        ours_o3d.add_triangles(v, f)
+        ours_o3d.cast_rays(r6[:1])
+        first_use = time.perf_counter() - t
+        theirs_o3d = o3d.t.geometry.RaycastingScene()
+        theirs_o3d.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
+        ours_tm = oavm.trimesh.RayMeshIntersector(mesh_t, cache_dir=args.cache_dir)
+        theirs_tm = EmbreeIntersector(mesh_t)
+        rep: Dict[str, Any] = {"triangles": len(f), "rays": len(o), "first_use_s": first_use}
+        print(f"\n{name}: {len(f)} triangles, {len(o)} rays; first use (pack or open) {first_use:.2f} s")
+        rep["agree_open3d"] = agree_open3d(v, f, o, d, ours_o3d, theirs_o3d, diag)
+        print("  against Open3D:", json.dumps(rep["agree_open3d"]))
+        k = args.trimesh_rays
+        rep["agree_trimesh"] = agree_trimesh(mesh_t, o[:k], d[:k], ours_tm)
+        print("  against trimesh ray_triangle:", json.dumps(rep["agree_trimesh"]))
+        calls = [
+            ("intersects_first", lambda: ours_tm.intersects_first(o, d), lambda: theirs_tm.intersects_first(o, d)),
+            ("intersects_location (multiple hits)", lambda: ours_tm.intersects_location(o, d),
+             lambda: theirs_tm.intersects_location(o, d)),
+            ("contains_points", lambda: ours_tm.contains_points(pts), lambda: theirs_tm.contains_points(pts)),
+            ("cast_rays", lambda: ours_o3d.cast_rays(r6), lambda: theirs_o3d.cast_rays(r6)),
+            ("test_occlusions", lambda: ours_o3d.test_occlusions(r6), lambda: theirs_o3d.test_occlusions(r6)),
+            ("count_intersections", lambda: ours_o3d.count_intersections(r6),
+             lambda: theirs_o3d.count_intersections(r6)),
+            ("list_intersections", lambda: ours_o3d.list_intersections(r6),
+             lambda: theirs_o3d.list_intersections(r6)),
+        ]
+        rep["speed"] = {}
+        for call, mine, peer in calls:
+            a, b = timed(mine, args.reps), timed(peer, args.reps)
+            peer_name = "trimesh+embreex" if call in ("intersects_first", "contains_points") or "location" in call else "Open3D"
+            ratio = b["median_s"] / a["median_s"]
+            rep["speed"][call] = {"oavm": a, peer_name: b, "ratio": ratio}
+            print(f"  {call:38s} oavm {a['median_s']:.3f} s ({a['min_s']:.3f}-{a['max_s']:.3f}), "
+                  f"{peer_name} {b['median_s']:.3f} s ({b['min_s']:.3f}-{b['max_s']:.3f}): {ratio:.2f}x")
+        report["meshes"][name] = rep
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
