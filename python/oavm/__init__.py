@@ -37,6 +37,7 @@ from ._native import FORMAT_VERSION, FormatError, MeshError, OavmError
 __all__ = [
     "FORMAT_VERSION",
     "MISS",
+    "ClosestPoints",
     "FormatError",
     "Hits",
     "HitsWithAttributes",
@@ -62,6 +63,18 @@ class Hits(NamedTuple):
 
     t: np.ndarray
     prim: np.ndarray
+
+
+class ClosestPoints(NamedTuple):
+    """Closest points of the surface: ``point`` ``(N, 3)``, ``distance``, ``prim`` (uint32,
+    ``MISS`` for none), ``uv`` ``(N, 2)`` (the point is ``(1-u-v) v0 + u v1 + v v2``) and the
+    triangle's unit ``normal`` ``(N, 3)``."""
+
+    point: np.ndarray
+    distance: np.ndarray
+    prim: np.ndarray
+    uv: np.ndarray
+    normal: np.ndarray
 
 
 class HitsWithAttributes(NamedTuple):
@@ -157,6 +170,13 @@ def _float32_c(arr: np.ndarray) -> np.ndarray:
     """C-contiguous, aligned, native-order float32: ``arr`` itself when it already is."""
     with np.errstate(over="ignore"):  # beyond the float32 range: inf, which the library refuses
         return np.require(arr, dtype=np.float32, requirements=["C_CONTIGUOUS", "ALIGNED"])
+
+
+def _points(points: Any) -> np.ndarray:
+    p = _real_array("points", points)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points: expected shape (N, 3), got {p.shape}")
+    return _float32_c(p)
 
 
 def rays(origins: Any, directions: Any, tmin: Any = 0.0, tmax: Any = np.inf) -> np.ndarray:
@@ -317,6 +337,30 @@ class Scene:
         ray_ids = np.repeat(np.arange(len(arr), dtype=np.uint32), np.diff(splits).astype(np.int64))
         return {"ray_splits": splits, "ray_ids": ray_ids, "t_hit": t, "primitive_ids": prim,
                 "primitive_uvs": uv}
+
+    def closest_points(self, points: Any, *, max_distance: float = float("inf"),
+                       threads: Optional[int] = None) -> "ClosestPoints":
+        """The closest point of the surface to each of ``points`` (``(N, 3)``), within
+        ``max_distance`` of it: :class:`ClosestPoints` ``(point, distance, prim, uv, normal)``
+        (float32; ``prim`` uint32, ``MISS`` where no triangle is that near, with NaN points and
+        ``inf`` distances). A best-first descent of the file's wide nodes, through the memory
+        budget as rays are. Files of clusters."""
+        pts = _points(points)
+        out = self._scene().closest_points(pts, float(max_distance), _count("threads", threads, 1, 1024))
+        return ClosestPoints(*out)
+
+    def occupancy(self, points: Any, *, threads: Optional[int] = None) -> np.ndarray:
+        """Whether each point is inside the surface (bool): most of three rays from it cross
+        the surface an odd number of times, each crossing counted once however the rays pass
+        edges and corners: exact on closed meshes, a vote on meshes with holes."""
+        pts = _points(points)
+        return self._scene().occupancy(pts, _count("threads", threads, 1, 1024)).view(np.bool_)
+
+    def signed_distance(self, points: Any, *, threads: Optional[int] = None) -> np.ndarray:
+        """The distance from each point to the surface, negative inside (:meth:`occupancy`),
+        float32."""
+        d = self.closest_points(points, threads=threads).distance
+        return np.where(self.occupancy(points, threads=threads), -d, d).astype(np.float32)
 
     def camera_rays(
         self,

@@ -224,6 +224,44 @@ class RaycastingScene:
             "t_hit": _answer(lists["t_hit"]),
         }
 
+    def compute_closest_points(self, query_points: Any, nthreads: int = 0) -> dict:
+        """The closest point of the surface to each query point (``(..., 3)``): ``points``,
+        ``geometry_ids``, ``primitive_ids``, ``primitive_uvs`` ``(..., 2)``,
+        ``primitive_normals`` ``(..., 3)``."""
+        p, lead = _points(query_points)
+        c = self._opened().closest_points(p, threads=_threads(nthreads) or self._threads)
+        geom, local = self._ids(c.prim)
+        return {
+            "points": _answer(c.point.reshape(lead + (3,))),
+            "geometry_ids": _answer(geom.reshape(lead)),
+            "primitive_ids": _answer(local.reshape(lead)),
+            "primitive_uvs": _answer(c.uv.reshape(lead + (2,))),
+            "primitive_normals": _answer(c.normal.reshape(lead + (3,))),
+        }
+
+    def compute_distance(self, query_points: Any, nthreads: int = 0) -> _Array:
+        """The distance from each query point to the surface (float32, shape ``(...)``)."""
+        p, lead = _points(query_points)
+        d = self._opened().closest_points(p, threads=_threads(nthreads) or self._threads).distance
+        return _answer(d.reshape(lead))
+
+    def compute_occupancy(self, query_points: Any, nthreads: int = 0, nsamples: int = 1) -> _Array:
+        """1.0 where a query point is inside, else 0.0 (float32, shape ``(...)``). Inside is
+        decided by a vote of three rays whose crossings are counted exactly (a ray through an
+        edge or a corner crosses once), whatever ``nsamples`` (taken for Open3D's signature;
+        it must be odd, as there)."""
+        if int(nsamples) < 1 or int(nsamples) % 2 == 0:
+            raise ValueError(f"nsamples: {nsamples} is not a positive odd number")
+        p, lead = _points(query_points)
+        occ = self._opened().occupancy(p, threads=_threads(nthreads) or self._threads)
+        return _answer(occ.astype(np.float32).reshape(lead))
+
+    def compute_signed_distance(self, query_points: Any, nthreads: int = 0, nsamples: int = 1) -> _Array:
+        """The distance to the surface, negative inside (:meth:`compute_occupancy`)."""
+        occ = self.compute_occupancy(query_points, nthreads, nsamples).numpy()
+        d = self.compute_distance(query_points, nthreads).numpy()
+        return _answer(np.where(occ > 0, -d, d).astype(np.float32))
+
     @staticmethod
     def create_rays_pinhole(*args: Any, **kwargs: Any) -> _Array:
         """The ``(height_px, width_px, 6)`` rays of a pinhole camera, as Open3D makes them:

@@ -16,7 +16,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
-use oavm::logical::{BlockReads, IO_THREADS_PER_CORE, Order, SceneOptions, Walk};
+use oavm::logical::{BlockReads, ClosestPoint, IO_THREADS_PER_CORE, Order, SceneOptions, Walk};
 use oavm::mesh::Mesh;
 use oavm::pack::update::{UpdateOptions, Updater};
 use oavm::pack::{BuildOptions, LeafKind, PackOptions, PackReport};
@@ -221,6 +221,42 @@ impl NativeScene {
     }
 }
 
+/// The points of a `(N, 3)` float32 array.
+fn points_of(a: &PyReadonlyArray2<'_, f32>) -> PyResult<Vec<[f32; 3]>> {
+    if a.shape()[1] != 3 {
+        return Err(PyValueError::new_err(format!(
+            "points: expected shape (N, 3), got ({}, {})",
+            a.shape()[0],
+            a.shape()[1]
+        )));
+    }
+    let flat = a.as_slice().map_err(|e| PyValueError::new_err(format!("points: {e}")))?;
+    Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
+impl NativeScene {
+    /// `answer` on `points` into `out`, slice by slice with the GIL released for each.
+    fn per_slice<T: Send>(
+        &self,
+        py: Python<'_>,
+        points: &[[f32; 3]],
+        out: &mut [T],
+        threads: Option<usize>,
+        answer: impl Fn(&Scene, &[[f32; 3]], &mut [T]) -> Result<(), Error> + Sync,
+    ) -> PyResult<()> {
+        let pool = pool(self.threads(threads)?)?;
+        for (p, o) in points.chunks(SLICE).zip(out.chunks_mut(SLICE)) {
+            py.detach(|| {
+                let _turn = self.busy.lock().unwrap_or_else(|e| e.into_inner());
+                pool.install(|| answer(&self.scene, p, o))
+            })
+            .map_err(to_py)?;
+            py.check_signals()?;
+        }
+        Ok(())
+    }
+}
+
 /// A C-ordered numpy array of zeros (`calloc`: pages the kernel zeroes as they are first
 /// written, so the answers are written once).
 fn zeros<'py, T: numpy::Element>(py: Python<'py>, dims: [usize; 2]) -> Bound<'py, PyArray2<T>> {
@@ -402,6 +438,64 @@ impl NativeScene {
         }
         let splits = PyArray1::from_vec(py, splits).into_any();
         Ok(vec![splits, flat(t)?, flat(prim)?, uv.into_any()])
+    }
+
+    /// The closest point of the surface to each point within `max_distance`: `(points (N,
+    /// 3), distance, prim, uv (N, 2), normal (N, 3))`.
+    #[pyo3(signature = (points, max_distance=f32::INFINITY, threads=None))]
+    fn closest_points<'py>(
+        &self,
+        py: Python<'py>,
+        points: PyReadonlyArray2<'py, f32>,
+        max_distance: f32,
+        threads: Option<usize>,
+    ) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        let pts = points_of(&points)?;
+        let n = pts.len();
+        let mut found = vec![ClosestPoint::NONE; n];
+        self.per_slice(py, &pts, &mut found, threads, |s, p, o| {
+            s.closest_points(p, max_distance, o).map(drop)
+        })?;
+        let (pt, d, prim, uv, nrm) = (
+            zeros::<f32>(py, [n, 3]),
+            zeros::<f32>(py, [n, 1]),
+            zeros::<u32>(py, [n, 1]),
+            zeros::<f32>(py, [n, 2]),
+            zeros::<f32>(py, [n, 3]),
+        );
+        {
+            let (mut a, mut b, mut c, mut e, mut f) =
+                (pt.readwrite(), d.readwrite(), prim.readwrite(), uv.readwrite(), nrm.readwrite());
+            let (a, b, c, e, f) = (
+                slice_mut(&mut a)?,
+                slice_mut(&mut b)?,
+                slice_mut(&mut c)?,
+                slice_mut(&mut e)?,
+                slice_mut(&mut f)?,
+            );
+            for (i, r) in found.iter().enumerate() {
+                a[3 * i..3 * i + 3].copy_from_slice(&r.point);
+                (b[i], c[i], e[2 * i], e[2 * i + 1]) = (r.distance, r.prim, r.u, r.v);
+                f[3 * i..3 * i + 3].copy_from_slice(&r.normal);
+            }
+        }
+        Ok(vec![pt.into_any(), flat(d)?, flat(prim)?, uv.into_any(), nrm.into_any()])
+    }
+
+    /// Whether each point is inside (1) or not (0), by a vote of three rays.
+    #[pyo3(signature = (points, threads=None))]
+    fn occupancy<'py>(
+        &self,
+        py: Python<'py>,
+        points: PyReadonlyArray2<'py, f32>,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let pts = points_of(&points)?;
+        let mut occ = vec![0u8; pts.len()];
+        self.per_slice(py, &pts, &mut occ, threads, |s, p, o| s.occupancy(p, o).map(drop))?;
+        let out = zeros::<u8>(py, [pts.len(), 1]);
+        slice_mut(&mut out.readwrite())?.copy_from_slice(&occ);
+        flat(out)
     }
 
     /// Checks every byte, checksum and invariant; the report as JSON (`ok`, `defects`, ...).

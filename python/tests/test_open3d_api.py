@@ -150,3 +150,48 @@ def test_bad_arguments_are_value_errors(bunny, tmp_path):
         s.cast_rays(np.zeros((3, 5), np.float32))
     with pytest.raises(ValueError):
         s.cast_rays(np.zeros((3, 6)), nthreads=-1)
+
+
+def test_closest_points_and_signed_distance(bunny, tmp_path):
+    v, f = bunny
+    s = RaycastingScene(cache_dir=tmp_path)
+    s.add_triangles(v, f)
+    rng = np.random.default_rng(5)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    q = (lo - 0.1 * (hi - lo) + 1.2 * (hi - lo) * rng.random((4, 50, 3))).astype(np.float32)
+    c = s.compute_closest_points(q)
+    assert c["points"].numpy().shape == (4, 50, 3) and c["primitive_ids"].numpy().dtype == np.uint32
+    d = s.compute_distance(q).numpy()
+    assert d.shape == (4, 50) and d.dtype == np.float32
+    assert np.allclose(np.linalg.norm(c["points"].numpy() - q, axis=-1), d, atol=1e-6)
+    # Against a brute force over every triangle (numpy, f64) on some of the points: the
+    # distance to each triangle's plane where the point projects inside it, else to its edges.
+    tri = v[f].astype(np.float64)
+    for p, dist in zip(q.reshape(-1, 3)[:40].astype(np.float64), d.reshape(-1)[:40]):
+        a, b, cc = tri[:, 0], tri[:, 1], tri[:, 2]
+        n = np.cross(b - a, cc - a)
+        nn = np.einsum("ij,ij->i", n, n)
+        h = np.einsum("ij,ij->i", p - a, n) / nn
+        proj = p - h[:, None] * n
+        inside = np.ones(len(f), bool)
+        for x, y in ((a, b), (b, cc), (cc, a)):
+            inside &= np.einsum("ij,ij->i", np.cross(y - x, proj - x), n) >= 0
+        def seg(x, y):
+            dd = y - x
+            t = np.clip(np.einsum("ij,ij->i", p - x, dd) / np.einsum("ij,ij->i", dd, dd), 0, 1)
+            return np.linalg.norm(p - (x + t[:, None] * dd), axis=1)
+        best = np.where(inside, np.abs(h) * np.sqrt(nn), np.minimum(np.minimum(seg(a, b), seg(b, cc)), seg(cc, a)))
+        assert abs(best.min() - dist) <= 1e-6, (p, best.min(), dist)
+    # The sign on a closed mesh: an icosphere's inside is known.
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    t = RaycastingScene(cache_dir=tmp_path)
+    t.add_triangles(sphere)
+    pts = rng.uniform(-1.5, 1.5, size=(3000, 3)).astype(np.float32)
+    r = np.linalg.norm(pts, axis=1)
+    clear = np.abs(r - 1.0) > 0.02
+    sd = t.compute_signed_distance(pts).numpy()
+    occ = t.compute_occupancy(pts).numpy()
+    assert ((sd < 0) == (r < 1))[clear].all() and ((occ == 1.0) == (r < 1))[clear].all()
+    assert (occ == 1.0).sum() > 300
+    with pytest.raises(ValueError):
+        t.compute_occupancy(pts, nsamples=2)

@@ -9,8 +9,8 @@
 //! Collision Detection*, 5.1.5), so the answer is the exact nearest triangle up to that rounding;
 //! ties keep the smallest primitive id.
 //!
-//! Bounded whatever the bytes: every pop is paid from a budget of the top tree's nodes and links
-//! plus, for each block entered, eight entries per wide node it has (a tree opens each entry
+//! Bounded whatever the bytes: every pop is paid from a budget of the top tree's nodes and twice
+//! its links (a link and its block's first entry) plus, for each block entered, eight entries per wide node it has (a tree opens each entry
 //! once); past it, the bytes are not a tree.
 
 use std::cmp::Reverse;
@@ -65,7 +65,9 @@ impl<'a> Tree<'a> {
         heap.push(Reverse((0, Item::Top(0))));
         let mut best: Option<Nearest> = None;
         let mut best_d2 = max_d2;
-        let mut budget = self.wide_top.len() + self.wide_links.len();
+        // Each link pays for itself and for the first entry of its block, whose own entries
+        // are paid for when it is entered.
+        let mut budget = self.wide_top.len() + 2 * self.wide_links.len();
         let mut entered: HashSet<u32> = HashSet::new();
         c.rays += 1;
         while let Some(Reverse((key, item))) = heap.pop() {
