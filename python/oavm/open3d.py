@@ -162,6 +162,10 @@ class RaycastingScene:
         """Geometry ids and primitive ids within them of the file's primitive ids ``prim``
         (``INVALID_ID`` stays)."""
         miss = prim == INVALID_ID
+        if len(self._offsets) == 2:  # one geometry: its ids are the file's
+            geom = np.zeros(len(prim), dtype=np.uint32)
+            geom[miss] = INVALID_ID
+            return geom, prim
         geom = np.searchsorted(self._offsets, prim.astype(np.int64), side="right") - 1
         local = prim.astype(np.int64) - self._offsets[np.clip(geom, 0, len(self._offsets) - 1)]
         geom = np.where(miss, INVALID_ID, geom).astype(np.uint32)
@@ -183,9 +187,10 @@ class RaycastingScene:
                                          threads=_threads(nthreads) or self._threads)
         geom, local = self._ids(hits.prim)
         miss = hits.prim == INVALID_ID
-        uv = np.stack([hits.u, hits.v], axis=-1)
+        uv = np.empty((len(r6), 2), dtype=np.float32)
+        uv[:, 0], uv[:, 1] = hits.u, hits.v
         uv[miss] = 0.0
-        normal = hits.normal.copy()
+        normal = hits.normal  # a fresh array of this call's: zeroed in place
         normal[miss] = 0.0
         return {
             "t_hit": _answer(hits.t.reshape(lead)),
