@@ -166,6 +166,25 @@ def _mesh_arrays(mesh: Any) -> "tuple[np.ndarray, np.ndarray]":
     return v32, f32
 
 
+def _mesh_object(mesh: Any) -> Any:
+    """A trimesh, Open3D (legacy or tensor) or meshio mesh as its ``(vertices, faces)`` arrays;
+    anything else as it is."""
+    if isinstance(mesh, (str, bytes, os.PathLike, tuple, list)):
+        return mesh
+    if hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):  # open3d.t.geometry.TriangleMesh
+        return (mesh.vertex.positions.numpy(), mesh.triangle.indices.numpy())
+    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):  # trimesh.Trimesh
+        return (np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    if hasattr(mesh, "vertices") and hasattr(mesh, "triangles"):  # open3d.geometry.TriangleMesh
+        return (np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+    if hasattr(mesh, "points") and hasattr(mesh, "cells"):  # meshio.Mesh: its triangle cells
+        tris = [c.data for c in mesh.cells if c.type == "triangle"]
+        if not tris:
+            raise ValueError("mesh: a meshio mesh without triangle cells")
+        return (np.asarray(mesh.points)[:, :3], np.concatenate(tris))
+    return mesh
+
+
 def _float32_c(arr: np.ndarray) -> np.ndarray:
     """C-contiguous, aligned, native-order float32: ``arr`` itself when it already is."""
     with np.errstate(over="ignore"):  # beyond the float32 range: inf, which the library refuses
@@ -478,6 +497,7 @@ def update(
         return json.loads(_native.update_file(p, os.fsdecode(mesh), time=time, **opts))
     if time is not None:
         raise ValueError("time poses an AFF scene file, not a mesh given as arrays")
+    mesh = _mesh_object(mesh)
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         v32, f32 = _mesh_arrays(mesh)
         return json.loads(_native.update_arrays(p, v32, f32, **opts))
@@ -485,7 +505,7 @@ def update(
 
 
 def load_mesh(path: PathLike, *, time: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
-    """The triangles of a mesh file as :func:`pack` reads it (PLY, OBJ, STL, OFF, or a BART AFF
+    """The triangles of a mesh file as :func:`pack` reads it (PLY, OBJ, STL, OFF, glTF/GLB, or a BART AFF
     scene posed at ``time``): ``(V, 3)`` float32 vertices and ``(F, 3)`` uint32 faces, face
     ``i`` being primitive ``i`` (polygons fanned into triangles, every object of a scene in
     order)."""
@@ -518,7 +538,8 @@ def pack(
     complete). Returns the pack report as a dict (triangles, nodes, leaves, volumes, bytes,
     seconds per phase).
 
-    ``mesh``: a path (PLY, OBJ, STL, OFF, or a BART AFF scene), or a ``(vertices, faces)`` pair of arrays
+    ``mesh``: a path (PLY, OBJ, STL, OFF, glTF/GLB, or a BART AFF scene), a trimesh, Open3D or
+    meshio mesh object (its triangles), or a ``(vertices, faces)`` pair of arrays
     (``(V, 3)`` floats and ``(F, 3)`` integer indices: what trimesh's ``mesh.vertices,
     mesh.faces`` and Open3D's ``np.asarray(m.vertices), np.asarray(m.triangles)`` give);
     primitive ids are the face indices. ``leaf_size``: subdivide leaves holding more triangles
@@ -556,6 +577,7 @@ def pack(
     if isinstance(mesh, (str, bytes, os.PathLike)):
         report = _native.pack_file(os.fsdecode(mesh), out, mem_budget=_bytes("mem_budget", mem_budget), **opts)
         return json.loads(report)
+    mesh = _mesh_object(mesh)
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         if mem_budget is not None:
             raise ValueError("mem_budget streams a binary PLY file; a mesh given as arrays is packed in memory")

@@ -24,7 +24,7 @@ from typing import Any, List, Optional, Tuple, Union
 
 import numpy as np
 
-from . import Scene
+from . import Scene, _mesh_object
 from . import _cache
 from . import open as open_scene
 
@@ -57,19 +57,9 @@ def _numpy(name: str, x: Any) -> np.ndarray:
 def _mesh_arrays(mesh: Any) -> Tuple[np.ndarray, np.ndarray]:
     """Vertices and triangles of an Open3D tensor or legacy mesh, a trimesh mesh, a meshio
     mesh (its triangle cells) or a ``(vertices, triangles)`` pair."""
-    if hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):  # open3d.t.geometry.TriangleMesh
-        return _numpy("vertices", mesh.vertex.positions), _numpy("triangles", mesh.triangle.indices)
-    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):  # trimesh.Trimesh
-        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    if hasattr(mesh, "vertices") and hasattr(mesh, "triangles"):  # open3d.geometry.TriangleMesh (trimesh's `triangles` are corners)
-        return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    if hasattr(mesh, "points") and hasattr(mesh, "cells"):  # meshio.Mesh
-        tris = [c.data for c in mesh.cells if c.type == "triangle"]
-        if not tris:
-            raise ValueError("mesh: a meshio mesh without triangle cells")
-        return np.asarray(mesh.points)[:, :3], np.concatenate(tris)
-    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
-        return _numpy("vertices", mesh[0]), _numpy("triangles", mesh[1])
+    arrays = _mesh_object(mesh)
+    if isinstance(arrays, (tuple, list)) and len(arrays) == 2:
+        return _numpy("vertices", arrays[0]), _numpy("triangles", arrays[1])
     raise ValueError(f"mesh: expected an Open3D, trimesh or meshio mesh or (vertices, triangles), got {type(mesh).__name__}")
 
 

@@ -660,7 +660,7 @@ fn run_pack(
         .map_err(|e| OavmError::new_err(format!("cannot write the report: {e}")))
 }
 
-/// The triangles of a mesh file (PLY, OBJ, STL, OFF, AFF posed at `time`) as oavm reads
+/// The triangles of a mesh file (PLY, OBJ, STL, OFF, glTF/GLB, AFF posed at `time`) as oavm reads
 /// them: `(V, 3)` float32 vertices and `(F, 3)` uint32 faces, face `i` being primitive `i`.
 #[pyfunction]
 #[pyo3(signature = (mesh, time=None))]
@@ -679,7 +679,7 @@ fn load_mesh<'py>(
     Ok((v.into_any(), f.into_any()))
 }
 
-/// Packs a mesh file (PLY, OBJ, STL, OFF, AFF); the report as JSON.
+/// Packs a mesh file (PLY, OBJ, STL, OFF, glTF/GLB, AFF); the report as JSON.
 #[pyfunction]
 #[pyo3(signature = (mesh, out, leaf="cluster", leaf_size=None, max_depth=None, compress=None,
                     mem_budget=None, block_size=None, progress=true, threads=None, ropes=false,

@@ -148,3 +148,11 @@ def test_trimesh_conventions(tmp_path):
     hits = RayMeshIntersector(far, cache_dir=tmp_path).intersects_location(o + 1.0e6, d)[0]
     assert np.allclose(hits, loc + 1.0e6, atol=1e-6)
     assert oavm.MISS == 0xFFFFFFFF
+
+
+def test_pack_takes_mesh_objects(bunny, tmp_path):
+    oavm.pack(bunny, tmp_path / "t.oavm", progress=False)
+    oavm.pack((bunny.vertices, bunny.faces), tmp_path / "a.oavm", progress=False)
+    assert (tmp_path / "t.oavm").read_bytes() == (tmp_path / "a.oavm").read_bytes()
+    with pytest.raises(ValueError):
+        oavm.pack(object(), tmp_path / "x.oavm")

@@ -10,7 +10,7 @@ use cli::LeafArg;
 use oavm::pack::{self, BuildOptions, PackOptions, PackReport};
 use oavm::physical::BlockOptions;
 
-/// Packs a triangle mesh (PLY, OBJ, STL, OFF, or a BART AFF scene posed at one time) into an .oavm file: a
+/// Packs a triangle mesh (PLY, OBJ, STL, OFF, glTF/GLB with its node transforms baked in, or a BART AFF scene posed at one time) into an .oavm file: a
 /// Morton-ordered octree with merged empty volumes, ready to be memory-mapped and traced by
 /// oavm-trace.
 #[derive(Parser, Debug)]
