@@ -54,6 +54,9 @@ def timed(f: Callable[[], Any], reps: int) -> Dict[str, Any]:
     f()  # untimed: builds, page faults
     ts = []
     for _ in range(reps):
+        # A pause first: TBB's workers (Open3D's) spin for a while after a call, and would take
+        # the cores from the next call timed.
+        time.sleep(0.2)
         t = time.perf_counter()
         f()
         ts.append(time.perf_counter() - t)
@@ -249,7 +252,10 @@ def main() -> int:
         ]
         rep["speed"] = {}
         for call, mine, peer in calls:
-            a, b = timed(mine, args.reps), timed(peer, args.reps)
+            time.sleep(0.5)
+            a = timed(mine, args.reps)
+            time.sleep(0.5)
+            b = timed(peer, args.reps)
             peer_name = "trimesh+embreex" if call in ("intersects_first", "contains_points") or "location" in call else "Open3D"
             ratio = b["median_s"] / a["median_s"]
             rep["speed"][call] = {"oavm": a, peer_name: b, "ratio": ratio}

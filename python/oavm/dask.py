@@ -31,7 +31,8 @@ except ImportError as e:  # pragma: no cover - depends on the environment
 from . import Hits, HitsWithAttributes, Scene, _bytes, _count
 from . import open as _open
 
-__all__ = ["camera_rays", "intersect", "occluded", "scene", "cache_info", "HIT_DTYPE", "ATTRIBUTES_DTYPE"]
+__all__ = ["camera_rays", "intersect", "occluded", "distance", "signed_distance", "occupancy", "scene",
+           "cache_info", "HIT_DTYPE", "ATTRIBUTES_DTYPE"]
 
 #: The record of one closest hit (the ``HITS`` record of RAYS.md).
 HIT_DTYPE = np.dtype([("t", "<f4"), ("prim", "<u4")])
@@ -146,6 +147,63 @@ def occluded(path: Union[str, "os.PathLike[str]"], rays: Any, *, mem_budget: Uni
         dtype=bool, drop_axis=1, meta=np.empty((0,), bool),
     )
 
+
+
+def _as_points(points: Any, chunk: Optional[int]) -> "da.Array":
+    if not isinstance(points, da.Array):
+        arr = np.asarray(points)
+        size = _count("chunk", chunk, 1, 1 << 40) or DEFAULT_CHUNK
+        points = da.from_array(arr, chunks=(size,) + arr.shape[1:])
+    elif chunk is not None:
+        points = points.rechunk((_count("chunk", chunk, 1, 1 << 40), -1))
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points: expected shape (N, 3), got {points.shape}")
+    if points.dtype.kind not in "fiu":
+        raise ValueError(f"points: dtype {points.dtype} is not a real number type (expected float32)")
+    if len(points.chunks[1]) != 1:
+        points = points.rechunk({1: -1})
+    return points
+
+
+def _points_block(block: np.ndarray, path: str, mem_budget: Optional[int], threads: Optional[int],
+                  what: str) -> np.ndarray:
+    s = scene(path, mem_budget)
+    if what == "distance":
+        return s.closest_points(block, threads=threads).distance
+    if what == "occupancy":
+        return s.occupancy(block, threads=threads)
+    return s.signed_distance(block, threads=threads)
+
+
+def _per_point(path: Any, points: Any, what: str, dtype: Any, mem_budget: Any, threads: Any,
+               chunk: Any) -> "da.Array":
+    points = _as_points(points, chunk)
+    path = _check_file(path)
+    return points.map_blocks(
+        _points_block, path, _bytes("mem_budget", mem_budget), _count("threads", threads, 1, 1024), what,
+        dtype=dtype, drop_axis=1, meta=np.empty((0,), dtype),
+    )
+
+
+def distance(path: Union[str, "os.PathLike[str]"], points: Any, *, mem_budget: Union[None, int, str] = None,
+             threads: Optional[int] = None, chunk: Optional[int] = None) -> "da.Array":
+    """The distance from each point of a ``(N, 3)`` dask array (or numpy array, cut into
+    ``chunk`` points) to the surface in the file at ``path`` (float32), each chunk on a worker
+    (:meth:`oavm.Scene.closest_points`)."""
+    return _per_point(path, points, "distance", np.float32, mem_budget, threads, chunk)
+
+
+def signed_distance(path: Union[str, "os.PathLike[str]"], points: Any, *, mem_budget: Union[None, int, str] = None,
+                    threads: Optional[int] = None, chunk: Optional[int] = None) -> "da.Array":
+    """The signed distance (negative inside, :meth:`oavm.Scene.signed_distance`) of each point,
+    as :func:`distance`: a signed-distance grid of a mesh larger than memory, on a cluster."""
+    return _per_point(path, points, "signed", np.float32, mem_budget, threads, chunk)
+
+
+def occupancy(path: Union[str, "os.PathLike[str]"], points: Any, *, mem_budget: Union[None, int, str] = None,
+              threads: Optional[int] = None, chunk: Optional[int] = None) -> "da.Array":
+    """Whether each point is inside (bool, :meth:`oavm.Scene.occupancy`), as :func:`distance`."""
+    return _per_point(path, points, "occupancy", bool, mem_budget, threads, chunk)
 
 
 def _camera_block(path: str, mem_budget: Optional[int], width: int, height: int, block_info=None,

@@ -115,3 +115,20 @@ def test_camera_rays_made_on_the_workers(dragon):
     assert np.array_equal(r.compute(scheduler="processes"), want)
     with pytest.raises(ValueError, match="camera"):
         oavm.dask.camera_rays(dragon, 20, 20, fov=0)
+
+
+def test_a_signed_distance_grid_on_a_local_cluster(dragon):
+    with oavm.open(dragon) as s:
+        lo, hi = np.array(s.info["mesh_min"]), np.array(s.info["mesh_max"])
+        axes = [np.linspace(lo[k] - 0.05 * (hi[k] - lo[k]), hi[k] + 0.05 * (hi[k] - lo[k]), 24) for k in range(3)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.float32)
+        want = s.signed_distance(grid)
+        inside = s.occupancy(grid)
+    assert (want < 0).sum() > 100 and (want > 0).sum() > 100 and ((want < 0) == inside).all()
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=40) as cluster, Client(cluster):
+        g = da.from_array(grid, chunks=(2000, 3))
+        got = oavm.dask.signed_distance(dragon, g).compute()
+        assert np.array_equal(got, want)
+        assert np.array_equal(oavm.dask.occupancy(dragon, g).compute(), inside)
+        assert np.array_equal(oavm.dask.distance(dragon, grid, chunk=5000).compute(), np.abs(want))
