@@ -56,13 +56,13 @@ def main() -> int:
                   f"{out['one_process']['inside']} inside", flush=True)
     if args.dask:
         import dask.array as da
-        import oavm.dask
+        from oavm import dask as oavm_dask
         from distributed import Client, LocalCluster
         with LocalCluster(n_workers=args.dask, threads_per_worker=1, processes=True,
                           dashboard_address=None, silence_logs=40) as cluster, Client(cluster):
             g = da.from_array(pts, chunks=(args.chunk, 3))
             t = time.perf_counter()
-            got = oavm.dask.signed_distance(args.file, g, mem_budget=args.worker_budget).compute()
+            got = oavm_dask.signed_distance(args.file, g, mem_budget=args.worker_budget).compute()
             out["dask"] = {"seconds": time.perf_counter() - t, "workers": args.dask,
                            "worker_budget": args.worker_budget, "chunks": g.numblocks[0],
                            "inside": int((got < 0).sum())}

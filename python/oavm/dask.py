@@ -91,20 +91,26 @@ def _occluded_block(block: np.ndarray, path: str, mem_budget: Optional[int], thr
     return scene(path, mem_budget).occluded(block, threads=threads)
 
 
-def _as_rays(rays: Any, chunk: Optional[int]) -> "da.Array":
-    if not isinstance(rays, da.Array):
-        arr = np.asarray(rays)
+def _as_rows(name: str, arr: Any, width: int, chunk: Optional[int], what: str) -> "da.Array":
+    """``arr`` as a dask array of rows of ``width`` numbers, chunked along the rows only (a numpy
+    array cut into ``chunk`` rows)."""
+    if not isinstance(arr, da.Array):
+        a = np.asarray(arr)
         size = _count("chunk", chunk, 1, 1 << 40) or DEFAULT_CHUNK
-        rays = da.from_array(arr, chunks=(size,) + arr.shape[1:])
+        arr = da.from_array(a, chunks=(size,) + a.shape[1:])
     elif chunk is not None:
-        rays = rays.rechunk((_count("chunk", chunk, 1, 1 << 40), -1))
-    if rays.ndim != 2 or rays.shape[1] != 8:
-        raise ValueError(f"rays: expected shape (N, 8) (origin, tmin, direction, tmax per ray), got {rays.shape}")
-    if rays.dtype.kind not in "fiu":
-        raise ValueError(f"rays: dtype {rays.dtype} is not a real number type (expected float32)")
-    if len(rays.chunks[1]) != 1:
-        rays = rays.rechunk({1: -1})  # a chunk must hold whole rays
-    return rays
+        arr = arr.rechunk((_count("chunk", chunk, 1, 1 << 40), -1))
+    if arr.ndim != 2 or arr.shape[1] != width:
+        raise ValueError(f"{name}: expected shape (N, {width}){what}, got {arr.shape}")
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: dtype {arr.dtype} is not a real number type (expected float32)")
+    if len(arr.chunks[1]) != 1:
+        arr = arr.rechunk({1: -1})  # a chunk must hold whole rows
+    return arr
+
+
+def _as_rays(rays: Any, chunk: Optional[int]) -> "da.Array":
+    return _as_rows("rays", rays, 8, chunk, " (origin, tmin, direction, tmax per ray)")
 
 
 def _check_file(path: str) -> str:
@@ -150,19 +156,7 @@ def occluded(path: Union[str, "os.PathLike[str]"], rays: Any, *, mem_budget: Uni
 
 
 def _as_points(points: Any, chunk: Optional[int]) -> "da.Array":
-    if not isinstance(points, da.Array):
-        arr = np.asarray(points)
-        size = _count("chunk", chunk, 1, 1 << 40) or DEFAULT_CHUNK
-        points = da.from_array(arr, chunks=(size,) + arr.shape[1:])
-    elif chunk is not None:
-        points = points.rechunk((_count("chunk", chunk, 1, 1 << 40), -1))
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points: expected shape (N, 3), got {points.shape}")
-    if points.dtype.kind not in "fiu":
-        raise ValueError(f"points: dtype {points.dtype} is not a real number type (expected float32)")
-    if len(points.chunks[1]) != 1:
-        points = points.rechunk({1: -1})
-    return points
+    return _as_rows("points", points, 3, chunk, "")
 
 
 def _points_block(block: np.ndarray, path: str, mem_budget: Optional[int], threads: Optional[int],

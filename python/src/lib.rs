@@ -230,7 +230,9 @@ fn points_of(a: &PyReadonlyArray2<'_, f32>) -> PyResult<Vec<[f32; 3]>> {
             a.shape()[1]
         )));
     }
-    let flat = a.as_slice().map_err(|e| PyValueError::new_err(format!("points: {e}")))?;
+    let flat = a
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(format!("points: {e}")))?;
     Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
 }
 
@@ -464,8 +466,13 @@ impl NativeScene {
             zeros::<f32>(py, [n, 3]),
         );
         {
-            let (mut a, mut b, mut c, mut e, mut f) =
-                (pt.readwrite(), d.readwrite(), prim.readwrite(), uv.readwrite(), nrm.readwrite());
+            let (mut a, mut b, mut c, mut e, mut f) = (
+                pt.readwrite(),
+                d.readwrite(),
+                prim.readwrite(),
+                uv.readwrite(),
+                nrm.readwrite(),
+            );
             let (a, b, c, e, f) = (
                 slice_mut(&mut a)?,
                 slice_mut(&mut b)?,
@@ -479,7 +486,13 @@ impl NativeScene {
                 f[3 * i..3 * i + 3].copy_from_slice(&r.normal);
             }
         }
-        Ok(vec![pt.into_any(), flat(d)?, flat(prim)?, uv.into_any(), nrm.into_any()])
+        Ok(vec![
+            pt.into_any(),
+            flat(d)?,
+            flat(prim)?,
+            uv.into_any(),
+            nrm.into_any(),
+        ])
     }
 
     /// Whether each point is inside (1) or not (0), by a vote of three rays.
@@ -492,7 +505,9 @@ impl NativeScene {
     ) -> PyResult<Bound<'py, PyAny>> {
         let pts = points_of(&points)?;
         let mut occ = vec![0u8; pts.len()];
-        self.per_slice(py, &pts, &mut occ, threads, |s, p, o| s.occupancy(p, o).map(drop))?;
+        self.per_slice(py, &pts, &mut occ, threads, |s, p, o| {
+            s.occupancy(p, o).map(drop)
+        })?;
         let out = zeros::<u8>(py, [pts.len(), 1]);
         slice_mut(&mut out.readwrite())?.copy_from_slice(&occ);
         flat(out)

@@ -136,20 +136,26 @@ fn grid(n: u32, seed: u64) -> Mesh {
     for y in 0..n {
         for x in 0..n {
             let (a, b, c, d) = (at(x, y), at(x + 1, y), at(x + 1, y + 1), at(x, y + 1));
-            let halves = match rng.next_u64() % 2 {
-                0 => [[a, b, c], [a, c, d]],
-                _ => [[a, b, d], [b, c, d]],
-            };
-            for mut t in halves {
-                t.rotate_left((rng.next_u64() % 3) as usize);
-                if rng.next_u64().is_multiple_of(2) {
-                    t.swap(0, 1);
-                }
-                triangles.push(t);
-            }
+            triangles.extend(halves(&mut rng, [a, b, c, d]));
         }
     }
     mesh(positions, triangles)
+}
+
+/// The quad `a b c d` cut along a diagonal chosen at random, each half's corners rotated and
+/// perhaps swapped at random (windings mixed).
+fn halves(rng: &mut SplitMix64, [a, b, c, d]: [u32; 4]) -> [[u32; 3]; 2] {
+    let mut halves = match rng.next_u64() % 2 {
+        0 => [[a, b, c], [a, c, d]],
+        _ => [[a, b, d], [b, c, d]],
+    };
+    for t in &mut halves {
+        t.rotate_left((rng.next_u64() % 3) as usize);
+        if rng.next_u64().is_multiple_of(2) {
+            t.swap(0, 1);
+        }
+    }
+    halves
 }
 
 /// Small clusters, so that many triangles straddle several leaves and are found in each.
@@ -242,17 +248,7 @@ pub(crate) fn closed_box(n: u32, seed: u64) -> Mesh {
                     };
                     let [q0, q1, q2, q3] =
                         [p(0, 0), p(1, 0), p(1, 1), p(0, 1)].map(|q| id(q, &mut positions));
-                    let halves = match rng.next_u64() % 2 {
-                        0 => [[q0, q1, q2], [q0, q2, q3]],
-                        _ => [[q0, q1, q3], [q1, q2, q3]],
-                    };
-                    for mut t in halves {
-                        t.rotate_left((rng.next_u64() % 3) as usize);
-                        if rng.next_u64().is_multiple_of(2) {
-                            t.swap(0, 1);
-                        }
-                        triangles.push(t);
-                    }
+                    triangles.extend(halves(&mut rng, [q0, q1, q2, q3]));
                 }
             }
         }

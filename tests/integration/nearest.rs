@@ -201,12 +201,27 @@ fn occupancy_of_a_closed_box_is_exact_through_its_edges_and_corners() {
     // Its closest points, against the box's own distance (a small file: one block, a top tree
     // of one node).
     let mut near = vec![ClosestPoint::NONE; pts.len()];
-    scene.closest_points(&pts, f32::INFINITY, &mut near).expect("closest");
+    scene
+        .closest_points(&pts, f32::INFINITY, &mut near)
+        .expect("closest");
     let side = n as f64;
     for (p, c) in pts.iter().zip(&near) {
         let q = p.map(f64::from);
-        let out: f64 = q.iter().map(|&x| (-x).max(x - side).max(0.0).powi(2)).sum::<f64>().sqrt();
-        let want = if out > 0.0 { out } else { q.iter().map(|&x| x.min(side - x)).fold(f64::INFINITY, f64::min) };
-        assert!((c.distance as f64 - want).abs() < 1e-5, "{p:?}: {c:?}, want {want}");
+        let out: f64 = q
+            .iter()
+            .map(|&x| (-x).max(x - side).max(0.0).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let want = if out > 0.0 {
+            out
+        } else {
+            q.iter()
+                .map(|&x| x.min(side - x))
+                .fold(f64::INFINITY, f64::min)
+        };
+        assert!(
+            (c.distance as f64 - want).abs() < 1e-5,
+            "{p:?}: {c:?}, want {want}"
+        );
     }
 }
