@@ -162,14 +162,23 @@ fn inside(tree: &Tree<'_>, p: [f32; 3], c: &mut Counters) -> Result<bool, TraceE
     if p.iter().any(|x| !x.is_finite()) {
         return Ok(false);
     }
-    let mut found: Vec<HitInfo> = Vec::new();
+    thread_local! {
+        /// The rays' hits, kept per thread: a point costs no allocation.
+        static FOUND: std::cell::Cell<Vec<HitInfo>> = const { std::cell::Cell::new(Vec::new()) };
+    }
+    let mut found = FOUND.take();
     let mut odd = 0;
+    let mut walked = Ok(());
     for d in VOTE_DIRECTIONS {
         let ray = Ray::new(p, d, 0.0, f32::INFINITY);
-        tree.all_hits(&ray, c, &mut found)?;
+        walked = tree.all_hits(&ray, c, &mut found).map(drop);
+        if walked.is_err() {
+            break;
+        }
         odd += found.len() % 2;
     }
-    Ok(odd >= 2)
+    FOUND.set(found);
+    walked.map(|()| odd >= 2)
 }
 
 /// The unit normal `(v1 - v0) x (v2 - v0)` of `t` (NaN if it has no area).

@@ -48,6 +48,13 @@ enum Item {
 /// An entry keyed by the bits of its (non-negative) squared distance, which order as the values.
 type Entry = Reverse<(u64, Item)>;
 
+thread_local! {
+    /// The descent's heap and the blocks it entered, kept per thread so that a query costs no
+    /// allocation once they have grown.
+    static SCRATCH: std::cell::Cell<(BinaryHeap<Entry>, HashSet<u32>)> =
+        std::cell::Cell::new((BinaryHeap::new(), HashSet::new()));
+}
+
 impl<'a> Tree<'a> {
     /// The closest point of the surface to `p` within `sqrt(max_d2)` of it (`None`: no
     /// triangle that near, or a file of leaf lists, which has no wide nodes).
@@ -60,15 +67,29 @@ impl<'a> Tree<'a> {
         if !self.clusters || self.wide_top.is_empty() || p.iter().any(|x| !x.is_finite()) {
             return Ok(None);
         }
-        let q = p.map(f64::from);
-        let mut heap: BinaryHeap<Entry> = BinaryHeap::new();
+        let (mut heap, mut entered) = SCRATCH.take();
+        heap.clear();
+        entered.clear();
+        let found = self.descend(p.map(f64::from), max_d2, c, &mut heap, &mut entered);
+        SCRATCH.set((heap, entered));
+        found
+    }
+
+    /// [`Self::closest_point`]'s descent from `q`, on `heap` and `entered` (empty).
+    fn descend(
+        &self,
+        q: [f64; 3],
+        max_d2: f64,
+        c: &mut Counters,
+        heap: &mut BinaryHeap<Entry>,
+        entered: &mut HashSet<u32>,
+    ) -> Result<Option<Nearest>, TraceError> {
         heap.push(Reverse((0, Item::Top(0))));
         let mut best: Option<Nearest> = None;
         let mut best_d2 = max_d2;
         // Each link pays for itself and for the first entry of its block, whose own entries
         // are paid for when it is entered.
         let mut budget = self.wide_top.len() + 2 * self.wide_links.len();
-        let mut entered: HashSet<u32> = HashSet::new();
         c.rays += 1;
         while let Some(Reverse((key, item))) = heap.pop() {
             if f64::from_bits(key) > best_d2 {
@@ -82,7 +103,7 @@ impl<'a> Tree<'a> {
                     let node = self.wide_top.get(n as usize);
                     let node = node.ok_or_else(|| bad("wide node index out of range", None))?;
                     c.nodes_visited += 1;
-                    push_children(&mut heap, node, &q, best_d2, |i, inner| match inner {
+                    push_children(heap, node, &q, best_d2, |i, inner| match inner {
                         true => Item::Top(node.node_base.wrapping_add(i)),
                         false => Item::Link(node.group_base.wrapping_add(i)),
                     });
@@ -105,7 +126,7 @@ impl<'a> Tree<'a> {
                         let node =
                             node.ok_or_else(|| bad("wide node index out of range", Some(b)))?;
                         c.nodes_visited += 1;
-                        push_children(&mut heap, node, &q, best_d2, |i, inner| match inner {
+                        push_children(heap, node, &q, best_d2, |i, inner| match inner {
                             true => Item::Node(b, node.node_base.wrapping_add(i)),
                             false => Item::Group(b, node.group_base.wrapping_add(i)),
                         });
