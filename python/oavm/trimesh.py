@@ -28,7 +28,7 @@ import numpy as np
 from . import Scene, rays
 from . import _cache
 
-__all__ = ["RayMeshIntersector"]
+__all__ = ["RayMeshIntersector", "ProximityQuery"]
 
 #: The direction of trimesh's ``contains_points`` rays (``trimesh.ray.ray_util``).
 _CONTAINS_DIRECTION = np.array([0.4395064455, 0.617598629942, 0.652231566745])
@@ -165,3 +165,37 @@ class RayMeshIntersector:
         state = self.__dict__.copy()
         state["_scene"], state["_token"] = None, None  # reopened from the cache where unpickled
         return state
+
+
+class ProximityQuery:
+    """trimesh's ``mesh.nearest`` (``trimesh.proximity.ProximityQuery``) over the same cached
+    ``.oavm`` file as :class:`RayMeshIntersector`: ``mesh.nearest =
+    oavm.trimesh.ProximityQuery(mesh)``. trimesh's conventions: float64, and a signed distance
+    POSITIVE inside (the opposite of Open3D's and :meth:`oavm.Scene.signed_distance`'s)."""
+
+    def __init__(self, mesh: Any, cache_dir: Union[None, str, "os.PathLike[str]"] = None, *,
+                 mem_budget: Union[None, int, str] = None, threads: Optional[int] = None):
+        self._rays = RayMeshIntersector(mesh, cache_dir, mem_budget=mem_budget, threads=threads)
+
+    def _points(self, points: Any) -> np.ndarray:
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"points: expected shape (n, 3), got {p.shape}")
+        self._rays.scene  # opened first: it sets the shift
+        return (p - self._rays._shift).astype(np.float32)
+
+    def on_surface(self, points: Any) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(closest (n, 3), distance (n,), triangle_id (n,))``: the nearest point of the
+        surface to each point, as ``trimesh.proximity.closest_point``."""
+        q = self._points(points)
+        c = self._rays.scene.closest_points(q, threads=self._rays.threads)
+        closest = c.point.astype(np.float64) + self._rays._shift
+        return closest, c.distance.astype(np.float64), c.prim.astype(np.int64)
+
+    def signed_distance(self, points: Any) -> np.ndarray:
+        """The distance to the surface, POSITIVE inside (trimesh's sign), float64; inside by a
+        vote of three rays whose crossings are counted exactly."""
+        q = self._points(points)
+        s = self._rays.scene
+        d = s.closest_points(q, threads=self._rays.threads).distance.astype(np.float64)
+        return np.where(s.occupancy(q, threads=self._rays.threads), d, -d)
