@@ -30,7 +30,7 @@ cd "$(dirname "$0")/.."
 root=$PWD
 fuzz=$root/fuzz
 bin=$fuzz/target/x86_64-unknown-linux-gnu/release
-TARGETS=(oavm_fixed oavm pack ply aff obj rays)
+TARGETS=(oavm_fixed oavm pack ply aff obj stl off gltf rays)
 
 max_len() {
     case $1 in

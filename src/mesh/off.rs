@@ -61,7 +61,8 @@ fn read_faces<'b>(
         let w = words(text);
         let first = w.first().copied().unwrap_or(b"");
         let n: u64 = token(first, l, file, "a face's vertex count", "a count")?;
-        if (w.len() as u64) < n + 1 {
+        // (A count near 2^64 must not overflow: the fuzz target found `n + 1` did.)
+        if (w.len() as u64).saturating_sub(1) < n {
             return Err(MeshError::CountMismatch {
                 file: file.to_owned(),
                 at: Place::Line(l),
@@ -247,6 +248,10 @@ mod tests {
             (
                 "OFF\n99999999999 1 0\n".into(),
                 "too large: 99999999999 vertices",
+            ),
+            (
+                "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n18446744073709551615 0 1 2\n".into(),
+                "a.off: line 6: data disagrees with the header: face 0 declares 18446744073709551615 vertices",
             ),
             (
                 CUBE_SIDE.replace("1 1 0\n", "1 1\n"),
