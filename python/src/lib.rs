@@ -259,6 +259,28 @@ impl NativeScene {
     }
 }
 
+impl NativeScene {
+    /// One answer per ray of `rays` by `answer`, as an `(N,)` numpy array ([`Self::traced`]).
+    fn column<'py, T: numpy::Element + Send + Sync + Copy>(
+        &self,
+        py: Python<'py>,
+        rays: &[Ray],
+        threads: Option<usize>,
+        fill: T,
+        answer: impl Fn(&Scene, &[Ray], &mut [T], Order) -> Result<(), Error> + Sync,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let out = zeros::<T>(py, [rays.len(), 1]);
+        {
+            let mut w = out.readwrite();
+            let dst = slice_mut(&mut w)?;
+            self.traced(py, rays, threads, fill, answer, |at, a| {
+                dst[at..at + a.len()].copy_from_slice(a)
+            })?;
+        }
+        flat(out)
+    }
+}
+
 /// A C-ordered numpy array of zeros (`calloc`: pages the kernel zeroes as they are first
 /// written, so the answers are written once).
 fn zeros<'py, T: numpy::Element>(py: Python<'py>, dims: [usize; 2]) -> Bound<'py, PyArray2<T>> {
@@ -355,20 +377,9 @@ impl NativeScene {
         rays: PyReadonlyArray2<'py, f32>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let rays = rays_of(&rays)?;
-        let occl = zeros::<u8>(py, [rays.len(), 1]);
-        let mut ow = occl.readwrite();
-        let os = slice_mut(&mut ow)?;
-        self.traced(
-            py,
-            &rays,
-            threads,
-            0u8,
-            |s, r, o, order| s.occluded_batch_ordered(r, o, order).map(drop),
-            |at, answers| os[at..at + answers.len()].copy_from_slice(answers),
-        )?;
-        drop(ow);
-        flat(occl)
+        self.column(py, &rays_of(&rays)?, threads, 0u8, |s, r, o, order| {
+            s.occluded_batch_ordered(r, o, order).map(drop)
+        })
     }
 
     /// How many triangles each ray hits, as a uint32 array.
@@ -379,20 +390,9 @@ impl NativeScene {
         rays: PyReadonlyArray2<'py, f32>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let rays = rays_of(&rays)?;
-        let counts = zeros::<u32>(py, [rays.len(), 1]);
-        let mut cw = counts.readwrite();
-        let cs = slice_mut(&mut cw)?;
-        self.traced(
-            py,
-            &rays,
-            threads,
-            0u32,
-            |s, r, o, _| s.count_intersections(r, o).map(drop),
-            |at, n| cs[at..at + n.len()].copy_from_slice(n),
-        )?;
-        drop(cw);
-        flat(counts)
+        self.column(py, &rays_of(&rays)?, threads, 0u32, |s, r, o, _| {
+            s.count_intersections(r, o).map(drop)
+        })
     }
 
     /// Every hit of each ray: `(splits, t, prim, uv)`, ray `i`'s hits at

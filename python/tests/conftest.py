@@ -109,3 +109,23 @@ def ray_sets(lo, hi, n: int, seed: int) -> dict:
     odd[16:24, 3], odd[16:24, 7] = 2.0, 1.0
     odd[24:32, 6] = np.inf
     return {"random": random, "axis": axis, "segments": seg, "odd": odd}
+
+
+def brute_distance(tri: np.ndarray, p: np.ndarray) -> float:
+    """Distance from `p` to the nearest of triangles `tri` (f64): to a plane where `p`
+    projects inside the triangle, else to its nearest edge."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(b - a, c - a)
+    nn = np.einsum("ij,ij->i", n, n)
+    h = np.einsum("ij,ij->i", p - a, n) / nn
+    proj = p - h[:, None] * n
+    inside = np.ones(len(tri), bool)
+    for x, y in ((a, b), (b, c), (c, a)):
+        inside &= np.einsum("ij,ij->i", np.cross(y - x, proj - x), n) >= 0
+
+    def seg(x, y):
+        d = y - x
+        t = np.clip(np.einsum("ij,ij->i", p - x, d) / np.einsum("ij,ij->i", d, d), 0, 1)
+        return np.linalg.norm(p - (x + t[:, None] * d), axis=1)
+
+    return float(np.where(inside, np.abs(h) * np.sqrt(nn), np.minimum(np.minimum(seg(a, b), seg(b, c)), seg(c, a))).min())

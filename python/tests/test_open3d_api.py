@@ -12,6 +12,7 @@ import trimesh
 
 import oavm
 from oavm.open3d import INVALID_ID, RaycastingScene
+from conftest import brute_distance
 
 
 @pytest.fixture(scope="module")
@@ -164,24 +165,10 @@ def test_closest_points_and_signed_distance(bunny, tmp_path):
     d = s.compute_distance(q).numpy()
     assert d.shape == (4, 50) and d.dtype == np.float32
     assert np.allclose(np.linalg.norm(c["points"].numpy() - q, axis=-1), d, atol=1e-6)
-    # Against a brute force over every triangle (numpy, f64) on some of the points: the
-    # distance to each triangle's plane where the point projects inside it, else to its edges.
+    # Against a brute force over every triangle (numpy, f64, conftest) on some of the points.
     tri = v[f].astype(np.float64)
     for p, dist in zip(q.reshape(-1, 3)[:40].astype(np.float64), d.reshape(-1)[:40]):
-        a, b, cc = tri[:, 0], tri[:, 1], tri[:, 2]
-        n = np.cross(b - a, cc - a)
-        nn = np.einsum("ij,ij->i", n, n)
-        h = np.einsum("ij,ij->i", p - a, n) / nn
-        proj = p - h[:, None] * n
-        inside = np.ones(len(f), bool)
-        for x, y in ((a, b), (b, cc), (cc, a)):
-            inside &= np.einsum("ij,ij->i", np.cross(y - x, proj - x), n) >= 0
-        def seg(x, y):
-            dd = y - x
-            t = np.clip(np.einsum("ij,ij->i", p - x, dd) / np.einsum("ij,ij->i", dd, dd), 0, 1)
-            return np.linalg.norm(p - (x + t[:, None] * dd), axis=1)
-        best = np.where(inside, np.abs(h) * np.sqrt(nn), np.minimum(np.minimum(seg(a, b), seg(b, cc)), seg(cc, a)))
-        assert abs(best.min() - dist) <= 1e-6, (p, best.min(), dist)
+        assert abs(brute_distance(tri, p) - dist) <= 1e-6, (p, dist)
     # The sign on a closed mesh: an icosphere's inside is known.
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     t = RaycastingScene(cache_dir=tmp_path)

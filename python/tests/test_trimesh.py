@@ -14,6 +14,7 @@ from trimesh.ray.ray_triangle import RayMeshIntersector as Reference
 
 import oavm
 from oavm.trimesh import RayMeshIntersector
+from conftest import brute_distance
 
 
 def _rays(mesh, n, seed):
@@ -158,26 +159,6 @@ def test_pack_takes_mesh_objects(bunny, tmp_path):
         oavm.pack(object(), tmp_path / "x.oavm")
 
 
-def _brute_distance(tri: np.ndarray, p: np.ndarray) -> float:
-    """Distance from `p` to the nearest of triangles `tri` (f64): to a plane where `p`
-    projects inside the triangle, else to its nearest edge."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    n = np.cross(b - a, c - a)
-    nn = np.einsum("ij,ij->i", n, n)
-    h = np.einsum("ij,ij->i", p - a, n) / nn
-    proj = p - h[:, None] * n
-    inside = np.ones(len(tri), bool)
-    for x, y in ((a, b), (b, c), (c, a)):
-        inside &= np.einsum("ij,ij->i", np.cross(y - x, proj - x), n) >= 0
-
-    def seg(x, y):
-        d = y - x
-        t = np.clip(np.einsum("ij,ij->i", p - x, d) / np.einsum("ij,ij->i", d, d), 0, 1)
-        return np.linalg.norm(p - (x + t[:, None] * d), axis=1)
-
-    return float(np.where(inside, np.abs(h) * np.sqrt(nn), np.minimum(np.minimum(seg(a, b), seg(b, c)), seg(c, a))).min())
-
-
 def test_proximity_follows_trimesh_s_conventions(bunny, tmp_path):
     from oavm.trimesh import ProximityQuery
     rng = np.random.default_rng(7)
@@ -187,9 +168,9 @@ def test_proximity_follows_trimesh_s_conventions(bunny, tmp_path):
     assert closest.dtype == np.float64 and tri.dtype == np.int64
     tris = bunny.triangles
     for k in range(len(p)):
-        assert abs(dist[k] - _brute_distance(tris, p[k])) <= 1e-6 * bunny.scale
+        assert abs(dist[k] - brute_distance(tris, p[k])) <= 1e-6 * bunny.scale
         assert abs(np.linalg.norm(closest[k] - p[k]) - dist[k]) <= 1e-6 * bunny.scale
-        assert _brute_distance(tris[tri[k]:tri[k] + 1], p[k]) <= dist[k] + 1e-6 * bunny.scale
+        assert brute_distance(tris[tri[k]:tri[k] + 1], p[k]) <= dist[k] + 1e-6 * bunny.scale
     # trimesh's sign: positive inside.
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     q = rng.uniform(-1.5, 1.5, size=(2000, 3))
@@ -198,4 +179,4 @@ def test_proximity_follows_trimesh_s_conventions(bunny, tmp_path):
     sd = ProximityQuery(sphere, cache_dir=tmp_path).signed_distance(q)
     assert ((sd > 0) == (r < 1))[clear].all() and (sd > 0).sum() > 200
     for k in range(0, 2000, 50):
-        assert abs(abs(sd[k]) - _brute_distance(sphere.triangles, q[k])) <= 1e-6
+        assert abs(abs(sd[k]) - brute_distance(sphere.triangles, q[k])) <= 1e-6
