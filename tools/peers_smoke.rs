@@ -69,6 +69,7 @@ fn run() -> Result<bool, String> {
     let Mesh {
         positions,
         triangles,
+        ..
     } = load_obj(&path)?;
     let (lo, hi) = bounds(&positions);
     let diag = (0..3)
@@ -419,6 +420,7 @@ fn check_tiny_meshes() -> bool {
     let (o, z) = ([0.25, 0.25, 1.0], [-0.0, 0.0, -2.0]);
     let up = |tmin, tmax| Ray::new(o, z, tmin, tmax);
     let one = Mesh {
+        geometries: Vec::new(),
         positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
         triangles: vec![[0, 1, 2]],
     };

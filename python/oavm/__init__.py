@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import re
-from typing import Any, NamedTuple, Optional, Sequence, Tuple, Union
+from typing import Any, List, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -39,6 +39,7 @@ __all__ = [
     "MISS",
     "ClosestPoints",
     "FormatError",
+    "Geometry",
     "Hits",
     "HitsWithAttributes",
     "MeshError",
@@ -91,6 +92,18 @@ class HitsWithAttributes(NamedTuple):
     u: np.ndarray
     v: np.ndarray
     normal: np.ndarray
+
+
+class Geometry(NamedTuple):
+    """One of the meshes a file was made of (format-spec §8.8): the file's primitives
+    ``first_primitive .. first_primitive + primitive_count``, its ``name`` (cut to 48 bytes),
+    and the ``transform`` that placed its vertices before they were stored (``(3, 4)`` float64,
+    row-major: ``world = transform[:, :3] @ p + transform[:, 3]``; the identity when none)."""
+
+    name: str
+    first_primitive: int
+    primitive_count: int
+    transform: np.ndarray
 
 
 _SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([KMGT]?)(?:i?B)?\s*$", re.IGNORECASE)
@@ -185,6 +198,94 @@ def _mesh_object(mesh: Any) -> Any:
     return mesh
 
 
+def _is_trimesh_scene(mesh: Any) -> bool:
+    return hasattr(mesh, "graph") and hasattr(mesh, "geometry") and hasattr(mesh.graph, "nodes_geometry")
+
+
+def _is_pair(mesh: Any) -> bool:
+    """Whether ``mesh`` is one ``(vertices, faces)`` pair of arrays (not a list of meshes)."""
+    if not isinstance(mesh, (tuple, list)) or len(mesh) != 2:
+        return False
+    for x in mesh:
+        if hasattr(x, "numpy") and not hasattr(x, "vertices"):  # an Open3D tensor
+            continue
+        if isinstance(x, (str, bytes, os.PathLike)):
+            return False
+        try:
+            a = np.asarray(x)
+        except Exception:
+            return False
+        if a.dtype.kind not in "biuf" or a.ndim != 2:
+            return False
+    return True
+
+
+#: A part of a mesh made of several: float32 vertices, uint32 faces, and its geometries as the
+#: native code takes them, ``(name, face count, 12 transform numbers or None)``.
+_Part = Tuple[np.ndarray, np.ndarray, list]
+
+
+def _parts(mesh: Any) -> Optional[List[_Part]]:
+    """The meshes of ``mesh`` when it is several (a list or dict of meshes, a ``trimesh.Scene``),
+    each with its geometries; ``None`` when it is one mesh."""
+    if _is_trimesh_scene(mesh):
+        parts = []
+        for node in mesh.graph.nodes_geometry:
+            matrix, name = mesh.graph[node]
+            g = mesh.geometry[name]
+            if not hasattr(g, "faces"):  # a path or a point cloud: no triangles
+                continue
+            m = np.asarray(matrix, dtype=np.float64)
+            v = np.asarray(g.vertices, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+            v32, f32 = _mesh_arrays((v, np.asarray(g.faces)))
+            parts.append((v32, f32, [(str(node), len(f32), m[:3, :4].reshape(-1).tolist())]))
+        if not parts:
+            raise ValueError("mesh: a trimesh.Scene without triangle meshes")
+        return parts
+    if isinstance(mesh, dict):
+        items = [(str(k), m) for k, m in mesh.items()]
+    elif isinstance(mesh, (list, tuple)) and not _is_pair(mesh):
+        items = [(None, m) for m in mesh]
+    else:
+        return None
+    if not items:
+        raise ValueError("mesh: an empty list of meshes")
+    parts = []
+    for i, (name, m) in enumerate(items):
+        if isinstance(m, (str, bytes, os.PathLike)):
+            v, f, geoms = _native.load_mesh(os.fsdecode(m), None)
+            label = name or os.path.basename(os.fsdecode(m))
+            if geoms:  # a glTF scene: its nodes, named within the file's name
+                parts.append((v, f, [(f"{label}/{g[0]}", g[2], g[3]) for g in geoms]))
+            else:
+                parts.append((v, f, [(label, len(f), None)]))
+            continue
+        inner = _parts(m) if _is_trimesh_scene(m) or isinstance(m, dict) else None
+        if inner is not None:
+            label = name or f"scene {i}"
+            for v, f, geoms in inner:
+                parts.append((v, f, [(f"{label}/{g[0]}", g[1], g[2]) for g in geoms]))
+            continue
+        label = name
+        if label is None:
+            meta = getattr(m, "metadata", None)
+            label = str(meta.get("name")) if isinstance(meta, dict) and meta.get("name") else f"mesh {i}"
+        v32, f32 = _mesh_arrays(_mesh_object(m))
+        parts.append((v32, f32, [(label, len(f32), None)]))
+    return parts
+
+
+def _joined(parts: List[_Part]) -> "tuple[np.ndarray, np.ndarray, list]":
+    """One vertex and one face array of several parts, and their geometries in order."""
+    base = np.cumsum([0] + [len(v) for v, _, _ in parts])
+    if base[-1] > 2**32:
+        raise MeshError(f"arrays: {base[-1]} vertices in all, more than 32-bit indices reach")
+    v = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3), np.float32)
+    f = np.concatenate([p[1].astype(np.int64) + b for p, b in zip(parts, base)])
+    geoms = [g for p in parts for g in p[2]]
+    return _float32_c(v), np.require(f, dtype=np.uint32, requirements=["C_CONTIGUOUS", "ALIGNED"]), geoms
+
+
 def _float32_c(arr: np.ndarray) -> np.ndarray:
     """C-contiguous, aligned, native-order float32: ``arr`` itself when it already is."""
     with np.errstate(over="ignore"):  # beyond the float32 range: inf, which the library refuses
@@ -253,6 +354,7 @@ class Scene:
         self._mem_budget = budget
         self._walk = str(walk)
         self._info: Optional[dict] = None
+        self._geometries: "Optional[list[Geometry]]" = None
 
     def _scene(self) -> "_native.NativeScene":
         s = self._native
@@ -282,6 +384,40 @@ class Scene:
                 + (" ..." if len(defects) > 20 else "")
             )
         return report
+
+    @property
+    def geometries(self) -> "list[Geometry]":
+        """The meshes the file was made of (its geometry table, format-spec §8.8): one
+        :class:`Geometry` each, in the order of their primitives; empty for a file packed from
+        one mesh."""
+        if self._geometries is None:
+            self._geometries = [
+                Geometry(name, first, count, np.array(t, dtype=np.float64).reshape(3, 4))
+                for name, first, count, t in self._scene().geometries()
+            ]
+        return self._geometries
+
+    def locate(self, prim: Any) -> "tuple[np.ndarray, np.ndarray]":
+        """The geometry holding each primitive id of ``prim`` (what hits and closest points
+        return) and the primitive's index within it, as two uint32 arrays; ``MISS`` stays
+        ``MISS`` in both. In a file of one mesh, geometry 0 and the id itself."""
+        p = np.asarray(prim)
+        if p.dtype.kind not in "iu":
+            raise ValueError(f"prim: expected integer primitive ids, got {p.dtype}")
+        p = p.astype(np.int64)
+        miss = (p == MISS) | (p < 0)
+        g = self.geometries
+        if not g:
+            geom = np.zeros(p.shape, dtype=np.int64)
+            local = p
+        else:
+            ends = np.array([x.first_primitive + x.primitive_count for x in g], dtype=np.int64)
+            geom = np.searchsorted(ends, p, side="right")
+            miss |= geom >= len(g)
+            starts = np.array([x.first_primitive for x in g], dtype=np.int64)
+            local = p - starts[np.minimum(geom, len(g) - 1)]
+        return (np.where(miss, MISS, geom).astype(np.uint32),
+                np.where(miss, MISS, local).astype(np.uint32))
 
     def intersect(
         self,
@@ -479,7 +615,9 @@ def update(
     """Brings the file at ``path`` (packed with ``updatable=True``) to the triangles of
     ``mesh`` in place: a path (an AFF scene posed at ``time``) or a ``(vertices, faces)`` pair
     whose face ``i`` is primitive ``i``. Only the blocks whose triangles moved, appeared or went
-    are rebuilt; the update is a new generation of the file (format-spec §2.1), so a crash
+    are rebuilt; several meshes (as :func:`pack` takes them) replace the file's geometry table,
+    one mesh keeps it (its last geometry ending where the new primitives do). The update is a
+    new generation of the file (format-spec §2.1), so a crash
     leaves the previous or the new one, and scenes opened before keep answering as before.
     Returns the report as a dict (primitives moved, inserted, removed; blocks rebuilt; bytes
     written; seconds). ``compress``: a zstd level for the new blocks, ``False`` for raw
@@ -497,6 +635,10 @@ def update(
         return json.loads(_native.update_file(p, os.fsdecode(mesh), time=time, **opts))
     if time is not None:
         raise ValueError("time poses an AFF scene file, not a mesh given as arrays")
+    parts = _parts(mesh)
+    if parts is not None:
+        v32, f32, geoms = _joined(parts)
+        return json.loads(_native.update_arrays(p, v32, f32, geometries=geoms, **opts))
     mesh = _mesh_object(mesh)
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         v32, f32 = _mesh_arrays(mesh)
@@ -509,7 +651,8 @@ def load_mesh(path: PathLike, *, time: Optional[float] = None) -> Tuple[np.ndarr
     scene posed at ``time``): ``(V, 3)`` float32 vertices and ``(F, 3)`` uint32 faces, face
     ``i`` being primitive ``i`` (polygons fanned into triangles, every object of a scene in
     order)."""
-    return _native.load_mesh(os.fspath(path), None if time is None else float(time))
+    v, f, _ = _native.load_mesh(os.fspath(path), None if time is None else float(time))
+    return v, f
 
 
 def compact(path: PathLike) -> dict:
@@ -542,7 +685,11 @@ def pack(
     meshio mesh object (its triangles), or a ``(vertices, faces)`` pair of arrays
     (``(V, 3)`` floats and ``(F, 3)`` integer indices: what trimesh's ``mesh.vertices,
     mesh.faces`` and Open3D's ``np.asarray(m.vertices), np.asarray(m.triangles)`` give);
-    primitive ids are the face indices. ``leaf_size``: subdivide leaves holding more triangles
+    primitive ids are the face indices. Several meshes: a list of any of these, a dict of them
+    by name, or a ``trimesh.Scene`` (each node's mesh placed by its transform); they are
+    stored one after another, each a geometry of the file's geometry table
+    (:attr:`Scene.geometries`, :meth:`Scene.locate`), as is each node of a glTF file.
+    ``leaf_size``: subdivide leaves holding more triangles
     (default 512 for clusters, 32 for lists); ``max_depth``: deepest octree level (default 16,
     at most 21); ``compress``: ``True`` or a zstd level (1-22) to store blocks compressed;
     ``mem_budget``: pack a binary PLY file within about this much memory, streaming it (for
@@ -577,10 +724,15 @@ def pack(
     if isinstance(mesh, (str, bytes, os.PathLike)):
         report = _native.pack_file(os.fsdecode(mesh), out, mem_budget=_bytes("mem_budget", mem_budget), **opts)
         return json.loads(report)
-    mesh = _mesh_object(mesh)
-    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
+    parts = _parts(mesh)
+    if parts is not None or not isinstance(mesh, (str, bytes, os.PathLike)):
         if mem_budget is not None:
             raise ValueError("mem_budget streams a binary PLY file; a mesh given as arrays is packed in memory")
+    if parts is not None:
+        v32, f32, geoms = _joined(parts)
+        return json.loads(_native.pack_arrays(v32, f32, out, geometries=geoms, **opts))
+    mesh = _mesh_object(mesh)
+    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         v32, f32 = _mesh_arrays(mesh)
         return json.loads(_native.pack_arrays(v32, f32, out, **opts))
     raise ValueError(

@@ -17,7 +17,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from . import FORMAT_VERSION, FormatError, Scene, pack
+from . import FORMAT_VERSION, FormatError, Scene, _native, pack
 from . import open as open_scene
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -43,16 +43,23 @@ def key(vertices: np.ndarray, faces: np.ndarray, *extra: bytes) -> str:
 
 
 def opened(vertices: np.ndarray, faces: np.ndarray, cache_dir: Optional[PathLike],
-           mem_budget=None, *extra: bytes) -> Scene:
+           mem_budget=None, *extra: bytes, geometries: Optional[list] = None) -> Scene:
     """The scene of ``(vertices, faces)`` (float32 and uint32, as :func:`oavm.pack` takes
-    them), from the cache directory, packed there first if it is not."""
+    them; with ``geometries``, several meshes, as ``_native.pack_arrays`` takes them), from the
+    cache directory, packed there first if it is not."""
     where = Path(cache_dir) if cache_dir is not None else default_dir()
     where.mkdir(parents=True, exist_ok=True)
+    if geometries:
+        extra = extra + (repr(geometries).encode(),)
     path = where / f"{key(vertices, faces, *extra)}.oavm"
     if path.exists():
         try:
             return open_scene(path, mem_budget=mem_budget)
         except (FormatError, OSError):
             pass  # packed again below
-    pack((vertices, faces), path, progress=False)
+    if geometries:
+        # Atomically, as pack() writes (the geometries are those of native pack_arrays).
+        _native.pack_arrays(vertices, faces, os.fspath(path), progress=False, geometries=geometries)
+    else:
+        pack((vertices, faces), path, progress=False)
     return open_scene(path, mem_budget=mem_budget)

@@ -103,8 +103,6 @@ class RaycastingScene:
         self._mem_budget = mem_budget
         self._vertices: List[np.ndarray] = []
         self._triangles: List[np.ndarray] = []
-        # Triangle offset of each geometry (and the total after the last).
-        self._offsets = np.zeros(1, dtype=np.int64)
         self._normals: Optional[np.ndarray] = None
         self._scene: Optional[Scene] = None
         self._path: Optional[str] = None
@@ -112,13 +110,12 @@ class RaycastingScene:
     @classmethod
     def open(cls, path: Union[str, "os.PathLike[str]"], *, mem_budget: Union[None, int, str] = None,
              nthreads: int = 0) -> "RaycastingScene":
-        """A scene of one geometry (id 0) over a file packed before (:func:`oavm.pack`), which
-        may be larger than memory: nothing is read but its header and top tree until rays
-        come."""
+        """A scene over a file packed before (:func:`oavm.pack`), which may be larger than
+        memory: nothing is read but its header and top tree until rays come. Its geometries are
+        those of the file's geometry table (one, id 0, for a file packed from one mesh)."""
         s = cls(nthreads, mem_budget=mem_budget)
         s._scene = open_scene(path, mem_budget=mem_budget)
         s._path = os.fspath(path)
-        s._offsets = np.array([0, s._scene.info["input_triangles"]], dtype=np.int64)
         return s
 
     def add_triangles(self, vertex_positions: Any, triangle_indices: Any = None) -> int:
@@ -135,7 +132,6 @@ class RaycastingScene:
         base = sum(len(x) for x in self._vertices)
         self._vertices.append(v.astype(np.float32))
         self._triangles.append(f.astype(np.int64) + base)
-        self._offsets = np.append(self._offsets, self._offsets[-1] + len(f))
         self._scene, self._normals = None, None
         return len(self._triangles) - 1
 
@@ -145,22 +141,17 @@ class RaycastingScene:
                 raise ValueError("the scene has no geometry: add_triangles first")
             v = np.concatenate(self._vertices)
             f = np.concatenate(self._triangles).astype(np.uint32)
-            self._scene = _cache.opened(v, f, self._cache_dir, self._mem_budget)
+            # Several meshes are stored with the file's geometry table, so the file opened
+            # later on its own (RaycastingScene.open) names them too.
+            geoms = ([(f"geometry {i}", len(t), None) for i, t in enumerate(self._triangles)]
+                     if len(self._triangles) > 1 else None)
+            self._scene = _cache.opened(v, f, self._cache_dir, self._mem_budget, geometries=geoms)
         return self._scene
 
     def _ids(self, prim: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         """Geometry ids and primitive ids within them of the file's primitive ids ``prim``
-        (``INVALID_ID`` stays)."""
-        miss = prim == INVALID_ID
-        if len(self._offsets) == 2:  # one geometry: its ids are the file's
-            geom = np.zeros(len(prim), dtype=np.uint32)
-            geom[miss] = INVALID_ID
-            return geom, prim
-        geom = np.searchsorted(self._offsets, prim.astype(np.int64), side="right") - 1
-        local = prim.astype(np.int64) - self._offsets[np.clip(geom, 0, len(self._offsets) - 1)]
-        geom = np.where(miss, INVALID_ID, geom).astype(np.uint32)
-        local = np.where(miss, INVALID_ID, local).astype(np.uint32)
-        return geom, local
+        (``INVALID_ID`` stays), from the file's geometry table."""
+        return self._opened().locate(prim)
 
     def _ray_array(self, r6: np.ndarray, tnear: float = 0.0, tfar: float = math.inf) -> np.ndarray:
         out = np.empty((len(r6), 8), dtype=np.float32)

@@ -535,6 +535,12 @@ impl NativeScene {
     }
 
     /// The header, the counts and the tracing set-up, as JSON.
+    /// The geometry table (format-spec §8.8): `(name, first_primitive, primitive_count,
+    /// transform)` each, the transform row-major 3x4; empty for a file of one mesh.
+    fn geometries(&self) -> Vec<GeometryTuple> {
+        self.scene.geometries().iter().map(geometry_tuple).collect()
+    }
+
     fn info(&self) -> String {
         let h = self.scene.file().header();
         let s = self.scene.info();
@@ -568,6 +574,53 @@ impl NativeScene {
         })
         .to_string()
     }
+}
+
+/// A geometry as Python sees it: `(name, first_primitive, primitive_count, transform)`, the
+/// transform's 12 numbers row-major.
+type GeometryTuple = (String, u64, u64, Vec<f64>);
+
+fn geometry_tuple(g: &oavm::mesh::Geometry) -> GeometryTuple {
+    (
+        g.name.clone(),
+        g.first_primitive,
+        g.primitive_count,
+        g.transform.as_flattened().to_vec(),
+    )
+}
+
+/// A geometry as Python gives it: `(name, primitive_count, transform)`.
+type GivenGeometry = (String, u64, Option<Vec<f64>>);
+
+/// Geometries from Python's `(name, primitive_count, transform)` triples (a transform of 12
+/// numbers, row-major 3x4, or none for the identity), one after another from primitive 0.
+fn geometries_of(
+    given: Option<Vec<GivenGeometry>>,
+) -> PyResult<Vec<oavm::mesh::Geometry>> {
+    let mut first = 0u64;
+    let mut out = Vec::new();
+    for (name, count, transform) in given.unwrap_or_default() {
+        let transform = match transform {
+            None => oavm::mesh::Geometry::IDENTITY,
+            Some(t) if t.len() == 12 => {
+                std::array::from_fn(|r| std::array::from_fn(|c| t[4 * r + c]))
+            }
+            Some(t) => {
+                return Err(PyValueError::new_err(format!(
+                    "geometry {name:?}: a transform of {} numbers, expected 12 (3x4, row-major)",
+                    t.len()
+                )));
+            }
+        };
+        out.push(oavm::mesh::Geometry {
+            name,
+            first_primitive: first,
+            primitive_count: count,
+            transform,
+        });
+        first = first.saturating_add(count);
+    }
+    Ok(out)
 }
 
 /// Opens a file, O(1) in its size: the header, section table and top tree's level table.
@@ -683,7 +736,7 @@ fn load_mesh<'py>(
     py: Python<'py>,
     mesh: PathBuf,
     time: Option<f64>,
-) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Vec<GeometryTuple>)> {
     let m = py
         .detach(|| oavm::mesh::load_at(&mesh, time))
         .map_err(|e| to_py(e.into()))?;
@@ -691,7 +744,8 @@ fn load_mesh<'py>(
         .reshape([m.positions.len(), 3])?;
     let f = PyArray1::from_vec(py, m.triangles.as_flattened().to_vec())
         .reshape([m.triangles.len(), 3])?;
-    Ok((v.into_any(), f.into_any()))
+    let g = m.geometries.iter().map(geometry_tuple).collect();
+    Ok((v.into_any(), f.into_any(), g))
 }
 
 /// Packs a mesh file (PLY, OBJ, STL, OFF, glTF/GLB, AFF); the report as JSON.
@@ -724,12 +778,13 @@ fn pack_file(
     })
 }
 
-/// Packs a mesh given as a `(V, 3)` float32 vertex array and a `(F, 3)` uint32 face array;
+/// Packs a mesh given as a `(V, 3)` float32 vertex array and a `(F, 3)` uint32 face array
+/// (with `geometries`, several meshes one after another: `(name, faces, transform)` each);
 /// the report as JSON.
 #[pyfunction]
 #[pyo3(signature = (vertices, faces, out, leaf="cluster", leaf_size=None, max_depth=None,
                     compress=None, block_size=None, progress=true, threads=None, ropes=false,
-                    updatable=false, bounds=None))]
+                    updatable=false, bounds=None, geometries=None))]
 #[allow(clippy::too_many_arguments)]
 fn pack_arrays(
     py: Python<'_>,
@@ -746,11 +801,13 @@ fn pack_arrays(
     ropes: bool,
     updatable: bool,
     bounds: Option<([f32; 3], [f32; 3])>,
+    geometries: Option<Vec<GivenGeometry>>,
 ) -> PyResult<String> {
     let opts = pack_options(
         leaf, leaf_size, max_depth, compress, None, block_size, ropes, updatable, bounds,
     )?;
-    let (mesh, name) = arrays_mesh(&vertices, &faces)?;
+    let (mut mesh, name) = arrays_mesh(&vertices, &faces)?;
+    mesh.geometries = geometries_of(geometries)?;
     run_pack(py, progress, threads, |bar| {
         // The options were checked above: what is invalid now is the mesh (an index out of
         // range, a non-finite corner, no triangles), reported as for a mesh file.
@@ -790,6 +847,7 @@ fn arrays_mesh(
         .as_slice()
         .map_err(|e| PyValueError::new_err(format!("faces: {e}")))?;
     let mesh = Mesh {
+        geometries: Vec::new(),
         positions: v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
         triangles: f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
     };
@@ -855,9 +913,10 @@ fn update_file(
 }
 
 /// Updates a file packed with `updatable=True` to a mesh given as arrays (face i is primitive
-/// i); the report as JSON.
+/// i; `geometries` as for `pack_arrays`, else the file's table kept); the report as JSON.
 #[pyfunction]
-#[pyo3(signature = (path, vertices, faces, block_size=None, compress=None, raw=false, threads=None))]
+#[pyo3(signature = (path, vertices, faces, block_size=None, compress=None, raw=false, threads=None,
+                    geometries=None))]
 #[allow(clippy::too_many_arguments)]
 fn update_arrays(
     py: Python<'_>,
@@ -868,9 +927,11 @@ fn update_arrays(
     compress: Option<i32>,
     raw: bool,
     threads: Option<usize>,
+    geometries: Option<Vec<GivenGeometry>>,
 ) -> PyResult<String> {
     let opts = update_options(block_size, compress, raw);
-    let (mesh, _) = arrays_mesh(&vertices, &faces)?;
+    let (mut mesh, _) = arrays_mesh(&vertices, &faces)?;
+    mesh.geometries = geometries_of(geometries)?;
     run_update(py, path, threads, opts, || Ok(mesh))
 }
 

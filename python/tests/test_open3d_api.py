@@ -99,6 +99,9 @@ def test_several_geometries_name_their_hits(bunny, tmp_path):
     # Pickled (by its meshes), it answers the same.
     c = pickle.loads(pickle.dumps(s)).cast_rays(moved)
     assert (c["geometry_ids"].numpy() == g).all()
+    # The file it packed holds the geometry table: opened on its own, it names them too.
+    f2 = RaycastingScene.open(s._opened().path).cast_rays(moved)
+    assert (f2["geometry_ids"].numpy() == g).all() and (f2["primitive_ids"].numpy() == p).all()
 
 
 def test_a_packed_file_opens_as_a_scene(bunny, tmp_path):

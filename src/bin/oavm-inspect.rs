@@ -98,6 +98,7 @@ fn text(args: &Args, i: &Inspection) -> String {
     sections(&mut t, i);
     top_tree(&mut t, i);
     wide(&mut t, i);
+    geometries(&mut t, i);
     blocks(&mut t, i);
     whole_tree(&mut t, i);
     t
@@ -208,6 +209,37 @@ fn wide(t: &mut String, i: &Inspection) {
             "  in blocks: {} of the octree, {} of clusters ({} cluster roots)",
             b.octree_nodes, b.cluster_nodes, b.cluster_roots
         );
+    }
+}
+
+/// The geometry table (format-spec §8.8): each geometry's primitives, name and placement
+/// (the first 64; `--json` has them all).
+fn geometries(t: &mut String, i: &Inspection) {
+    const SHOWN: usize = 64;
+    match &i.geometries {
+        None => {}
+        Some(Err(e)) => {
+            let _ = writeln!(t, "\ngeometries: unreadable: {e}");
+        }
+        Some(Ok(g)) => {
+            let _ = writeln!(t, "\ngeometries: {}", g.len());
+            for (id, g) in g.iter().enumerate().take(SHOWN) {
+                let m = g.transform;
+                let placed = match m == oavm::mesh::Geometry::IDENTITY {
+                    true => String::new(),
+                    false => format!(", moved by [{}, {}, {}]", m[0][3], m[1][3], m[2][3]),
+                };
+                let r = g.primitives();
+                let _ = writeln!(
+                    t,
+                    "  {id:>5}  primitives {:>10} .. {:<10} {:?}{placed}",
+                    r.start, r.end, g.name
+                );
+            }
+            if g.len() > SHOWN {
+                let _ = writeln!(t, "  ... {} more (--json lists them all)", g.len() - SHOWN);
+            }
+        }
     }
 }
 

@@ -1,4 +1,5 @@
-//! `oavm-pack MESH OUT.oavm`: builds the OAVM tree of a mesh and writes it as one file.
+//! `oavm-pack MESH... OUT.oavm`: builds the OAVM tree of a mesh (or of several, each a
+//! geometry of the file) and writes it as one file.
 
 mod cli;
 
@@ -16,8 +17,12 @@ use oavm::physical::BlockOptions;
 #[derive(Parser, Debug)]
 #[command(name = "oavm-pack", version)]
 struct Args {
-    /// Input mesh: .ply (ascii or binary), .obj, or .aff (a BART scene with its includes).
-    mesh: PathBuf,
+    /// Input mesh: .ply (ascii or binary), .obj, .stl, .off, .gltf/.glb, or .aff (a BART
+    /// scene with its includes). Several: each is a geometry of the file's geometry table
+    /// (format-spec §8.8), named by its file name, its primitives numbered after the previous
+    /// ones' (as is each node of a glTF scene).
+    #[arg(required = true, num_args = 1..)]
+    mesh: Vec<PathBuf>,
     /// Output .oavm file: written atomically (it appears only when complete); through a
     /// symlink to its target; never a directory, device or FIFO, nor the input.
     out: PathBuf,
@@ -126,7 +131,8 @@ fn main() -> ExitCode {
         };
         let progress = cli::progress_bar();
         let report = cli::with_threads(args.threads, || {
-            pack::pack(&args.mesh, &args.out, &opts, &progress)
+            let meshes: Vec<&std::path::Path> = args.mesh.iter().map(PathBuf::as_path).collect();
+            pack::pack_files(&meshes, &args.out, &opts, &progress)
         })?;
         progress.finish();
         if args.json {

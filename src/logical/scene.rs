@@ -157,6 +157,8 @@ pub struct Scene<D = MappedFile> {
     /// Chunked reading ([`Self::chunked`]): the heads' directory the pager is given, and the
     /// cache of chunks of groups.
     chunked: Option<(Vec<BlockEntry>, ChunkCache)>,
+    /// The geometry table (format-spec §8.8), read and checked at open; empty: one mesh.
+    geometries: Vec<crate::mesh::Geometry>,
 }
 
 /// What an opened scene is and holds, for reports.
@@ -222,6 +224,8 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
     ) -> Result<Scene<D>, Error> {
         let path = path.into();
         let file = OavmFile::open(data).map_err(|e| Error::format(&path, e))?;
+        let geometries =
+            crate::physical::read_geometries(&file).map_err(|e| Error::format(&path, e))?;
         let flags = file.header().flags;
         match opts.walk {
             Walk::Ropes if flags & FLAG_ROPES == 0 => {
@@ -358,7 +362,24 @@ impl<D: AsRef<[u8]> + BlockSource> Scene<D> {
             top_boxes: OnceLock::new(),
             progress: None,
             walk: opts.walk,
+            geometries,
         })
+    }
+
+    /// The meshes the file was made of (format-spec §8.8), each a run of primitive ids; empty
+    /// for a file of one mesh.
+    pub fn geometries(&self) -> &[crate::mesh::Geometry] {
+        &self.geometries
+    }
+
+    /// Which geometry holds primitive `prim`, and its index within that geometry: `(0, prim)`
+    /// in a file of one mesh; `None` for a primitive id past the file's.
+    pub fn locate(&self, prim: u32) -> Option<(u32, u64)> {
+        match self.geometries.is_empty() {
+            true => (u64::from(prim) < self.file.header().input_triangles)
+                .then_some((0, u64::from(prim))),
+            false => crate::mesh::locate_primitive(&self.geometries, u64::from(prim)),
+        }
     }
 
     /// Reports streamed batches' progress (rays answered, blocks read) to `progress`

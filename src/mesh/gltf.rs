@@ -133,7 +133,7 @@ pub fn parse_gltf(
     let placed = placements(&root, name)?;
     // What the placements will make, before anything is allocated.
     let mut total = 0u64;
-    for (mesh, _) in &placed {
+    for (_, mesh, _) in &placed {
         for p in &root.meshes[*mesh].primitives {
             let (v, t) = primitive_size(&root, p);
             total = total
@@ -150,11 +150,25 @@ pub fn parse_gltf(
             ),
         });
     }
+    // One geometry (format-spec §8.8) per placement: the node, its mesh, its world transform.
     let mut out = Mesh::default();
-    for (mesh, world) in &placed {
+    for (node, mesh, world) in &placed {
+        let first = out.triangles.len() as u64;
         for (pi, p) in root.meshes[*mesh].primitives.iter().enumerate() {
             add_primitive(&mut out, &root, p, world, &buffers, name, (*mesh, pi))?;
         }
+        let label = root.nodes[*node]
+            .name
+            .clone()
+            .or_else(|| root.meshes[*mesh].name.clone())
+            .unwrap_or_else(|| format!("node {node}"));
+        out.geometries.push(super::Geometry {
+            name: label,
+            first_primitive: first,
+            primitive_count: out.triangles.len() as u64 - first,
+            // Column-major m[c][r] to row-major 3x4.
+            transform: std::array::from_fn(|r| std::array::from_fn(|c| world[c][r])),
+        });
     }
     check_sizes(&out, name)?;
     Ok(out)
@@ -285,9 +299,9 @@ fn local(node: &gltf::json::Node) -> Matrix {
     })
 }
 
-/// Every mesh the scene places (its index), with the world transform of the node that places
-/// it, in the order of a depth-first walk.
-fn placements(root: &Root, name: &str) -> Result<Vec<(usize, Matrix)>, MeshError> {
+/// Every node that places a mesh, with the mesh's index and the node's world transform, in the
+/// order of a depth-first walk.
+fn placements(root: &Root, name: &str) -> Result<Vec<(usize, usize, Matrix)>, MeshError> {
     let identity: Matrix = std::array::from_fn(|i| std::array::from_fn(|j| (i == j) as u8 as f64));
     let node_index = |i: usize, from: &'static str, at: usize| {
         if i < root.nodes.len() {
@@ -357,7 +371,7 @@ fn placements(root: &Root, name: &str) -> Result<Vec<(usize, Matrix)>, MeshError
                     format!("names mesh {}, which does not exist", m.value()),
                 ));
             }
-            out.push((m.value(), world));
+            out.push((n, m.value(), world));
         }
         for c in node.children.iter().flatten().rev() {
             stack.push((node_index(c.value(), "node", n)?, world));
@@ -664,7 +678,7 @@ mod tests {
     /// without indices, a fourth as a fan.
     const SCENE: &str = r#"{"asset":{"version":"2.0"},"scene":0,
         "scenes":[{"nodes":[0]}],
-        "nodes":[{"mesh":0,"translation":[10,0,0],"scale":[2,2,2],"children":[1]},
+        "nodes":[{"name":"floor","mesh":0,"translation":[10,0,0],"scale":[2,2,2],"children":[1]},
                  {"mesh":1,"matrix":[0,1,0,0, -1,0,0,0, 0,0,1,0, 0,0,5,1]}],
         "meshes":[{"primitives":[{"attributes":{"POSITION":0},"indices":1}]},
                   {"primitives":[{"attributes":{"POSITION":0},"mode":5},
@@ -692,6 +706,20 @@ mod tests {
             assert_eq!(m.triangle(2 + k), *w, "triangle {}", 2 + k);
         }
         assert_eq!(m.triangles.len(), 6);
+        // A geometry per node: its name (the node's, else "node N"), its primitives, its world
+        // transform (row-major 3x4), which maps its mesh's corners to what was stored.
+        let names: Vec<_> = m.geometries.iter().map(|g| g.name.as_str()).collect();
+        assert_eq!(names, ["floor", "node 1"]);
+        let runs: Vec<_> = m.geometries.iter().map(|g| g.primitives()).collect();
+        assert_eq!(runs, [0..2, 2..6]);
+        let t = m.geometries[1].transform;
+        for (c, p) in sq.iter().enumerate() {
+            let w: [f64; 3] = std::array::from_fn(|r| {
+                (0..3).map(|k| t[r][k] * p[k] as f64).sum::<f64>() + t[r][3]
+            });
+            assert_eq!(w.map(|x| x as f32), place(*p), "corner {c}");
+        }
+        assert_eq!(m.geometries[0].transform[0], [2.0, 0.0, 0.0, 10.0]);
     }
 
     #[test]

@@ -35,6 +35,74 @@ pub use stl::parse_stl;
 pub struct Mesh {
     pub positions: Vec<[f32; 3]>,
     pub triangles: Vec<[u32; 3]>,
+    /// The meshes it was made of, when it was made of several (a glTF scene's placed meshes,
+    /// a list given to `oavm.pack`): runs of primitive ids that cover `triangles` in order,
+    /// stored in the file as its geometry table (format-spec §8.8). Empty: one mesh, no table.
+    pub geometries: Vec<Geometry>,
+}
+
+/// One of the meshes a [`Mesh`] or a file was made of (format-spec §8.8): primitive ids
+/// `first_primitive .. first_primitive + primitive_count`, named, placed by `transform`
+/// (row-major 3x4, applied to its vertices before they were stored; the identity when none).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Geometry {
+    pub name: String,
+    pub first_primitive: u64,
+    pub primitive_count: u64,
+    pub transform: [[f64; 4]; 3],
+}
+
+impl Geometry {
+    /// The identity transform.
+    pub const IDENTITY: [[f64; 4]; 3] = [
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+    ];
+
+    /// The primitive ids it holds.
+    pub fn primitives(&self) -> std::ops::Range<u64> {
+        self.first_primitive..self.first_primitive + self.primitive_count
+    }
+}
+
+/// Which of `geometries` (a table that covers the primitive ids in order) holds primitive
+/// `prim`, and the primitive's index within it; `None` past the last.
+pub fn locate_primitive(geometries: &[Geometry], prim: u64) -> Option<(u32, u64)> {
+    let g = geometries.partition_point(|g| g.first_primitive + g.primitive_count <= prim);
+    let geo = geometries.get(g)?;
+    geo.primitives()
+        .contains(&prim)
+        .then(|| (g as u32, prim - geo.first_primitive))
+}
+
+/// Whether `geometries` cover primitive ids `0..primitives` one after another, in order (an
+/// error says where not): what a geometry table must be.
+pub fn check_geometries(geometries: &[Geometry], primitives: u64) -> Result<(), String> {
+    let mut next = 0u64;
+    for (i, g) in geometries.iter().enumerate() {
+        if g.first_primitive != next {
+            return Err(format!(
+                "geometry {i} ({:?}) starts at primitive {}, the one before it ends at {next}",
+                g.name, g.first_primitive
+            ));
+        }
+        if g.transform.iter().flatten().any(|x| !x.is_finite()) {
+            return Err(format!(
+                "geometry {i} ({:?}) has a non-finite transform",
+                g.name
+            ));
+        }
+        next = next
+            .checked_add(g.primitive_count)
+            .ok_or_else(|| format!("geometry {i} ({:?}): its primitive count overflows", g.name))?;
+    }
+    if !geometries.is_empty() && next != primitives {
+        return Err(format!(
+            "the geometries hold {next} primitives, the mesh {primitives}"
+        ));
+    }
+    Ok(())
 }
 
 impl Mesh {
@@ -43,6 +111,49 @@ impl Mesh {
         (0..self.triangles.len())
             .map(|i| self.triangle(i))
             .collect()
+    }
+
+    /// One mesh of several (format-spec §8.8: each becomes a geometry, in order, named as
+    /// given, its primitives numbered after the previous ones'). A part that has geometries of
+    /// its own (a glTF scene) keeps them, their names prefixed with its name and `/`.
+    pub fn join(parts: Vec<(String, Mesh)>) -> Result<Mesh, String> {
+        let mut out = Mesh::default();
+        for (name, part) in parts {
+            let base = out.positions.len();
+            if base + part.positions.len() > 1 << 32 {
+                return Err(format!("{name}: more than 2^32 vertices in all"));
+            }
+            let n = part.positions.len() as u64;
+            if let Some(i) = part
+                .triangles
+                .iter()
+                .position(|t| t.iter().any(|&v| v as u64 >= n))
+            {
+                return Err(format!(
+                    "{name}: triangle {i} holds a vertex index past its {n} vertices"
+                ));
+            }
+            let first = out.triangles.len() as u64;
+            out.positions.extend_from_slice(&part.positions);
+            out.triangles
+                .extend(part.triangles.iter().map(|t| t.map(|v| v + base as u32)));
+            match part.geometries.is_empty() {
+                true => out.geometries.push(Geometry {
+                    name,
+                    first_primitive: first,
+                    primitive_count: part.triangles.len() as u64,
+                    transform: Geometry::IDENTITY,
+                }),
+                false => out
+                    .geometries
+                    .extend(part.geometries.into_iter().map(|g| Geometry {
+                        name: format!("{name}/{}", g.name),
+                        first_primitive: first + g.first_primitive,
+                        ..g
+                    })),
+            }
+        }
+        Ok(out)
     }
 
     /// The three corners of triangle `i`.

@@ -88,6 +88,7 @@ pub fn parse_obj(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
     };
 
     let mut mesh = Mesh {
+        geometries: Vec::new(),
         positions: lines.positions,
         triangles: Vec::new(),
     };

@@ -158,6 +158,7 @@ pub fn parse_off(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
     // file's size can back.
     let cap = |n: u64, per: usize| (n as usize).min(bytes.len() / per);
     let mut mesh = Mesh {
+        geometries: Vec::new(),
         positions: Vec::with_capacity(cap(nv, 6)),
         triangles: Vec::with_capacity(cap(nf, 2)),
     };

@@ -88,6 +88,7 @@ fn parse_binary(bytes: &[u8], file: &str) -> Result<Mesh, MeshError> {
         });
     }
     let mut mesh = Mesh {
+        geometries: Vec::new(),
         positions: Vec::with_capacity(3 * n as usize),
         triangles: Vec::with_capacity(n as usize),
     };
@@ -264,6 +265,7 @@ mod tests {
     #[test]
     fn binary_and_ascii_give_the_facets_in_order() {
         let want = Mesh {
+            geometries: Vec::new(),
             positions: TRI.iter().flatten().copied().collect(),
             triangles: vec![[0, 1, 2], [3, 4, 5]],
         };

@@ -44,7 +44,9 @@ pub use cluster::{
     ClusterBuild, ClusterBuilder, ClusterError, ClusterTri, build_cluster, triangle_box,
 };
 pub use prepare::check_scale;
-pub use run::{PackOptions, PackReport, StreamingReport, pack, pack_mesh, streaming_budget};
+pub use run::{
+    PackOptions, PackReport, StreamingReport, pack, pack_files, pack_mesh, streaming_budget,
+};
 pub use stats::{BuildStats, PointerCounts};
 use stats::{PhaseSeconds, TreeCounts};
 pub use streaming::{BYTES_PER_CHUNK_TRIANGLE, HISTOGRAM_LEVEL};

@@ -476,6 +476,7 @@ pub fn add_occluders<D: AsRef<[u8]>, S: Sink>(
     report.compute_seconds += t.elapsed().as_secs_f64();
 
     let mut w = FileWriter::new(sink).map_err(io)?;
+    w.set_geometries(crate::physical::read_geometries(file).map_err(bad)?);
     for (id, entry) in file.directory().iter().enumerate() {
         let id = id as u32;
         let raw = reader

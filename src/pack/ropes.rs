@@ -223,6 +223,7 @@ pub fn add_ropes<D: AsRef<[u8]>, S: Sink>(
 
     let reader = BlockReader::new(file);
     let mut w = FileWriter::new(sink).map_err(io)?;
+    w.set_geometries(crate::physical::read_geometries(file).map_err(bad)?);
     for (id, entry) in file.directory().iter().enumerate() {
         let id = id as u32;
         let raw = reader

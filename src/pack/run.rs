@@ -128,6 +128,68 @@ pub fn pack(
     with_ropes(report, out, opts, progress, t0)
 }
 
+/// Packs several mesh files into one `.oavm` file, each a geometry of its geometry table
+/// (format-spec §8.8) named by its file name; one file is [`pack`]. Each is read whole into
+/// memory (a memory budget, which streams one binary PLY, is refused).
+pub fn pack_files(
+    mesh_paths: &[&Path],
+    out: &Path,
+    opts: &PackOptions,
+    progress: &dyn Progress,
+) -> Result<PackReport, Error> {
+    let [one] = mesh_paths else {
+        return pack_joined(mesh_paths, out, opts, progress);
+    };
+    pack(one, out, opts, progress)
+}
+
+fn pack_joined(
+    mesh_paths: &[&Path],
+    out: &Path,
+    opts: &PackOptions,
+    progress: &dyn Progress,
+) -> Result<PackReport, Error> {
+    opts.validate()?;
+    if mesh_paths.is_empty() {
+        return Err(Error::Invalid("no mesh to pack".into()));
+    }
+    if opts.mem_budget.is_some() {
+        return Err(Error::Invalid(
+            "--mem-budget streams one binary PLY; several meshes are read and joined in memory"
+                .into(),
+        ));
+    }
+    let output = Output::create(out, mesh_paths)?;
+    let t0 = Instant::now();
+    progress.phase("parsing the meshes", None, false);
+    let limits = crate::mesh::LoadLimits {
+        max_file_bytes: crate::os::available_memory()
+            .unwrap_or(crate::mesh::LoadLimits::DEFAULT_MAX_FILE_BYTES),
+    };
+    let mut parts = Vec::with_capacity(mesh_paths.len());
+    let mut bytes = 0u64;
+    for path in mesh_paths {
+        bytes += std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        parts.push((name, crate::mesh::load_with(path, opts.time, &limits)?));
+    }
+    let mesh = Mesh::join(parts).map_err(Error::Invalid)?;
+    let source = MeshSource {
+        name: mesh_paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" + "),
+        bytes,
+        parse_seconds: t0.elapsed().as_secs_f64(),
+    };
+    let report = pack_built(mesh, source, output, out, opts, progress, t0)?;
+    with_ropes(report, out, opts, progress, t0)
+}
+
 /// Adds occluders, then ropes, to the file just packed at `out` if `opts` ask for them. The
 /// file without them is complete and in place; each pass replaces it atomically (a crash in
 /// between leaves a valid file, without what the pass adds).
@@ -267,7 +329,7 @@ struct MeshSource {
 
 /// Builds `mesh` in memory and writes it to `output` (the in-memory half of [`pack`]).
 fn pack_built(
-    mesh: Mesh,
+    mut mesh: Mesh,
     source: MeshSource,
     output: Output,
     out: &Path,
@@ -275,6 +337,9 @@ fn pack_built(
     progress: &dyn Progress,
     t0: Instant,
 ) -> Result<PackReport, Error> {
+    crate::mesh::check_geometries(&mesh.geometries, mesh.triangles.len() as u64)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", source.name)))?;
+    let geometries = std::mem::take(&mut mesh.geometries);
     let (parts, stats) = super::build_within(&mesh, &opts.build, opts.bounds, progress)?;
     let prims = opts.updatable.then(|| super::prims::prim_records(&mesh));
     drop(mesh);
@@ -282,7 +347,7 @@ fn pack_built(
     progress.phase("writing", None, false);
     let t1 = Instant::now();
     let (file_bytes, block_count) =
-        write::write_file(output, &parts, &opts.blocks, prims.as_deref())?;
+        write::write_file(output, &parts, &opts.blocks, prims.as_deref(), geometries)?;
     drop(parts);
     let write_seconds = t1.elapsed().as_secs_f64();
     Ok(PackReport {

@@ -174,6 +174,8 @@ pub struct Updater {
     edits: BTreeMap<u32, PrimRecord>,
     /// Primitives after the update (`input_triangles`).
     count: u64,
+    /// The geometry table after the update (format-spec §8.8; empty: none).
+    geometries: Vec<crate::mesh::Geometry>,
     diff_seconds: f64,
 }
 
@@ -204,12 +206,15 @@ impl Updater {
             ));
         }
         let count = h.input_triangles;
+        let geometries =
+            crate::physical::read_geometries(&file).map_err(|e| Error::format(path, e))?;
         Ok(Updater {
             path: path.to_owned(),
             handle,
             file,
             edits: BTreeMap::new(),
             count,
+            geometries,
             diff_seconds: 0.0,
         })
     }
@@ -222,6 +227,39 @@ impl Updater {
     /// Primitives the file will have (`input_triangles` after the update).
     pub fn primitive_count(&self) -> u64 {
         self.count
+    }
+
+    /// The geometry table the file will have (format-spec §8.8; empty: none).
+    pub fn geometries(&self) -> &[crate::mesh::Geometry] {
+        &self.geometries
+    }
+
+    /// Replaces the geometry table (empty: the file will have none); [`Self::commit`] checks
+    /// that it covers the primitives the file will have.
+    pub fn set_geometries(&mut self, geometries: Vec<crate::mesh::Geometry>) {
+        self.geometries = geometries;
+    }
+
+    /// The geometry table with its last geometry ending where `count` primitives do (after
+    /// inserts, or a new mesh of another size given without geometries); an error if that
+    /// geometry starts past them.
+    fn stretched_geometries(&self, count: u64) -> Result<Vec<crate::mesh::Geometry>, Error> {
+        let mut geometries = self.geometries.clone();
+        if let Some(last) = geometries.last_mut() {
+            if count < last.first_primitive {
+                return Err(invalid(
+                    &self.path,
+                    format!(
+                        "the file's geometry table places its last geometry ({:?}) at \
+                         primitive {}, past the new mesh's {count} primitives: give the new \
+                         mesh's geometries",
+                        last.name, last.first_primitive
+                    ),
+                ));
+            }
+            last.primitive_count = count - last.first_primitive;
+        }
+        Ok(geometries)
     }
 
     /// The stored record of primitive `prim` in the open generation (`None` past the table,
@@ -289,10 +327,13 @@ impl Updater {
         Ok(())
     }
 
-    /// Appends a triangle with the next primitive id, which it returns.
+    /// Appends a triangle with the next primitive id, which it returns; in a file with a
+    /// geometry table, it joins the last geometry.
     pub fn insert(&mut self, v: [[f32; 3]; 3]) -> Result<u32, Error> {
         let prim = u32::try_from(self.count)
             .map_err(|_| invalid(&self.path, "primitive ids are 32-bit"))?;
+        self.check_corners(prim, &v)?;
+        self.geometries = self.stretched_geometries(self.count + 1)?;
         self.count += 1;
         self.set(prim, v)?;
         Ok(prim)
@@ -318,8 +359,10 @@ impl Updater {
     }
 
     /// Makes the file's triangles those of `mesh` (same primitive-id space: triangle `i` of the
-    /// mesh is primitive `i`; primitives past its end are removed, new ones inserted). Returns
-    /// how many primitives differ from the open generation.
+    /// mesh is primitive `i`; primitives past its end are removed, new ones inserted), and its
+    /// geometry table the mesh's geometries; a mesh without any keeps the file's table, its
+    /// last geometry stretched or shrunk to the new count. Returns how many primitives differ
+    /// from the open generation.
     pub fn set_mesh(&mut self, mesh: &Mesh) -> Result<u64, Error> {
         let t0 = Instant::now();
         let n = mesh.triangles.len() as u64;
@@ -351,6 +394,12 @@ impl Updater {
                 format!("the new mesh's vertex {i} is not finite"),
             ));
         }
+        crate::mesh::check_geometries(&mesh.geometries, n)
+            .map_err(|e| invalid(&self.path, format!("the new mesh: {e}")))?;
+        self.geometries = match mesh.geometries.is_empty() {
+            true => self.stretched_geometries(n)?,
+            false => mesh.geometries.clone(),
+        };
         self.edits.clear();
         let old = self.file.header().input_triangles;
         self.count = n;
@@ -583,6 +632,8 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
 
     // 1. The changes, old and new, and where they may be. The edits are consumed: from here
     // on the changes (in increasing primitive order) are what says what a primitive becomes.
+    crate::mesh::check_geometries(&u.geometries, u.count)
+        .map_err(|e| invalid(&path, format!("the geometry table: {e}")))?;
     let changes = take_changes(&mut u);
     let lattice = Lattice::of_root(header.root_min, header.root_size);
     check_changes(&changes, &lattice, &header, &path, &mut report)?;
@@ -648,6 +699,7 @@ fn commit(mut u: Updater, opts: &UpdateOptions) -> Result<UpdateReport, Error> {
     w.trim_free();
     report.blocks_after = w.block_count() as u64;
     let meta = header_after(&u, &header, &changes, &built, &report);
+    w.set_geometries(u.geometries.clone());
     let (_, end) = w.finish(&meta, top_unit.as_ref()).map_err(io)?;
     report.write_seconds = built.write_seconds + t2.elapsed().as_secs_f64();
     report.file_bytes = std::fs::metadata(&path).map_err(io)?.len();
@@ -1434,6 +1486,9 @@ pub fn compact(src: &Path, dst: &Path) -> Result<CompactReport, Error> {
         let reader = BlockReader::new(file);
         let mut ids: HashMap<u32, u32> = HashMap::new();
         let mut w = FileWriter::new(sink).map_err(io)?;
+        w.set_geometries(
+            crate::physical::read_geometries(file).map_err(|e| Error::format(src, e))?,
+        );
         for (b, e) in directory.iter().enumerate() {
             if e.is_free() {
                 report.free_entries += 1;

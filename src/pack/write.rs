@@ -97,12 +97,14 @@ pub fn encode(parts: &TreeParts) -> Result<AlignedBytes, Error> {
 /// Writes the file of `parts` into `out` (created before the build, so that a bad output path
 /// fails before the work) and commits it; returns its size and block count. Only one batch of
 /// encoded blocks is held at a time.
-/// With `prims`, the primitive table (spec §8.6) follows the blocks.
+/// With `prims`, the primitive table (spec §8.6) follows the blocks; with `geometries`, the
+/// geometry table (spec §8.8) ends the file.
 pub fn write_file(
     mut out: Output,
     parts: &TreeParts,
     opts: &BlockOptions,
     prims: Option<&[PrimRecord]>,
+    geometries: Vec<crate::mesh::Geometry>,
 ) -> Result<(u64, u32), Error> {
     let path = out.path().to_owned();
     let io = |e: std::io::Error| Error::io(&path, e);
@@ -112,6 +114,7 @@ pub fn write_file(
     if let Some(p) = prims {
         w.push_prims(p).map_err(io)?;
     }
+    w.set_geometries(geometries);
     let blocks = w.block_count();
     let (sink, size) = w.finish(&parts.header, top.as_ref()).map_err(io)?;
     sink.into_file().map_err(io)?;

@@ -54,6 +54,10 @@ pub const FLAG_PRIMS: u32 = 32;
 /// Spec §2, `flags` bit 6: blocks may be lean ([`CODEC_LEAN`]: groups stored in the lean
 /// encoding of spec §7.3; `oavm-pack --lean`). Such a file also has [`FLAG_COMPRESSED`].
 pub const FLAG_LEAN: u32 = 64;
+/// Spec §2, `flags` bit 7: the file holds a geometry table (spec §8.8): the meshes the input
+/// was made of, each a run of primitive ids, with its name and the transform that placed it
+/// (`oavm.pack([...])`, a glTF scene, several meshes given to `oavm-pack`).
+pub const FLAG_GEOMETRIES: u32 = 128;
 /// Every flag this version knows; any other bit set is an error at open.
 pub const KNOWN_FLAGS: u32 = FLAG_MERGED
     | FLAG_COMPRESSED
@@ -61,7 +65,8 @@ pub const KNOWN_FLAGS: u32 = FLAG_MERGED
     | FLAG_ROPES
     | FLAG_OCCLUDERS
     | FLAG_PRIMS
-    | FLAG_LEAN;
+    | FLAG_LEAN
+    | FLAG_GEOMETRIES;
 
 /// Spec §2: the offsets of the two header slots. A slot is a header followed by its section
 /// table; a reader takes the valid slot of the highest generation (spec §2.1).
@@ -156,14 +161,18 @@ pub enum SectionKind {
     /// The links of the top tree's wide nodes (spec §8.7), one [`WideLink`] per link; only in
     /// a file with [`FLAG_CLUSTERS`].
     WideLinks = 11,
+    /// The geometry table (spec §8.8), one [`GeometryRecord`] per geometry; only in a file
+    /// with [`FLAG_GEOMETRIES`].
+    Geometries = 12,
 }
 
 impl SectionKind {
     /// Every kind, in file order. A file has the first [`Self::BASE`], then the wide nodes
     /// and links with [`FLAG_CLUSTERS`], [`Self::Ropes`] with [`FLAG_ROPES`] and
-    /// [`Self::Prims`] with [`FLAG_PRIMS`], in this order. (A kind's index in a table of
+    /// [`Self::Prims`] with [`FLAG_PRIMS`] and [`Self::Geometries`] with [`FLAG_GEOMETRIES`],
+    /// in this order. (A kind's index in a table of
     /// sections is `kind - 1`, not its place in this order.)
-    pub const ALL: [SectionKind; 11] = [
+    pub const ALL: [SectionKind; 12] = [
         SectionKind::Blocks,
         SectionKind::Directory,
         SectionKind::Levels,
@@ -175,6 +184,7 @@ impl SectionKind {
         SectionKind::WideLinks,
         SectionKind::Ropes,
         SectionKind::Prims,
+        SectionKind::Geometries,
     ];
     /// Sections every file has.
     pub const BASE: usize = 7;
@@ -184,6 +194,7 @@ impl SectionKind {
         match self {
             SectionKind::Ropes => flags & FLAG_ROPES != 0,
             SectionKind::Prims => flags & FLAG_PRIMS != 0,
+            SectionKind::Geometries => flags & FLAG_GEOMETRIES != 0,
             SectionKind::WideNodes | SectionKind::WideLinks => flags & FLAG_CLUSTERS != 0,
             _ => true,
         }
@@ -218,6 +229,7 @@ impl SectionKind {
             SectionKind::Prims => "primitive table",
             SectionKind::WideNodes => "wide nodes",
             SectionKind::WideLinks => "wide links",
+            SectionKind::Geometries => "geometry table",
         }
     }
 
@@ -236,10 +248,28 @@ impl SectionKind {
             SectionKind::Prims => std::mem::size_of::<PrimChunk>(),
             SectionKind::WideNodes => std::mem::size_of::<ClusterNode>(),
             SectionKind::WideLinks => std::mem::size_of::<WideLink>(),
+            SectionKind::Geometries => std::mem::size_of::<GeometryRecord>(),
         };
         Some(size as u64)
     }
 }
+
+/// Spec §8.8: one geometry of the geometry table (160 bytes): the run of primitive ids
+/// `first_primitive .. first_primitive + primitive_count` that one input mesh became, the
+/// transform its vertices were placed by before they were stored (row-major 3x4, world =
+/// `transform * (x, y, z, 1)`; the identity when none), and its name (UTF-8, zero-padded).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct GeometryRecord {
+    pub first_primitive: u64,
+    pub primitive_count: u64,
+    pub transform: [[f64; 4]; 3],
+    pub name: [u8; GEOMETRY_NAME_LEN],
+}
+const _: () = assert!(std::mem::size_of::<GeometryRecord>() == 160);
+
+/// Spec §8.8: bytes of a geometry's name; a longer name is cut at a character boundary.
+pub const GEOMETRY_NAME_LEN: usize = 48;
 
 /// Spec §8.6: primitives per chunk of the primitive table (the last chunk may hold fewer).
 pub const PRIM_CHUNK: u64 = 4096;

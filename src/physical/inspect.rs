@@ -29,6 +29,9 @@ pub struct Inspection {
     /// The wide nodes (spec §8.7), in a file of clusters.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub wide: Option<WideSummary>,
+    /// The geometry table (spec §8.8), in a file that has one; or why it cannot be read.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometries: Option<Result<Vec<crate::mesh::Geometry>, String>>,
 }
 
 /// A file of clusters' wide nodes (spec §8.7).
@@ -128,6 +131,7 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
         (FLAG_OCCLUDERS, "occluders"),
         (FLAG_PRIMS, "prims"),
         (FLAG_LEAN, "lean"),
+        (FLAG_GEOMETRIES, "geometries"),
     ];
     let flags = names
         .iter()
@@ -220,6 +224,8 @@ pub fn inspect<D: AsRef<[u8]>>(file: &OavmFile<D>, opts: InspectOptions) -> Insp
         blocks: opts.blocks.then(|| directory.to_vec()),
         tree_levels,
         wide,
+        geometries: (header.flags & FLAG_GEOMETRIES != 0)
+            .then(|| super::read_geometries(file).map_err(|e| e.to_string())),
     }
 }
 

@@ -14,6 +14,7 @@ pub(crate) mod bounds;
 mod cluster_check;
 mod file;
 pub mod format;
+mod geometry;
 mod inspect;
 pub mod lean;
 pub(crate) mod verify;
@@ -27,6 +28,7 @@ pub(crate) use cluster_check::check_node;
 pub(crate) use cluster_check::check_with_depth;
 pub use cluster_check::{ClusterShape, check_cluster, wide_region};
 pub use file::{AlignedBytes, OavmFile, SlotState, generation_intact};
+pub use geometry::{geometry_records, read_geometries};
 pub use inspect::{
     BlockWideCounts, DirectorySummary, InspectOptions, Inspection, Section, TopLevel, TreeLevel,
     WideSummary, inspect,

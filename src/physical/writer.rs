@@ -514,6 +514,8 @@ pub struct FileWriter<S: Sink> {
     chunk_groups: u32,
     /// The primitive table's chunks (spec §8.6), if any.
     prims: Option<Vec<PrimChunk>>,
+    /// The geometry table (spec §8.8); empty: none.
+    geometries: Vec<crate::mesh::Geometry>,
     /// The generation written and its header slot (spec §2.1).
     generation: u64,
     /// Sync the data before the header and the header after it (a new generation).
@@ -536,6 +538,7 @@ impl<S: Sink> FileWriter<S> {
             ropes: None,
             chunk_groups: 0,
             prims: None,
+            geometries: Vec::new(),
             generation: FIRST_GENERATION,
             durable: false,
         })
@@ -579,6 +582,7 @@ impl<S: Sink> FileWriter<S> {
             ropes: Some(false),
             chunk_groups,
             prims,
+            geometries: Vec::new(),
             generation,
             durable: true,
         })
@@ -591,6 +595,12 @@ impl<S: Sink> FileWriter<S> {
             self.at += n;
         }
         Ok(())
+    }
+
+    /// Sets the geometry table the file will hold (spec §8.8; empty: none). [`Self::finish`]
+    /// checks that it covers the file's primitives.
+    pub fn set_geometries(&mut self, geometries: Vec<crate::mesh::Geometry>) {
+        self.geometries = geometries;
     }
 
     /// Blocks written so far (the id the next one gets).
@@ -777,7 +787,13 @@ impl<S: Sink> FileWriter<S> {
                 meta.input_triangles
             )));
         }
-        let flags = file_flags(meta, &directory, ropes, prims.is_some());
+        crate::mesh::check_geometries(&self.geometries, meta.input_triangles)
+            .map_err(|e| std::io::Error::other(format!("the geometry table: {e}")))?;
+        let geometries = super::geometry_records(&self.geometries);
+        let mut flags = file_flags(meta, &directory, ropes, prims.is_some());
+        if !geometries.is_empty() {
+            flags |= FLAG_GEOMETRIES;
+        }
         let (wide_nodes, wide_links) = if flags & FLAG_CLUSTERS != 0 {
             super::wide::lay_top(top.levels, top.nodes, |b, r| {
                 self.boxes.get(b as usize)?.get(r as usize).copied()
@@ -798,7 +814,14 @@ impl<S: Sink> FileWriter<S> {
             checksum: 0,
         };
         let wide = (&wide_nodes[..], &wide_links[..]);
-        let sections = top_sections(&directory, &top, &link_bounds, wide, prims.as_deref());
+        let sections = top_sections(
+            &directory,
+            &top,
+            &link_bounds,
+            wide,
+            prims.as_deref(),
+            &geometries,
+        );
         let section_count = self.write_sections(sections, flags, &mut entries)?;
         let file_size = self.at;
         let header = self.header(meta, flags, &directory, section_count);
@@ -829,7 +852,7 @@ impl<S: Sink> FileWriter<S> {
     /// section table after the blocks' (`entries[0]`); returns how many entries there are.
     fn write_sections(
         &mut self,
-        sections: [(SectionKind, &[u8], u64); 10],
+        sections: [(SectionKind, &[u8], u64); 11],
         flags: u32,
         entries: &mut [SectionEntry],
     ) -> std::io::Result<usize> {
@@ -957,14 +980,15 @@ fn file_flags(meta: &Header, directory: &[BlockEntry], ropes: bool, prims: bool)
 
 /// The sections after the blocks, in file order, with their bytes and record counts: the
 /// directory, the top tree's levels, nodes, ranks, volumes, link bounds, wide nodes and links,
-/// and ropes, and the primitive chunk directory (empty when absent).
+/// and ropes, the primitive chunk directory and the geometry table (empty when absent).
 fn top_sections<'a>(
     directory: &'a [BlockEntry],
     top: &UnitRef<'a>,
     link_bounds: &'a [LinkBounds],
     wide: (&'a [ClusterNode], &'a [WideLink]),
     prims: Option<&'a [PrimChunk]>,
-) -> [(SectionKind, &'a [u8], u64); 10] {
+    geometries: &'a [GeometryRecord],
+) -> [(SectionKind, &'a [u8], u64); 11] {
     [
         (
             SectionKind::Directory,
@@ -1015,6 +1039,11 @@ fn top_sections<'a>(
             SectionKind::Prims,
             bytemuck::cast_slice(prims.unwrap_or(&[])),
             prims.map_or(0, |p| p.len() as u64),
+        ),
+        (
+            SectionKind::Geometries,
+            bytemuck::cast_slice(geometries),
+            geometries.len() as u64,
         ),
     ]
 }

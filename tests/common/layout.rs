@@ -66,6 +66,14 @@ pub const KIND_ROPES: u32 = 8;
 pub const KIND_PRIMS: u32 = 9;
 pub const KIND_WIDE_NODES: u32 = 10;
 pub const KIND_WIDE_LINKS: u32 = 11;
+/// §8.8: the geometry table (`GEOMETRIES`), after all of them; a record (`GeometryRecord`, 160
+/// bytes): `first_primitive` u64, `primitive_count` u64, `transform` f64[3][4], `name` u8[48].
+pub const KIND_GEOMETRIES: u32 = 12;
+pub const GEOMETRY_LEN: usize = 160;
+pub const GEO_FIRST: usize = 0;
+pub const GEO_COUNT: usize = 8;
+pub const GEO_TRANSFORM: usize = 16;
+pub const GEO_NAME: usize = 112;
 /// §8.7: a wide link (`WideLink`, 32 bytes): `block` u32, `root` u32, `lo` f32[3], `hi` f32[3].
 pub const WIDE_LINK_LEN: usize = 32;
 pub const WL_BLOCK: usize = 0;
@@ -104,6 +112,7 @@ pub const FLAG_ROPES: u32 = 8;
 pub const FLAG_OCCLUDERS: u32 = 16;
 pub const FLAG_PRIMS: u32 = 32;
 pub const FLAG_LEAN: u32 = 64;
+pub const FLAG_GEOMETRIES: u32 = 128;
 /// §8.6: the primitive table's chunk directory entry (`PrimChunk`, 32 bytes) and its fields,
 /// a chunk's records (`PrimRecord`, 36 bytes: three corners), primitives per chunk, and the
 /// bits of every word of an absent primitive's record.
@@ -250,6 +259,9 @@ pub fn section_kinds(flags: u32) -> Vec<u32> {
     }
     if flags & FLAG_PRIMS != 0 {
         kinds.push(KIND_PRIMS);
+    }
+    if flags & FLAG_GEOMETRIES != 0 {
+        kinds.push(KIND_GEOMETRIES);
     }
     kinds
 }

@@ -39,6 +39,7 @@ pub fn load_shared(rel: &str) -> Mesh {
 /// A mesh from positions and triangles.
 pub fn mesh(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Mesh {
     Mesh {
+        geometries: Vec::new(),
         positions,
         triangles,
     }

@@ -277,7 +277,28 @@ fn layout_matches_the_spec() {
         group_fields.to_vec(),
         GROUP_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
     );
-    assert_eq!(SectionKind::ALL.len(), 11, "§3: eleven kinds");
+    assert_eq!(SectionKind::ALL.len(), 12, "§3: twelve kinds");
+    assert_eq!(
+        SectionKind::Geometries as u32,
+        KIND_GEOMETRIES,
+        "§3: kind 12"
+    );
+    assert_eq!(
+        SECTIONS[SECTION_GEOMETRIES].0,
+        SectionKind::Geometries.name()
+    );
+    assert_eq!(size_of::<f::GeometryRecord>(), GEOMETRY_LEN);
+    assert_eq!(
+        [
+            offset_of!(f::GeometryRecord, first_primitive),
+            offset_of!(f::GeometryRecord, primitive_count),
+            offset_of!(f::GeometryRecord, transform),
+            offset_of!(f::GeometryRecord, name),
+        ]
+        .to_vec(),
+        GEOMETRY_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
+    );
+    assert_eq!(f::FLAG_GEOMETRIES, FLAG_GEOMETRIES);
     assert_eq!(SectionKind::BASE, SECTION_COUNT);
     assert_eq!(SectionKind::count_for(FLAG_ROPES), SECTION_COUNT_ROPES);
     assert_eq!(SectionKind::Ropes as u32, KIND_ROPES, "§3: kind 8");
@@ -315,8 +336,8 @@ fn layout_matches_the_spec() {
         WIDE_LINK_FIELDS.iter().map(|f| f.0).collect::<Vec<_>>()
     );
     // §3: the seven sections, then the wide nodes and links with CLUSTERS, then ropes with
-    // ROPES, then the primitive table with PRIMS.
-    for flags in 0..64 {
+    // ROPES, then the primitive table with PRIMS, then the geometry table with GEOMETRIES.
+    for flags in 0..256 {
         let code: Vec<u32> = SectionKind::for_flags(flags).map(|k| k as u32).collect();
         assert_eq!(section_kinds(flags), code, "flags {flags:#x}");
         assert_eq!(

@@ -13,6 +13,7 @@ mod fixtures;
 
 mod anywhere;
 mod blocks;
+mod geometries;
 mod header;
 mod occluders;
 mod prims;

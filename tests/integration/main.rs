@@ -19,6 +19,7 @@ mod building;
 mod cli;
 mod docs;
 mod fuzz_corpus;
+mod geometries;
 mod golden;
 mod kernels;
 mod mapping;

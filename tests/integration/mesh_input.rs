@@ -178,6 +178,7 @@ fn expected(positions: &[[f64; 3]], faces: &[Vec<i64>]) -> Mesh {
         }
     }
     Mesh {
+        geometries: Vec::new(),
         positions: positions.iter().map(|p| p.map(|c| c as f32)).collect(),
         triangles,
     }

@@ -489,6 +489,7 @@ fn duplicate_and_degenerate_triangles() {
     assert_eq!(stats.degenerate_triangles, 2);
     // Ten copies of one big quad: subdivision must stop (no separation), not explode.
     let mut q = Mesh {
+        geometries: Vec::new(),
         positions: vec![
             [0.0, 0.0, 0.0],
             [1.0, 0.0, 0.0],
@@ -724,6 +725,7 @@ fn a_ray_whose_origin_lies_on_a_triangle_hits_it_at_zero() {
 fn scaled_bunny(s: f64) -> Mesh {
     let b = load_shared("bunny/bun_zipper.ply");
     Mesh {
+        geometries: Vec::new(),
         positions: b
             .positions
             .iter()

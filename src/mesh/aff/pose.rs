@@ -105,6 +105,7 @@ impl Parser<'_> {
             .map(|(m, _)| m);
         Ok(Pose {
             mesh: Mesh {
+                geometries: Vec::new(),
                 positions,
                 triangles,
             },

@@ -179,6 +179,7 @@ impl Builder {
     pub(super) fn finish(self, file: &str) -> Result<Mesh, MeshError> {
         self.indices.finish(self.positions.len() as u64, file)?;
         let mesh = Mesh {
+            geometries: Vec::new(),
             positions: self.positions,
             triangles: self.triangles,
         };

@@ -470,6 +470,7 @@ fn awkward_meshes_agree_with_brute_force() {
     };
     // A single triangle.
     let single = Mesh {
+        geometries: Vec::new(),
         positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
         triangles: vec![[0, 1, 2]],
     };
