@@ -164,19 +164,12 @@ class RaycastingScene:
         ``primitive_uvs`` ``(..., 2)``, ``primitive_normals`` ``(..., 3)`` (unit, following
         the triangle's winding)."""
         r6, lead = _rays(rays)
-        hits = self._opened().intersect(self._ray_array(r6), attributes=True,
-                                         threads=_threads(nthreads) or self._threads)
-        geom, local = self._ids(hits.prim)
-        miss = hits.prim == INVALID_ID
-        uv = np.empty((len(r6), 2), dtype=np.float32)
-        uv[:, 0], uv[:, 1] = hits.u, hits.v
-        uv[miss] = 0.0
-        normal = hits.normal  # a fresh array of this call's: zeroed in place
-        normal[miss] = 0.0
+        t, geom, prim, uv, normal = self._opened()._scene().cast_rays(
+            np.ascontiguousarray(r6), threads=_threads(nthreads) or self._threads)
         return {
-            "t_hit": _answer(hits.t.reshape(lead)),
+            "t_hit": _answer(t.reshape(lead)),
             "geometry_ids": _answer(geom.reshape(lead)),
-            "primitive_ids": _answer(local.reshape(lead)),
+            "primitive_ids": _answer(prim.reshape(lead)),
             "primitive_uvs": _answer(uv.reshape(lead + (2,))),
             "primitive_normals": _answer(normal.reshape(lead + (3,))),
         }

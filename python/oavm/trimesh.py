@@ -26,7 +26,7 @@ from typing import Any, Optional, Tuple, Union
 import numpy as np
 
 from . import Scene, rays
-from . import _cache
+from . import _cache, _native
 
 __all__ = ["RayMeshIntersector", "ProximityQuery"]
 
@@ -84,9 +84,19 @@ class RayMeshIntersector:
         unit[norm == 0] = 0.0  # trimesh's unitize leaves zero vectors as zeros: they miss
         return rays(o - self._shift, unit), o, unit
 
+    def _ray_array(self, origins: Any, directions: Any) -> np.ndarray:
+        """The ``(N, 8)`` ray array of trimesh's arguments alone (as :meth:`_rays` makes it,
+        natively and on the tracing threads)."""
+        o = np.ascontiguousarray(origins, dtype=np.float64)
+        d = np.ascontiguousarray(directions, dtype=np.float64)
+        if o.ndim != 2 or o.shape[1] != 3 or o.shape != d.shape:
+            raise ValueError(f"ray_origins and ray_directions: expected two (n, 3) arrays, got {o.shape} and {d.shape}")
+        self.scene  # opened first: it sets the shift
+        return _native.unit_rays(o, d, tuple(float(x) for x in self._shift), self.threads)
+
     def intersects_first(self, ray_origins: Any, ray_directions: Any, **kwargs: Any) -> np.ndarray:
         """The index of the first triangle each ray hits (int64), ``-1`` where it hits none."""
-        r, _, _ = self._rays(ray_origins, ray_directions)
+        r = self._ray_array(ray_origins, ray_directions)
         _, prim = self.scene.intersect(r, threads=self.threads)
         out = prim.astype(np.int64)
         out[prim == 0xFFFFFFFF] = -1
@@ -94,7 +104,7 @@ class RayMeshIntersector:
 
     def intersects_any(self, ray_origins: Any, ray_directions: Any, **kwargs: Any) -> np.ndarray:
         """Whether each ray hits any triangle (bool)."""
-        r, _, _ = self._rays(ray_origins, ray_directions)
+        r = self._ray_array(ray_origins, ray_directions)
         return self.scene.occluded(r, threads=self.threads)
 
     def intersects_id(self, ray_origins: Any, ray_directions: Any, multiple_hits: bool = True,

@@ -369,6 +369,80 @@ impl NativeScene {
         ])
     }
 
+    /// Open3D's `cast_rays` in one pass: rays `(N, 6)` (origin, direction) with `tnear`,
+    /// `tfar`; returns `t_hit`, `geometry_ids` and `primitive_ids` (the index within the
+    /// geometry, from the file's geometry table), `primitive_uvs` `(N, 2)` and
+    /// `primitive_normals` `(N, 3)`, misses as Open3D gives them (`inf`, `u32::MAX` ids, zero
+    /// uvs and normals). What `oavm.open3d` would otherwise assemble in numpy.
+    #[pyo3(signature = (rays, tnear=0.0, tfar=f32::INFINITY, threads=None))]
+    fn cast_rays<'py>(
+        &self,
+        py: Python<'py>,
+        rays: PyReadonlyArray2<'py, f32>,
+        tnear: f32,
+        tfar: f32,
+        threads: Option<usize>,
+    ) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        if rays.shape()[1] != 6 {
+            return Err(PyValueError::new_err(format!(
+                "rays: expected shape (N, 6), got ({}, {})",
+                rays.shape()[0],
+                rays.shape()[1]
+            )));
+        }
+        let six = rays
+            .as_slice()
+            .map_err(|e| PyValueError::new_err(format!("rays: {e}")))?;
+        let rays: Vec<Ray> = six
+            .chunks_exact(6)
+            .map(|c| Ray::new([c[0], c[1], c[2]], [c[3], c[4], c[5]], tnear, tfar))
+            .collect();
+        let n = rays.len();
+        let t = zeros::<f32>(py, [n, 1]);
+        let (geom, prim) = (zeros::<u32>(py, [n, 1]), zeros::<u32>(py, [n, 1]));
+        let (uv, normal) = (zeros::<f32>(py, [n, 2]), zeros::<f32>(py, [n, 3]));
+        {
+            let (mut tw, mut gw, mut pw) = (t.readwrite(), geom.readwrite(), prim.readwrite());
+            let (mut uw, mut nw) = (uv.readwrite(), normal.readwrite());
+            let (ts, gs, ps) = (
+                slice_mut(&mut tw)?,
+                slice_mut(&mut gw)?,
+                slice_mut(&mut pw)?,
+            );
+            let (us, ns) = (slice_mut(&mut uw)?, slice_mut(&mut nw)?);
+            let scene = &self.scene;
+            self.traced(
+                py,
+                &rays,
+                threads,
+                HitAttributes::MISS,
+                |s, r, o, order| s.intersect_attributes_ordered(r, o, order).map(drop),
+                |at, hits| {
+                    for (k, h) in hits.iter().enumerate() {
+                        let i = at + k;
+                        ts[i] = h.t;
+                        // Misses stay as `zeros` made them but for the ids.
+                        match scene.locate(h.prim) {
+                            Some((g, local)) => {
+                                (gs[i], ps[i]) = (g, local as u32);
+                                (us[2 * i], us[2 * i + 1]) = (h.u, h.v);
+                                ns[3 * i..3 * i + 3].copy_from_slice(&h.normal);
+                            }
+                            None => (gs[i], ps[i]) = (u32::MAX, u32::MAX),
+                        }
+                    }
+                },
+            )?;
+        }
+        Ok(vec![
+            flat(t)?,
+            flat(geom)?,
+            flat(prim)?,
+            uv.into_any(),
+            normal.into_any(),
+        ])
+    }
+
     /// Any-hit answers, as a uint8 array of 0 and 1 (viewed as bool by the Python half).
     #[pyo3(signature = (rays, threads=None))]
     fn occluded<'py>(
@@ -594,9 +668,7 @@ type GivenGeometry = (String, u64, Option<Vec<f64>>);
 
 /// Geometries from Python's `(name, primitive_count, transform)` triples (a transform of 12
 /// numbers, row-major 3x4, or none for the identity), one after another from primitive 0.
-fn geometries_of(
-    given: Option<Vec<GivenGeometry>>,
-) -> PyResult<Vec<oavm::mesh::Geometry>> {
+fn geometries_of(given: Option<Vec<GivenGeometry>>) -> PyResult<Vec<oavm::mesh::Geometry>> {
     let mut first = 0u64;
     let mut out = Vec::new();
     for (name, count, transform) in given.unwrap_or_default() {
@@ -949,6 +1021,70 @@ fn compact(py: Python<'_>, path: PathBuf) -> PyResult<String> {
 /// image, as a `(stop - start, 8)` float32 array: bit for bit `oavm-trace`'s primary rays. The
 /// camera frames the box `[mesh_min, mesh_max]` as `oavm-trace` does, then `eye`, `target`,
 /// `up`, `fov` (degrees, vertical) replace what they name.
+/// trimesh's rays as oavm's: float64 `(N, 3)` origins moved by `-shift` and directions made
+/// unit in float64 (`d / |d|`, a zero direction left zero, so it misses), as the `(N, 8)`
+/// float32 array of `RAYS.md` (tmin 0, tmax inf); on the library's threads. What
+/// `oavm.trimesh` would otherwise do in numpy, at a fifth of the time of its hits.
+#[pyfunction]
+#[pyo3(signature = (origins, directions, shift, threads=None))]
+fn unit_rays<'py>(
+    py: Python<'py>,
+    origins: PyReadonlyArray2<'py, f64>,
+    directions: PyReadonlyArray2<'py, f64>,
+    shift: [f64; 3],
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyAny>> {
+    use rayon::prelude::*;
+    if origins.shape()[1] != 3 || origins.shape() != directions.shape() {
+        return Err(PyValueError::new_err(format!(
+            "ray_origins and ray_directions: expected two (n, 3) arrays, got {:?} and {:?}",
+            origins.shape(),
+            directions.shape()
+        )));
+    }
+    let o = origins
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(format!("ray_origins: {e}")))?;
+    let d = directions
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(format!("ray_directions: {e}")))?;
+    let n = o.len() / 3;
+    let out = zeros::<f32>(py, [n, 8]);
+    {
+        let mut w = out.readwrite();
+        let dst = slice_mut(&mut w)?;
+        let pool = pool(threads.unwrap_or_else(cores).max(1))?;
+        py.detach(|| {
+            pool.install(|| {
+                dst.par_chunks_mut(8 * 4096)
+                    .enumerate()
+                    .for_each(|(c, chunk)| {
+                        for (k, r) in chunk.chunks_exact_mut(8).enumerate() {
+                            let i = 3 * (c * 4096 + k);
+                            let (p, v) = (&o[i..i + 3], &d[i..i + 3]);
+                            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                            let unit = |x: f64| match norm {
+                                0.0 => 0.0,
+                                _ => (x / norm) as f32,
+                            };
+                            r.copy_from_slice(&[
+                                (p[0] - shift[0]) as f32,
+                                (p[1] - shift[1]) as f32,
+                                (p[2] - shift[2]) as f32,
+                                0.0,
+                                unit(v[0]),
+                                unit(v[1]),
+                                unit(v[2]),
+                                f32::INFINITY,
+                            ]);
+                        }
+                    })
+            })
+        });
+    }
+    Ok(out.into_any())
+}
+
 #[pyfunction]
 #[pyo3(signature = (mesh_min, mesh_max, width, height, eye=None, target=None, up=None, fov=None,
                     start=0, stop=None))]
@@ -1009,6 +1145,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(update_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(compact, m)?)?;
     m.add_function(wrap_pyfunction!(camera_rays, m)?)?;
+    m.add_function(wrap_pyfunction!(unit_rays, m)?)?;
     m.add("OavmError", m.py().get_type::<OavmError>())?;
     m.add("FormatError", m.py().get_type::<FormatError>())?;
     m.add("MeshError", m.py().get_type::<MeshError>())?;
