@@ -168,7 +168,7 @@ class RayMeshIntersector:
         return out
 
     def _crossings(self, points: np.ndarray, direction: np.ndarray) -> np.ndarray:
-        r, _, _ = self._rays(points, np.broadcast_to(direction, points.shape))
+        r = self._ray_array(points, np.broadcast_to(direction, points.shape))
         return self.scene.count_intersections(r, threads=self.threads)
 
     def __getstate__(self) -> dict:
