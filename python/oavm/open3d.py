@@ -25,7 +25,7 @@ from typing import Any, List, Optional, Tuple, Union
 import numpy as np
 
 from . import Scene, _mesh_object
-from . import _cache
+from . import _cache, _native
 from . import open as open_scene
 
 __all__ = ["RaycastingScene", "INVALID_ID"]
@@ -154,10 +154,7 @@ class RaycastingScene:
         return self._opened().locate(prim)
 
     def _ray_array(self, r6: np.ndarray, tnear: float = 0.0, tfar: float = math.inf) -> np.ndarray:
-        out = np.empty((len(r6), 8), dtype=np.float32)
-        out[:, 0:3], out[:, 4:7] = r6[:, 0:3], r6[:, 3:6]
-        out[:, 3], out[:, 7] = tnear, tfar
-        return out
+        return _native.six_rays(np.ascontiguousarray(r6), float(tnear), float(tfar), self._threads)
 
     def cast_rays(self, rays: Any, nthreads: int = 0) -> dict:
         """The first hit of each ray: ``t_hit``, ``geometry_ids``, ``primitive_ids``,

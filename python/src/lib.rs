@@ -1021,6 +1021,49 @@ fn compact(py: Python<'_>, path: PathBuf) -> PyResult<String> {
 /// image, as a `(stop - start, 8)` float32 array: bit for bit `oavm-trace`'s primary rays. The
 /// camera frames the box `[mesh_min, mesh_max]` as `oavm-trace` does, then `eye`, `target`,
 /// `up`, `fov` (degrees, vertical) replace what they name.
+/// Open3D's rays as oavm's: `(N, 6)` float32 (origin, direction) with `tnear`, `tfar` as
+/// the `(N, 8)` array of `RAYS.md`, on the library's threads (what `oavm.open3d` would
+/// otherwise copy column by column in numpy).
+#[pyfunction]
+#[pyo3(signature = (rays, tnear, tfar, threads=None))]
+fn six_rays<'py>(
+    py: Python<'py>,
+    rays: PyReadonlyArray2<'py, f32>,
+    tnear: f32,
+    tfar: f32,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyAny>> {
+    use rayon::prelude::*;
+    if rays.shape()[1] != 6 {
+        return Err(PyValueError::new_err(format!(
+            "rays: expected shape (N, 6), got ({}, {})",
+            rays.shape()[0],
+            rays.shape()[1]
+        )));
+    }
+    let six = rays
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(format!("rays: {e}")))?;
+    let out = zeros::<f32>(py, [six.len() / 6, 8]);
+    {
+        let mut w = out.readwrite();
+        let dst = slice_mut(&mut w)?;
+        let pool = pool(threads.unwrap_or_else(cores).max(1))?;
+        py.detach(|| {
+            pool.install(|| {
+                dst.par_chunks_mut(8 * 4096)
+                    .zip(six.par_chunks(6 * 4096))
+                    .for_each(|(d, s)| {
+                        for (r, c) in d.chunks_exact_mut(8).zip(s.chunks_exact(6)) {
+                            r.copy_from_slice(&[c[0], c[1], c[2], tnear, c[3], c[4], c[5], tfar]);
+                        }
+                    })
+            })
+        });
+    }
+    Ok(out.into_any())
+}
+
 /// trimesh's rays as oavm's: float64 `(N, 3)` origins moved by `-shift` and directions made
 /// unit in float64 (`d / |d|`, a zero direction left zero, so it misses), as the `(N, 8)`
 /// float32 array of `RAYS.md` (tmin 0, tmax inf); on the library's threads. What
@@ -1146,6 +1189,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(compact, m)?)?;
     m.add_function(wrap_pyfunction!(camera_rays, m)?)?;
     m.add_function(wrap_pyfunction!(unit_rays, m)?)?;
+    m.add_function(wrap_pyfunction!(six_rays, m)?)?;
     m.add("OavmError", m.py().get_type::<OavmError>())?;
     m.add("FormatError", m.py().get_type::<FormatError>())?;
     m.add("MeshError", m.py().get_type::<MeshError>())?;
