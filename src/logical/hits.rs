@@ -125,27 +125,37 @@ fn walk_chunk(
     c: &mut Counters,
 ) -> Result<(), Walked> {
     let mut found: Vec<HitInfo> = Vec::new();
-    for &i in idx {
-        let ray = &rays[i as usize];
-        if !ray.is_valid() {
-            out.rays.push((i, 0));
-            continue;
-        }
-        if !tree.all_hits(ray, c, &mut found).map_err(Walked::Trace)? {
-            return Err(Walked::Refused(i));
-        }
-        out.rays.push((i, found.len() as u32));
-        if keep {
-            out.hits.extend(found.iter().map(|h| {
-                let a = HitAttributes::new(ray, h.t, h.prim, &h.v);
-                ListedHit {
-                    t: h.t,
-                    prim: h.prim,
-                    u: a.u,
-                    v: a.v,
+    let mut refused = None;
+    let mut ids = idx.iter().copied();
+    let walk = idx.iter().map(|&i| &rays[i as usize]);
+    tree.all_hits_each(walk, c, &mut found, |ray, hits| {
+        // The walk hands back each ray of `walk`, in order: one id each.
+        let Some(i) = ids.next() else { return };
+        match hits {
+            // An invalid ray (a NaN, a zero direction, tmin above tmax) hits nothing.
+            None if !ray.is_valid() => out.rays.push((i, 0)),
+            None => {
+                refused.get_or_insert(i);
+            }
+            Some(hits) => {
+                out.rays.push((i, hits.len() as u32));
+                if keep {
+                    out.hits.extend(hits.iter().map(|h| {
+                        let a = HitAttributes::new(ray, h.t, h.prim, &h.v);
+                        ListedHit {
+                            t: h.t,
+                            prim: h.prim,
+                            u: a.u,
+                            v: a.v,
+                        }
+                    }));
                 }
-            }));
+            }
         }
+    })
+    .map_err(Walked::Trace)?;
+    match refused {
+        Some(i) => Err(Walked::Refused(i)),
+        None => Ok(()),
     }
-    Ok(())
 }

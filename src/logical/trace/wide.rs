@@ -174,12 +174,96 @@ impl<'a> Tree<'a> {
             out.clear();
             return Ok(false);
         }
-        // Each triangle once (found once per leaf that references it, at the same `t`: the
-        // same test on the same corners), then in order along the ray.
-        out.sort_unstable_by(|a, b| a.prim.cmp(&b.prim).then(a.t.total_cmp(&b.t)));
-        out.dedup_by_key(|h| h.prim);
-        out.sort_unstable_by(|a, b| a.t.total_cmp(&b.t).then(a.prim.cmp(&b.prim)));
+        once_in_order(out);
         Ok(true)
+    }
+
+    /// [`Self::all_hits`] of each of `rays` in turn, each ray's hits (`None`: a ray the walk
+    /// cannot take, as `all_hits` refuses it) handed to `f`: the instruction set chosen, the
+    /// thread's stack taken and the last block entered kept once for them all, as the closest
+    /// hits' batches do.
+    pub fn all_hits_each<'r>(
+        &self,
+        rays: impl Iterator<Item = &'r Ray>,
+        c: &mut Counters,
+        out: &mut Vec<HitInfo>,
+        f: impl FnMut(&'r Ray, Option<&[HitInfo]>),
+    ) -> Result<(), TraceError> {
+        struct Job<'t, 'a, 'o, I, F> {
+            tree: &'t Tree<'a>,
+            rays: I,
+            c: &'o mut Counters,
+            out: &'o mut Vec<HitInfo>,
+            f: F,
+        }
+        impl<'r, I, F> WithAvx2 for Job<'_, '_, '_, I, F>
+        where
+            I: Iterator<Item = &'r Ray>,
+            F: FnMut(&'r Ray, Option<&[HitInfo]>),
+        {
+            type Output = Result<(), TraceError>;
+            #[inline(always)]
+            fn run(self, isa: Avx2) -> Self::Output {
+                self.tree
+                    .hits_each(isa, self.rays, self.c, self.out, self.f)
+            }
+        }
+        if !self.clusters {
+            rays.for_each({
+                let mut f = f;
+                move |r| f(r, None)
+            });
+            return Ok(());
+        }
+        match self.avx2 {
+            Some(isa) => isa.vectorize(Job {
+                tree: self,
+                rays,
+                c,
+                out,
+                f,
+            }),
+            None => self.hits_each(baseline(), rays, c, out, f),
+        }
+    }
+
+    /// [`Self::all_hits_each`] with the instruction set `isa`.
+    #[inline(always)]
+    fn hits_each<'r, S: Simd8>(
+        &self,
+        isa: S,
+        rays: impl Iterator<Item = &'r Ray>,
+        c: &mut Counters,
+        out: &mut Vec<HitInfo>,
+        mut f: impl FnMut(&'r Ray, Option<&[HitInfo]>),
+    ) -> Result<(), TraceError> {
+        let mut stack = WIDE_STACK.take();
+        let mut kept = None;
+        let mut result = Ok(());
+        for ray in rays {
+            out.clear();
+            let walked = (&mut stack, None);
+            match self.wide_ray_until::<false, false, true, S>(
+                isa,
+                ray,
+                c,
+                walked,
+                &mut kept,
+                Some(&mut *out),
+            ) {
+                Ok(WideEnd::Stopped) => f(ray, None),
+                Ok(WideEnd::Answered(_)) => {
+                    once_in_order(out);
+                    f(ray, Some(out));
+                }
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        WIDE_STACK.set(stack);
+        result
     }
 
     /// [`Self::all_hits`]'s walk with the instruction set `isa`, on the thread's stack.
@@ -644,4 +728,15 @@ pub(super) fn bad(what: &'static str, block: Option<u32>) -> TraceError {
         level: 0,
         index: 0,
     })
+}
+
+/// A ray's hits each triangle once (found once per leaf that references it, at the same `t`:
+/// the same test on the same corners), then in order along the ray.
+#[inline(always)]
+fn once_in_order(out: &mut Vec<HitInfo>) {
+    if out.len() > 1 {
+        out.sort_unstable_by(|a, b| a.prim.cmp(&b.prim).then(a.t.total_cmp(&b.t)));
+        out.dedup_by_key(|h| h.prim);
+        out.sort_unstable_by(|a, b| a.t.total_cmp(&b.t).then(a.prim.cmp(&b.prim)));
+    }
 }
