@@ -25,7 +25,7 @@ from typing import Any, Optional, Tuple, Union
 
 import numpy as np
 
-from . import Scene, rays
+from . import Scene
 from . import _cache, _native
 
 __all__ = ["RayMeshIntersector", "ProximityQuery"]
@@ -70,23 +70,10 @@ class RayMeshIntersector:
             self._shift, self._token = shift, token
         return self._scene
 
-    def _rays(self, origins: Any, directions: Any) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The ``(N, 8)`` ray array of trimesh's arguments, and the float64 origins and unit
-        directions (for locations)."""
-        o = np.asarray(origins, dtype=np.float64)
-        d = np.asarray(directions, dtype=np.float64)
-        if o.ndim != 2 or o.shape[1] != 3 or o.shape != d.shape:
-            raise ValueError(f"ray_origins and ray_directions: expected two (n, 3) arrays, got {o.shape} and {d.shape}")
-        self.scene  # opened first: it sets the shift
-        norm = np.linalg.norm(d, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            unit = d / norm[:, None]
-        unit[norm == 0] = 0.0  # trimesh's unitize leaves zero vectors as zeros: they miss
-        return rays(o - self._shift, unit), o, unit
-
     def _ray_array(self, origins: Any, directions: Any) -> np.ndarray:
-        """The ``(N, 8)`` ray array of trimesh's arguments alone (as :meth:`_rays` makes it,
-        natively and on the tracing threads)."""
+        """The ``(N, 8)`` ray array of trimesh's arguments: origins moved to the stored mesh's
+        centre and directions made unit in float64 as trimesh does (``d / |d|``, a zero
+        direction left zero, so it misses), then float32; natively, on the tracing threads."""
         o = np.ascontiguousarray(origins, dtype=np.float64)
         d = np.ascontiguousarray(directions, dtype=np.float64)
         if o.ndim != 2 or o.shape[1] != 3 or o.shape != d.shape:
@@ -114,24 +101,28 @@ class RayMeshIntersector:
         most ``max_hits`` a ray, the nearest) with ``multiple_hits``, else each ray's first.
         Ray by ray, each ray's hits in order of distance (trimesh's embreex intersector lists
         them depth by depth: every ray's first hit, then every second hit...)."""
-        r, o, unit = self._rays(ray_origins, ray_directions)
+        o = np.ascontiguousarray(ray_origins, dtype=np.float64)
+        d = np.ascontiguousarray(ray_directions, dtype=np.float64)
+        r = self._ray_array(o, d)
         if multiple_hits:
             lists = self.scene.list_intersections(r, threads=self.threads)
+            splits = lists["ray_splits"]
             index_ray = lists["ray_ids"].astype(np.int64)
             index_tri = lists["primitive_ids"].astype(np.int64)
-            t = lists["t_hit"].astype(np.float64)
-            if max_hits is not None and len(index_ray):
-                rank = np.arange(len(index_ray)) - lists["ray_splits"][:-1].astype(np.int64)[index_ray]
+            t32 = lists["t_hit"]
+            if max_hits is not None and len(index_ray) and np.diff(splits).max() > int(max_hits):
+                rank = np.arange(len(index_ray)) - splits[:-1].astype(np.int64)[index_ray]
                 keep = rank < int(max_hits)
-                index_ray, index_tri, t = index_ray[keep], index_tri[keep], t[keep]
+                index_ray, index_tri, t32 = index_ray[keep], index_tri[keep], t32[keep]
         else:
-            t32, prim = self.scene.intersect(r, threads=self.threads)
+            t_all, prim = self.scene.intersect(r, threads=self.threads)
             index_ray = np.flatnonzero(prim != 0xFFFFFFFF)
             index_tri = prim[index_ray].astype(np.int64)
-            t = t32[index_ray].astype(np.float64)
+            t32 = t_all[index_ray]
         if not return_locations:
             return index_tri, index_ray
-        locations = o[index_ray] + unit[index_ray] * t[:, None]
+        # o + unit(d) * t in float64, as trimesh computes them (natively, on the threads).
+        locations = _native.hit_locations(o, d, index_ray, np.ascontiguousarray(t32), self.threads)
         return index_tri, index_ray, locations
 
     def intersects_location(self, ray_origins: Any, ray_directions: Any, multiple_hits: bool = True,

@@ -1021,6 +1021,66 @@ fn compact(py: Python<'_>, path: PathBuf) -> PyResult<String> {
 /// image, as a `(stop - start, 8)` float32 array: bit for bit `oavm-trace`'s primary rays. The
 /// camera frames the box `[mesh_min, mesh_max]` as `oavm-trace` does, then `eye`, `target`,
 /// `up`, `fov` (degrees, vertical) replace what they name.
+/// trimesh's hit locations: for each hit `h`, `origins[ray[h]] + unit(directions[ray[h]]) *
+/// t[h]` in float64, the unit direction as [`unit_rays`] makes it (`d / |d|`); on the
+/// library's threads. An index past the rays is an error.
+#[pyfunction]
+#[pyo3(signature = (origins, directions, index_ray, t, threads=None))]
+fn hit_locations<'py>(
+    py: Python<'py>,
+    origins: PyReadonlyArray2<'py, f64>,
+    directions: PyReadonlyArray2<'py, f64>,
+    index_ray: numpy::PyReadonlyArray1<'py, i64>,
+    t: numpy::PyReadonlyArray1<'py, f32>,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyAny>> {
+    use rayon::prelude::*;
+    let err = |what: String| PyValueError::new_err(what);
+    let o = origins
+        .as_slice()
+        .map_err(|e| err(format!("origins: {e}")))?;
+    let d = directions
+        .as_slice()
+        .map_err(|e| err(format!("directions: {e}")))?;
+    let rays = index_ray
+        .as_slice()
+        .map_err(|e| err(format!("index_ray: {e}")))?;
+    let t = t.as_slice().map_err(|e| err(format!("t: {e}")))?;
+    let n = (o.len() / 3) as i64;
+    if o.len() != d.len() || rays.len() != t.len() {
+        return Err(err(
+            "origins and directions, index_ray and t: lengths differ".into(),
+        ));
+    }
+    if let Some(bad) = rays.iter().find(|&&i| !(0..n).contains(&i)) {
+        return Err(err(format!("index_ray: {bad} is not one of the {n} rays")));
+    }
+    let out = zeros::<f64>(py, [rays.len(), 3]);
+    {
+        let mut w = out.readwrite();
+        let dst = slice_mut(&mut w)?;
+        let pool = pool(threads.unwrap_or_else(cores).max(1))?;
+        py.detach(|| {
+            pool.install(|| {
+                dst.par_chunks_mut(3 * 4096)
+                    .zip(rays.par_chunks(4096).zip(t.par_chunks(4096)))
+                    .for_each(|(loc, (rays, t))| {
+                        for (p, (&i, &t)) in loc.chunks_exact_mut(3).zip(rays.iter().zip(t)) {
+                            let k = 3 * i as usize;
+                            let (a, v) = (&o[k..k + 3], &d[k..k + 3]);
+                            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                            for c in 0..3 {
+                                let unit = if norm == 0.0 { 0.0 } else { v[c] / norm };
+                                p[c] = a[c] + unit * t as f64;
+                            }
+                        }
+                    })
+            })
+        });
+    }
+    Ok(out.into_any())
+}
+
 /// Open3D's rays as oavm's: `(N, 6)` float32 (origin, direction) with `tnear`, `tfar` as
 /// the `(N, 8)` array of `RAYS.md`, on the library's threads (what `oavm.open3d` would
 /// otherwise copy column by column in numpy).
@@ -1190,6 +1250,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(camera_rays, m)?)?;
     m.add_function(wrap_pyfunction!(unit_rays, m)?)?;
     m.add_function(wrap_pyfunction!(six_rays, m)?)?;
+    m.add_function(wrap_pyfunction!(hit_locations, m)?)?;
     m.add("OavmError", m.py().get_type::<OavmError>())?;
     m.add("FormatError", m.py().get_type::<FormatError>())?;
     m.add("MeshError", m.py().get_type::<MeshError>())?;
