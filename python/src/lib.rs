@@ -1021,9 +1021,52 @@ fn compact(py: Python<'_>, path: PathBuf) -> PyResult<String> {
 /// image, as a `(stop - start, 8)` float32 array: bit for bit `oavm-trace`'s primary rays. The
 /// camera frames the box `[mesh_min, mesh_max]` as `oavm-trace` does, then `eye`, `target`,
 /// `up`, `fov` (degrees, vertical) replace what they name.
+/// An `(rows, width)` array of `T` filled by `fill(first_row, rows)` over chunks of 4096 rows
+/// at a time, on the library's threads with the GIL released: the drop-ins' conversions.
+fn filled<'py, T: numpy::Element + Send>(
+    py: Python<'py>,
+    rows: usize,
+    width: usize,
+    threads: Option<usize>,
+    fill: impl Fn(usize, &mut [T]) + Sync,
+) -> PyResult<Bound<'py, PyAny>> {
+    use rayon::prelude::*;
+    const ROWS: usize = 4096;
+    let out = zeros::<T>(py, [rows, width]);
+    {
+        let mut w = out.readwrite();
+        let dst = slice_mut(&mut w)?;
+        let pool = pool(threads.unwrap_or_else(cores).max(1))?;
+        py.detach(|| {
+            pool.install(|| {
+                dst.par_chunks_mut(width * ROWS)
+                    .enumerate()
+                    .for_each(|(c, chunk)| fill(c * ROWS, chunk))
+            })
+        });
+    }
+    Ok(out.into_any())
+}
+
+/// A direction made unit as trimesh makes it, in float64: `d / |d|`, a zero direction left
+/// zero (so its ray misses).
+fn unit(d: &[f64]) -> [f64; 3] {
+    let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    std::array::from_fn(|k| if norm == 0.0 { 0.0 } else { d[k] / norm })
+}
+
+/// The contents of a contiguous array, or a `ValueError` naming it.
+fn contents<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
+    name: &str,
+    a: &'a numpy::PyReadonlyArray<'_, T, D>,
+) -> PyResult<&'a [T]> {
+    a.as_slice()
+        .map_err(|e| PyValueError::new_err(format!("{name}: {e}")))
+}
+
 /// trimesh's hit locations: for each hit `h`, `origins[ray[h]] + unit(directions[ray[h]]) *
-/// t[h]` in float64, the unit direction as [`unit_rays`] makes it (`d / |d|`); on the
-/// library's threads. An index past the rays is an error.
+/// t[h]` in float64, the unit direction as [`unit_rays`] makes it. An index past the rays is
+/// an error.
 #[pyfunction]
 #[pyo3(signature = (origins, directions, index_ray, t, threads=None))]
 fn hit_locations<'py>(
@@ -1034,56 +1077,34 @@ fn hit_locations<'py>(
     t: numpy::PyReadonlyArray1<'py, f32>,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    use rayon::prelude::*;
-    let err = |what: String| PyValueError::new_err(what);
-    let o = origins
-        .as_slice()
-        .map_err(|e| err(format!("origins: {e}")))?;
-    let d = directions
-        .as_slice()
-        .map_err(|e| err(format!("directions: {e}")))?;
-    let rays = index_ray
-        .as_slice()
-        .map_err(|e| err(format!("index_ray: {e}")))?;
-    let t = t.as_slice().map_err(|e| err(format!("t: {e}")))?;
+    let (o, d) = (
+        contents("origins", &origins)?,
+        contents("directions", &directions)?,
+    );
+    let (rays, t) = (contents("index_ray", &index_ray)?, contents("t", &t)?);
     let n = (o.len() / 3) as i64;
     if o.len() != d.len() || rays.len() != t.len() {
-        return Err(err(
-            "origins and directions, index_ray and t: lengths differ".into(),
-        ));
+        let what = "origins and directions, index_ray and t: lengths differ";
+        return Err(PyValueError::new_err(what));
     }
     if let Some(bad) = rays.iter().find(|&&i| !(0..n).contains(&i)) {
-        return Err(err(format!("index_ray: {bad} is not one of the {n} rays")));
+        let what = format!("index_ray: {bad} is not one of the {n} rays");
+        return Err(PyValueError::new_err(what));
     }
-    let out = zeros::<f64>(py, [rays.len(), 3]);
-    {
-        let mut w = out.readwrite();
-        let dst = slice_mut(&mut w)?;
-        let pool = pool(threads.unwrap_or_else(cores).max(1))?;
-        py.detach(|| {
-            pool.install(|| {
-                dst.par_chunks_mut(3 * 4096)
-                    .zip(rays.par_chunks(4096).zip(t.par_chunks(4096)))
-                    .for_each(|(loc, (rays, t))| {
-                        for (p, (&i, &t)) in loc.chunks_exact_mut(3).zip(rays.iter().zip(t)) {
-                            let k = 3 * i as usize;
-                            let (a, v) = (&o[k..k + 3], &d[k..k + 3]);
-                            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                            for c in 0..3 {
-                                let unit = if norm == 0.0 { 0.0 } else { v[c] / norm };
-                                p[c] = a[c] + unit * t as f64;
-                            }
-                        }
-                    })
-            })
-        });
-    }
-    Ok(out.into_any())
+    filled(py, rays.len(), 3, threads, |first, loc| {
+        for (h, p) in loc.chunks_exact_mut(3).enumerate() {
+            let (k, t) = (3 * rays[first + h] as usize, t[first + h] as f64);
+            let u = unit(&d[k..k + 3]);
+            for c in 0..3 {
+                p[c] = o[k + c] + u[c] * t;
+            }
+        }
+    })
 }
 
 /// Open3D's rays as oavm's: `(N, 6)` float32 (origin, direction) with `tnear`, `tfar` as
-/// the `(N, 8)` array of `RAYS.md`, on the library's threads (what `oavm.open3d` would
-/// otherwise copy column by column in numpy).
+/// the `(N, 8)` array of `RAYS.md` (what `oavm.open3d` would otherwise copy column by column
+/// in numpy).
 #[pyfunction]
 #[pyo3(signature = (rays, tnear, tfar, threads=None))]
 fn six_rays<'py>(
@@ -1093,7 +1114,6 @@ fn six_rays<'py>(
     tfar: f32,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    use rayon::prelude::*;
     if rays.shape()[1] != 6 {
         return Err(PyValueError::new_err(format!(
             "rays: expected shape (N, 6), got ({}, {})",
@@ -1101,33 +1121,18 @@ fn six_rays<'py>(
             rays.shape()[1]
         )));
     }
-    let six = rays
-        .as_slice()
-        .map_err(|e| PyValueError::new_err(format!("rays: {e}")))?;
-    let out = zeros::<f32>(py, [six.len() / 6, 8]);
-    {
-        let mut w = out.readwrite();
-        let dst = slice_mut(&mut w)?;
-        let pool = pool(threads.unwrap_or_else(cores).max(1))?;
-        py.detach(|| {
-            pool.install(|| {
-                dst.par_chunks_mut(8 * 4096)
-                    .zip(six.par_chunks(6 * 4096))
-                    .for_each(|(d, s)| {
-                        for (r, c) in d.chunks_exact_mut(8).zip(s.chunks_exact(6)) {
-                            r.copy_from_slice(&[c[0], c[1], c[2], tnear, c[3], c[4], c[5], tfar]);
-                        }
-                    })
-            })
-        });
-    }
-    Ok(out.into_any())
+    let six = contents("rays", &rays)?;
+    filled(py, six.len() / 6, 8, threads, |first, out| {
+        for (i, r) in out.chunks_exact_mut(8).enumerate() {
+            let c = &six[6 * (first + i)..6 * (first + i) + 6];
+            r.copy_from_slice(&[c[0], c[1], c[2], tnear, c[3], c[4], c[5], tfar]);
+        }
+    })
 }
 
 /// trimesh's rays as oavm's: float64 `(N, 3)` origins moved by `-shift` and directions made
-/// unit in float64 (`d / |d|`, a zero direction left zero, so it misses), as the `(N, 8)`
-/// float32 array of `RAYS.md` (tmin 0, tmax inf); on the library's threads. What
-/// `oavm.trimesh` would otherwise do in numpy, at a fifth of the time of its hits.
+/// unit in float64 ([`unit`]), as the `(N, 8)` float32 array of `RAYS.md` (tmin 0, tmax
+/// inf). What `oavm.trimesh` would otherwise do in numpy, at a fifth of the time of its hits.
 #[pyfunction]
 #[pyo3(signature = (origins, directions, shift, threads=None))]
 fn unit_rays<'py>(
@@ -1137,7 +1142,6 @@ fn unit_rays<'py>(
     shift: [f64; 3],
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    use rayon::prelude::*;
     if origins.shape()[1] != 3 || origins.shape() != directions.shape() {
         return Err(PyValueError::new_err(format!(
             "ray_origins and ray_directions: expected two (n, 3) arrays, got {:?} and {:?}",
@@ -1145,47 +1149,26 @@ fn unit_rays<'py>(
             directions.shape()
         )));
     }
-    let o = origins
-        .as_slice()
-        .map_err(|e| PyValueError::new_err(format!("ray_origins: {e}")))?;
-    let d = directions
-        .as_slice()
-        .map_err(|e| PyValueError::new_err(format!("ray_directions: {e}")))?;
-    let n = o.len() / 3;
-    let out = zeros::<f32>(py, [n, 8]);
-    {
-        let mut w = out.readwrite();
-        let dst = slice_mut(&mut w)?;
-        let pool = pool(threads.unwrap_or_else(cores).max(1))?;
-        py.detach(|| {
-            pool.install(|| {
-                dst.par_chunks_mut(8 * 4096)
-                    .enumerate()
-                    .for_each(|(c, chunk)| {
-                        for (k, r) in chunk.chunks_exact_mut(8).enumerate() {
-                            let i = 3 * (c * 4096 + k);
-                            let (p, v) = (&o[i..i + 3], &d[i..i + 3]);
-                            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                            let unit = |x: f64| match norm {
-                                0.0 => 0.0,
-                                _ => (x / norm) as f32,
-                            };
-                            r.copy_from_slice(&[
-                                (p[0] - shift[0]) as f32,
-                                (p[1] - shift[1]) as f32,
-                                (p[2] - shift[2]) as f32,
-                                0.0,
-                                unit(v[0]),
-                                unit(v[1]),
-                                unit(v[2]),
-                                f32::INFINITY,
-                            ]);
-                        }
-                    })
-            })
-        });
-    }
-    Ok(out.into_any())
+    let (o, d) = (
+        contents("ray_origins", &origins)?,
+        contents("ray_directions", &directions)?,
+    );
+    filled(py, o.len() / 3, 8, threads, |first, out| {
+        for (i, r) in out.chunks_exact_mut(8).enumerate() {
+            let k = 3 * (first + i);
+            let u = unit(&d[k..k + 3]);
+            r.copy_from_slice(&[
+                (o[k] - shift[0]) as f32,
+                (o[k + 1] - shift[1]) as f32,
+                (o[k + 2] - shift[2]) as f32,
+                0.0,
+                u[0] as f32,
+                u[1] as f32,
+                u[2] as f32,
+                f32::INFINITY,
+            ]);
+        }
+    })
 }
 
 #[pyfunction]

@@ -180,3 +180,32 @@ def test_proximity_follows_trimesh_s_conventions(bunny, tmp_path):
     assert ((sd > 0) == (r < 1))[clear].all() and (sd > 0).sum() > 200
     for k in range(0, 2000, 50):
         assert abs(abs(sd[k]) - brute_distance(sphere.triangles, q[k])) <= 1e-6
+
+
+def test_rays_and_locations_are_numpy_s_bit_for_bit(bunny, tmp_path):
+    # The intersector makes its rays and hit locations natively; they must be the float64
+    # arithmetic trimesh does in numpy (d / |d|, a zero direction left zero; o + unit * t),
+    # bit for bit, scaled directions and a zero one included.
+    ours = RayMeshIntersector(bunny, cache_dir=tmp_path)
+    o, d = _rays(bunny, 5000, 7)
+    d = d * np.linspace(0.1, 30.0, len(d))[:, None]
+    d[3] = 0.0
+    norm = np.linalg.norm(d, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = d / norm[:, None]
+    unit[norm == 0] = 0.0
+    ours.scene  # opened first: it sets the shift
+    shift = ours._shift
+    assert np.array_equal(ours._ray_array(o, d), oavm.rays(o - shift, unit))
+    tri, ray, loc = ours.intersects_id(o, d, multiple_hits=True, return_locations=True)
+    lists = ours.scene.list_intersections(oavm.rays(o - shift, unit))
+    assert len(ray) > 1000 and (ray == lists["ray_ids"]).all()
+    t = lists["t_hit"].astype(np.float64)
+    assert np.array_equal(loc, o[ray] + unit[ray] * t[:, None])
+    # Open3D's (N, 6) rays become RAYS.md's, tnear and tfar in place.
+    r6 = np.concatenate([o, d], axis=1).astype(np.float32)
+    want = np.empty((len(r6), 8), np.float32)
+    want[:, 0:3], want[:, 3], want[:, 4:7], want[:, 7] = r6[:, 0:3], 0.5, r6[:, 3:6], 9.0
+    assert np.array_equal(oavm._native.six_rays(r6, 0.5, 9.0, None), want)
+    with pytest.raises(ValueError, match="not one of"):
+        oavm._native.hit_locations(o, d, np.array([len(o)], np.int64), np.ones(1, np.float32), None)
