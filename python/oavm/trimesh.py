@@ -150,11 +150,10 @@ class RayMeshIntersector:
             return out
         odd = lambda d: self._crossings(q, d) % 2 == 1  # noqa: E731
         forward, backward = odd(_CONTAINS_DIRECTION), odd(-_CONTAINS_DIRECTION)
-        result = forward.copy()
+        result = forward
         split = forward != backward
-        if split.any():
-            third = odd(_SECOND_DIRECTION)
-            result[split] = third[split]
+        if split.any():  # only the points whose two rays disagree take the third
+            result[split] = self._crossings(q[split], _SECOND_DIRECTION) % 2 == 1
         out[inside_box] = result
         return out
 
