@@ -724,10 +724,10 @@ def pack(
     if isinstance(mesh, (str, bytes, os.PathLike)):
         report = _native.pack_file(os.fsdecode(mesh), out, mem_budget=_bytes("mem_budget", mem_budget), **opts)
         return json.loads(report)
+    if mem_budget is not None:
+        raise ValueError("mem_budget streams one binary PLY file; meshes given as objects, arrays or "
+                         "lists are packed in memory")
     parts = _parts(mesh)
-    if parts is not None or not isinstance(mesh, (str, bytes, os.PathLike)):
-        if mem_budget is not None:
-            raise ValueError("mem_budget streams a binary PLY file; a mesh given as arrays is packed in memory")
     if parts is not None:
         v32, f32, geoms = _joined(parts)
         return json.loads(_native.pack_arrays(v32, f32, out, geometries=geoms, **opts))
@@ -736,7 +736,8 @@ def pack(
         v32, f32 = _mesh_arrays(mesh)
         return json.loads(_native.pack_arrays(v32, f32, out, **opts))
     raise ValueError(
-        f"mesh: expected a path or a (vertices, faces) pair of arrays, got {type(mesh).__name__}"
+        f"mesh: expected a path, a mesh object, a (vertices, faces) pair of arrays, or a list, dict or "
+        f"trimesh.Scene of them, got {type(mesh).__name__}"
     )
 
 

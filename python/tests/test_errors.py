@@ -133,7 +133,7 @@ def test_bad_meshes(tmp_path):
         oavm.pack((v, [[0, 1, 2, 0]]), tmp_path / "out.oavm")
     with pytest.raises(ValueError, match="faces: the indices are not whole numbers"):
         oavm.pack((v, [[0, 1, 1.5]]), tmp_path / "out.oavm")
-    with pytest.raises(ValueError, match="mesh: expected a path or a"):
+    with pytest.raises(ValueError, match="mesh: expected a path, a mesh object"):
         oavm.pack(42, tmp_path / "out.oavm")
     assert not (tmp_path / "out.oavm").exists()
 
