@@ -643,7 +643,8 @@ def update(
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         v32, f32 = _mesh_arrays(mesh)
         return json.loads(_native.update_arrays(p, v32, f32, **opts))
-    raise ValueError(f"mesh: expected a path or a (vertices, faces) pair of arrays, got {type(mesh).__name__}")
+    raise ValueError(f"mesh: expected a path, a mesh object, a (vertices, faces) pair of arrays, or a list, "
+                     f"dict or trimesh.Scene of them, got {type(mesh).__name__}")
 
 
 def load_mesh(path: PathLike, *, time: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
