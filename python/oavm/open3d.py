@@ -162,7 +162,7 @@ class RaycastingScene:
         the triangle's winding)."""
         r6, lead = _rays(rays)
         t, geom, prim, uv, normal = self._opened()._scene().cast_rays(
-            np.ascontiguousarray(r6), threads=_threads(nthreads) or self._threads)
+            self._ray_array(r6), threads=_threads(nthreads) or self._threads)
         return {
             "t_hit": _answer(t.reshape(lead)),
             "geometry_ids": _answer(geom.reshape(lead)),

@@ -369,34 +369,20 @@ impl NativeScene {
         ])
     }
 
-    /// Open3D's `cast_rays` in one pass: rays `(N, 6)` (origin, direction) with `tnear`,
-    /// `tfar`; returns `t_hit`, `geometry_ids` and `primitive_ids` (the index within the
-    /// geometry, from the file's geometry table), `primitive_uvs` `(N, 2)` and
-    /// `primitive_normals` `(N, 3)`, misses as Open3D gives them (`inf`, `u32::MAX` ids, zero
-    /// uvs and normals). What `oavm.open3d` would otherwise assemble in numpy.
-    #[pyo3(signature = (rays, tnear=0.0, tfar=f32::INFINITY, threads=None))]
+    /// Open3D's `cast_rays` in one pass over `(N, 8)` rays (`RAYS.md`; `oavm.open3d` makes
+    /// them from Open3D's with `six_rays`): returns `t_hit`, `geometry_ids` and
+    /// `primitive_ids` (the index within the geometry, from the file's geometry table),
+    /// `primitive_uvs` `(N, 2)` and `primitive_normals` `(N, 3)`, misses as Open3D gives them
+    /// (`inf`, `u32::MAX` ids, zero uvs and normals). What `oavm.open3d` would otherwise
+    /// assemble in numpy.
+    #[pyo3(signature = (rays, threads=None))]
     fn cast_rays<'py>(
         &self,
         py: Python<'py>,
         rays: PyReadonlyArray2<'py, f32>,
-        tnear: f32,
-        tfar: f32,
         threads: Option<usize>,
     ) -> PyResult<Vec<Bound<'py, PyAny>>> {
-        if rays.shape()[1] != 6 {
-            return Err(PyValueError::new_err(format!(
-                "rays: expected shape (N, 6), got ({}, {})",
-                rays.shape()[0],
-                rays.shape()[1]
-            )));
-        }
-        let six = rays
-            .as_slice()
-            .map_err(|e| PyValueError::new_err(format!("rays: {e}")))?;
-        let rays: Vec<Ray> = six
-            .chunks_exact(6)
-            .map(|c| Ray::new([c[0], c[1], c[2]], [c[3], c[4], c[5]], tnear, tfar))
-            .collect();
+        let rays = rays_of(&rays)?;
         let n = rays.len();
         let t = zeros::<f32>(py, [n, 1]);
         let (geom, prim) = (zeros::<u32>(py, [n, 1]), zeros::<u32>(py, [n, 1]));
