@@ -17,7 +17,10 @@ triangles for everyone):
   trimesh's own numpy intersector (``ray_triangle``, float64) on ``--trimesh-rays`` of them
   (it takes seconds a thousand rays). Every disagreement is listed with its explanation: the
   ray's smallest barycentric margin (f64) on the triangles involved, 0 for a ray through an
-  edge; a ray whose margin is above 1e-6 is an unexplained disagreement.
+  edge; a ray whose margin is above 1e-6 is an unexplained disagreement. Closest points and
+  distances against Open3D's on ``--points / 4`` points in the box, and the sign of the
+  signed distance on those and on as many points near the surface (1e-5 to 1e-2 of the
+  diagonal off it), each disagreement explained by twelve rays traced in f64 by brute force.
 * Speed: each call timed ``--reps`` times (median, min-max) on the same inputs, after one
   untimed call each (Open3D and embreex build their BVH then; oavm opens its file, packed
   before), ours against theirs: ``intersects_first``, ``intersects_location`` (multiple hits)
@@ -150,23 +153,97 @@ def agree_open3d(v, f, o, d, ours, theirs, diag) -> Dict[str, Any]:
     return out
 
 
-def agree_distance(v, f, pts, ours, theirs, diag) -> Dict[str, Any]:
-    """Closest points, distances and signs against Open3D's on the same points: distances
-    within 1e-6 of the diagonal; the sign on points farther than 1e-3 of the diagonal from the
-    surface (Open3D's one ray may miscount through an edge, ours counts exactly but votes three
-    rays on a mesh with holes: each disagreement is listed)."""
+# oavm's vote (src/logical/nearest.rs, VOTE_DIRECTIONS): its sign is the parity of most of
+# these three rays' crossings, counted exactly.
+VOTE_DIRECTIONS = np.array([[0.43950645, 0.6175986, 0.6522316], [-0.57735026, 0.6123724, -0.5400611],
+                            [0.28005602, -0.84016805, -0.46409514]])
+
+
+def odd_crossings(v: np.ndarray, f: np.ndarray, p: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Whether the ray from each point along each direction crosses the mesh an odd number of
+    times, ``(len(p), len(dirs))``: float64 Moller-Trumbore against every triangle (brute force,
+    no code shared with either side). Crossings counted, as both sides' signs count them (not a
+    winding number: the scenes' triangles are not consistently oriented)."""
+    a, b, c = (v[f[:, k]].astype(np.float64) for k in range(3))
+    e1, e2 = b - a, c - a
+    odd = np.zeros((len(p), len(dirs)), dtype=bool)
+    for i, q in enumerate(p.astype(np.float64)):
+        s = q - a
+        qv = np.cross(s, e1)
+        t_num = np.einsum("ij,ij->i", e2, qv)
+        for j, d in enumerate(dirs):
+            h = np.cross(d, e2)
+            det = np.einsum("ij,ij->i", e1, h)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                inv = 1.0 / det
+                u = np.einsum("ij,ij->i", s, h) * inv
+                w = (qv @ d) * inv
+                n = np.count_nonzero((det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t_num * inv > 0))
+            odd[i, j] = n & 1
+    return odd
+
+
+def near_points(v: np.ndarray, f: np.ndarray, n: int, diag: float, seed: int) -> np.ndarray:
+    """Points near the surface: a uniform point of a random triangle (by area) moved along the
+    triangle's normal by a distance from 1e-5 to 1e-2 of the diagonal (log-uniform), either way."""
+    rng = np.random.default_rng(seed)
+    a, b, c = (v[f[:, k]].astype(np.float64) for k in range(3))
+    nrm = np.cross(b - a, c - a)
+    area = np.linalg.norm(nrm, axis=1)
+    ok = area > 0
+    t = rng.choice(np.flatnonzero(ok), size=n, p=area[ok] / area[ok].sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    on = (1 - s)[:, None] * a[t] + (s * (1 - r2))[:, None] * b[t] + (s * r2)[:, None] * c[t]
+    off = diag * 10.0 ** rng.uniform(-5, -2, n) * rng.choice([-1.0, 1.0], n)
+    return (on + (nrm[t] / area[t, None]) * off[:, None]).astype(np.float32)
+
+
+def sign_agreement(v, f, pts, sa, sb, dist, diag, explain: int = 200) -> Dict[str, Any]:
+    """Where the two signs differ, each disagreement explained by rays traced in float64
+    (``odd_crossings``; up to ``explain`` of them, evenly spaced, when there are more): nine
+    random directions and oavm's three. A point within 1e-6 of the diagonal of the surface (f32
+    rounding of the coordinates decides); a point whose twelve rays do not all agree (it sees
+    through a hole: inside is not defined there, and neither sign is wrong); else the side the
+    twelve take. Also counted: whether oavm's answer is the vote of its three rays traced in f64
+    (its crossings are exact, so it should always be)."""
+    differ = np.flatnonzero((sa < 0) != (sb < 0))
+    out: Dict[str, Any] = {"points": len(pts), "inside_oavm": int((sa < 0).sum()),
+                           "inside_open3d": int((sb < 0).sum()), "differ": len(differ)}
+    pick = differ[np.linspace(0, len(differ) - 1, min(explain, len(differ))).astype(np.int64)] if len(differ) else differ
+    on_surface = np.abs(dist[pick]) <= 1e-6 * diag
+    rest = pick[~on_surface]
+    rng = np.random.default_rng(4)
+    dirs = rng.normal(size=(9, 3))
+    dirs = np.concatenate([dirs / np.linalg.norm(dirs, axis=1)[:, None], VOTE_DIRECTIONS])
+    odd = odd_crossings(v, f, pts[rest], dirs)
+    unanimous = odd.all(axis=1) | (~odd).all(axis=1)
+    inside_ref = odd.all(axis=1)
+    vote = odd[:, 9:].sum(axis=1) >= 2
+    with_oavm = unanimous & (inside_ref == (sa[rest] < 0))
+    with_o3d = unanimous & (inside_ref == (sb[rest] < 0))
+    out.update(explained=len(pick), on_surface=int(on_surface.sum()), sees_a_hole=int((~unanimous).sum()),
+               rays_side_with_oavm=int(with_oavm.sum()), rays_side_with_open3d=int(with_o3d.sum()),
+               oavm_is_its_vote_in_f64=int((vote == (sa[rest] < 0)).sum()),
+               open3d_right_examples=pts[rest[with_o3d][:5]].tolist())
+    return out
+
+
+def agree_distance(v, f, pts, near, ours, theirs, diag, explain: int) -> Dict[str, Any]:
+    """Closest points and distances against Open3D's on the same points (within 1e-6 of the
+    diagonal), and the sign on the same points (uniform in the box: most far from the surface)
+    and on points near it: every disagreement explained by twelve f64 rays (``sign_agreement``). Open3D's sign is one ray's parity; oavm's is exact crossings voted over
+    three rays (docs/python.md)."""
     a, b = ours.compute_closest_points(pts), theirs.compute_closest_points(pts)
     da = np.linalg.norm(a["points"].numpy() - pts, axis=1)
     db = np.linalg.norm(b["points"].numpy() - pts, axis=1)
-    sa, sb = ours.compute_signed_distance(pts).numpy(), theirs.compute_signed_distance(pts).numpy()
-    far = np.abs(db) > 1e-3 * diag
-    sign_differs = np.flatnonzero(far & ((sa < 0) != (sb < 0)))
-    return {"points": len(pts), "distance_differs": int((np.abs(da - db) > 1e-6 * diag).sum()),
-            "max_distance_difference_over_diagonal": float(np.max(np.abs(da - db)) / diag),
-            "other_triangle_at_same_distance": int((a["primitive_ids"].numpy() != b["primitive_ids"].numpy()).sum()),
-            "inside_oavm": int((sa < 0).sum()), "inside_open3d": int((sb < 0).sum()),
-            "sign_differs_away_from_surface": len(sign_differs),
-            "sign_differs_examples": pts[sign_differs[:5]].tolist()}
+    out: Dict[str, Any] = {"points": len(pts), "distance_differs": int((np.abs(da - db) > 1e-6 * diag).sum()),
+                           "max_distance_difference_over_diagonal": float(np.max(np.abs(da - db)) / diag),
+                           "other_triangle_at_same_distance": int((a["primitive_ids"].numpy() != b["primitive_ids"].numpy()).sum())}
+    for name, p in (("sign_in_the_box", pts), ("sign_near_the_surface", near)):
+        sa, sb = ours.compute_signed_distance(p).numpy(), theirs.compute_signed_distance(p).numpy()
+        out[name] = sign_agreement(v, f, p, sa, sb, np.abs(sb), diag, explain)
+    return out
 
 
 def agree_trimesh(mesh_t, o, d, ours) -> Dict[str, Any]:
@@ -189,6 +266,8 @@ def main() -> int:
     ap.add_argument("--points", type=int, default=200_000, help="points for contains_points")
     ap.add_argument("--trimesh-rays", type=int, default=1000)
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--explain", type=int, default=200,
+                    help="sign disagreements explained by f64 rays, per point set (evenly spaced)")
     ap.add_argument("--cache-dir", type=Path, default=ROOT / "target" / "py-dropin-cache")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
@@ -228,7 +307,8 @@ def main() -> int:
         print(f"\n{name}: {len(f)} triangles, {len(o)} rays; first use (pack or open) {first_use:.2f} s")
         rep["agree_open3d"] = agree_open3d(v, f, o, d, ours_o3d, theirs_o3d, diag)
         print("  against Open3D:", json.dumps(rep["agree_open3d"]))
-        rep["agree_distance"] = agree_distance(v, f, p32[: args.points // 4], ours_o3d, theirs_o3d, diag)
+        near = near_points(v, f, args.points // 4, diag, 3)
+        rep["agree_distance"] = agree_distance(v, f, p32[: args.points // 4], near, ours_o3d, theirs_o3d, diag, args.explain)
         print("  distances against Open3D:", json.dumps(rep["agree_distance"]))
         k = args.trimesh_rays
         rep["agree_trimesh"] = agree_trimesh(mesh_t, o[:k], d[:k], ours_tm)
