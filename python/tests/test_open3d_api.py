@@ -1,5 +1,5 @@
 """oavm.open3d.RaycastingScene: Open3D's calls, shapes, dtypes and miss values; several
-geometries; the two pinhole forms. (Against Open3D itself: tools/o3d_compare.py, which needs the
+geometries; the two pinhole forms. (Against Open3D itself: tools/py_dropin.py, which needs the
 400 MB Open3D wheel the tests do not install.)"""
 
 from __future__ import annotations
