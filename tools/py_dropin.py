@@ -232,8 +232,9 @@ def sign_agreement(v, f, pts, sa, sb, dist, diag, explain: int = 200) -> Dict[st
 def agree_distance(v, f, pts, near, ours, theirs, diag, explain: int) -> Dict[str, Any]:
     """Closest points and distances against Open3D's on the same points (within 1e-6 of the
     diagonal), and the sign on the same points (uniform in the box: most far from the surface)
-    and on points near it: every disagreement explained by twelve f64 rays (``sign_agreement``). Open3D's sign is one ray's parity; oavm's is exact crossings voted over
-    three rays (docs/python.md)."""
+    and on points near it, every disagreement explained by twelve f64 rays
+    (``sign_agreement``). Open3D's sign is one ray's parity; oavm's is exact crossings voted
+    over three rays (src/logical/nearest.rs)."""
     a, b = ours.compute_closest_points(pts), theirs.compute_closest_points(pts)
     da = np.linalg.norm(a["points"].numpy() - pts, axis=1)
     db = np.linalg.norm(b["points"].numpy() - pts, axis=1)
