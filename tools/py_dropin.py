@@ -153,12 +153,6 @@ def agree_open3d(v, f, o, d, ours, theirs, diag) -> Dict[str, Any]:
     return out
 
 
-# oavm's vote (src/logical/nearest.rs, VOTE_DIRECTIONS): its sign is the parity of most of
-# these three rays' crossings, counted exactly.
-VOTE_DIRECTIONS = np.array([[0.43950645, 0.6175986, 0.6522316], [-0.57735026, 0.6123724, -0.5400611],
-                            [0.28005602, -0.84016805, -0.46409514]])
-
-
 def odd_crossings(v: np.ndarray, f: np.ndarray, p: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Whether the ray from each point along each direction crosses the mesh an odd number of
     times, ``(len(p), len(dirs))``: float64 Moller-Trumbore against every triangle (brute force,
@@ -215,7 +209,10 @@ def sign_agreement(v, f, pts, sa, sb, dist, diag, explain: int = 200) -> Dict[st
     rest = pick[~on_surface]
     rng = np.random.default_rng(4)
     dirs = rng.normal(size=(9, 3))
-    dirs = np.concatenate([dirs / np.linalg.norm(dirs, axis=1)[:, None], VOTE_DIRECTIONS])
+    # oavm's sign is the parity of most of its three rays' crossings, counted exactly.
+    import oavm
+    vote_dirs = np.asarray(oavm.VOTE_DIRECTIONS, dtype=np.float64)
+    dirs = np.concatenate([dirs / np.linalg.norm(dirs, axis=1)[:, None], vote_dirs])
     odd = odd_crossings(v, f, pts[rest], dirs)
     unanimous = odd.all(axis=1) | (~odd).all(axis=1)
     inside_ref = odd.all(axis=1)
@@ -234,7 +231,7 @@ def agree_distance(v, f, pts, near, ours, theirs, diag, explain: int) -> Dict[st
     diagonal), and the sign on the same points (uniform in the box: most far from the surface)
     and on points near it, every disagreement explained by twelve f64 rays
     (``sign_agreement``). Open3D's sign is one ray's parity; oavm's is exact crossings voted
-    over three rays (src/logical/nearest.rs)."""
+    over three rays (``oavm.VOTE_DIRECTIONS``)."""
     a, b = ours.compute_closest_points(pts), theirs.compute_closest_points(pts)
     da = np.linalg.norm(a["points"].numpy() - pts, axis=1)
     db = np.linalg.norm(b["points"].numpy() - pts, axis=1)

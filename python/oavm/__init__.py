@@ -37,6 +37,7 @@ from ._native import FORMAT_VERSION, FormatError, MeshError, OavmError
 __all__ = [
     "FORMAT_VERSION",
     "MISS",
+    "VOTE_DIRECTIONS",
     "ClosestPoints",
     "FormatError",
     "Geometry",
@@ -55,6 +56,12 @@ __all__ = [
 
 #: The primitive id of a miss.
 MISS = 0xFFFFFFFF
+
+#: The three directions (float32, ``(3, 3)``, each of length about 1) along which
+#: :meth:`Scene.occupancy` counts crossings: a point is inside when most of the three counts
+#: are odd.
+VOTE_DIRECTIONS = np.array(_native.VOTE_DIRECTIONS, dtype=np.float32)
+VOTE_DIRECTIONS.setflags(write=False)
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -505,9 +512,10 @@ class Scene:
         return ClosestPoints(*out)
 
     def occupancy(self, points: Any, *, threads: Optional[int] = None) -> np.ndarray:
-        """Whether each point is inside the surface (bool): most of three rays from it cross
-        the surface an odd number of times, each crossing counted once however the rays pass
-        edges and corners: exact on closed meshes, a vote on meshes with holes."""
+        """Whether each point is inside the surface (bool): most of three rays from it (along
+        :data:`VOTE_DIRECTIONS`) cross the surface an odd number of times, each crossing counted
+        once however the rays pass edges and corners: exact on closed meshes, a vote on meshes
+        with holes."""
         pts = _points(points)
         return self._scene().occupancy(pts, _count("threads", threads, 1, 1024)).view(np.bool_)
 

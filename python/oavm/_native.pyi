@@ -6,6 +6,7 @@ from typing import List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 FORMAT_VERSION: int
+VOTE_DIRECTIONS: list[list[float]]
 
 class OavmError(Exception): ...
 class FormatError(OavmError): ...

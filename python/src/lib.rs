@@ -1224,5 +1224,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("FormatError", m.py().get_type::<FormatError>())?;
     m.add("MeshError", m.py().get_type::<MeshError>())?;
     m.add("FORMAT_VERSION", VERSION)?;
+    m.add("VOTE_DIRECTIONS", oavm::logical::VOTE_DIRECTIONS.to_vec())?;
     Ok(())
 }

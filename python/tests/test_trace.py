@@ -320,3 +320,39 @@ def test_ropes_from_python_give_every_walks_answers(packed, oavm_trace, tmp_path
         oavm.open(packed["bunny"], walk="ropes")
     with pytest.raises(ValueError, match="walk"):
         oavm.open(packed["bunny"], walk="sideways")
+
+
+def _crossings(v: np.ndarray, f: np.ndarray, p: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Triangles the ray from each point along `d` crosses (t > 0): float64 Moller-Trumbore."""
+    a, b, c = (v[f[:, k]] for k in range(3))
+    e1, e2 = b - a, c - a
+    h = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, h)
+    s = p[:, None, :] - a[None]
+    u = np.einsum("ptj,tj->pt", s, h) / det
+    q = np.cross(s, e1[None])
+    w = (q @ d) / det
+    t = np.einsum("ptj,tj->pt", q, e2) / det
+    return ((u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0)).sum(axis=1)
+
+
+def test_occupancy_is_the_vote_of_the_exported_directions(tmp_path):
+    # A cube with its +y and +z faces open: a point near them sees out along some directions and
+    # not others, so the vote depends on which three rays it takes.
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)
+    quads = {"-x": (0, 1, 3, 2), "+x": (4, 6, 7, 5), "-y": (0, 4, 5, 1), "-z": (0, 2, 6, 4)}
+    f = np.array([t for a, b, c, d in quads.values() for t in ((a, b, c), (a, c, d))], dtype=np.uint32)
+    path = tmp_path / "open_box.oavm"
+    oavm.pack((corners.astype(np.float32), f), path, progress=False)
+    d = oavm.VOTE_DIRECTIONS
+    assert d.shape == (3, 3) and d.dtype == np.float32 and not d.flags.writeable
+    assert np.allclose(np.linalg.norm(d, axis=1), 1, atol=1e-3)
+    pts = np.random.default_rng(7).uniform(0.05, 0.95, size=(400, 3))
+    vote = lambda dirs: sum(_crossings(corners, f.astype(np.int64), pts, x) % 2 for x in dirs) >= 2  # noqa: E731
+    want = vote(d.astype(np.float64))
+    # The check can fail: both answers occur, and other directions vote otherwise somewhere.
+    assert want.any() and not want.all()
+    assert (vote(-d.astype(np.float64)) != want).any()
+    with oavm.open(path) as scene:
+        got = scene.occupancy(pts.astype(np.float32))
+    assert np.array_equal(got, want), f"{(got != want).sum()} of {len(pts)} points differ"
