@@ -347,12 +347,14 @@ def test_occupancy_is_the_vote_of_the_exported_directions(tmp_path):
     d = oavm.VOTE_DIRECTIONS
     assert d.shape == (3, 3) and d.dtype == np.float32 and not d.flags.writeable
     assert np.allclose(np.linalg.norm(d, axis=1), 1, atol=1e-3)
-    pts = np.random.default_rng(7).uniform(0.05, 0.95, size=(400, 3))
-    vote = lambda dirs: sum(_crossings(corners, f.astype(np.int64), pts, x) % 2 for x in dirs) >= 2  # noqa: E731
+    # The same float32 points for the scene and (widened exactly) for the reference.
+    pts = np.random.default_rng(7).uniform(0.05, 0.95, size=(400, 3)).astype(np.float32)
+    p64 = pts.astype(np.float64)
+    vote = lambda dirs: sum(_crossings(corners, f.astype(np.int64), p64, x) % 2 for x in dirs) >= 2  # noqa: E731
     want = vote(d.astype(np.float64))
     # The check can fail: both answers occur, and other directions vote otherwise somewhere.
     assert want.any() and not want.all()
     assert (vote(-d.astype(np.float64)) != want).any()
     with oavm.open(path) as scene:
-        got = scene.occupancy(pts.astype(np.float32))
+        got = scene.occupancy(pts)
     assert np.array_equal(got, want), f"{(got != want).sum()} of {len(pts)} points differ"
